@@ -1,0 +1,22 @@
+"""mjtrial: research-mode MuJoCo experiments, designed before they run and stamped after."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__version__ = "0.1.0"
+
+# The models ship inside the repository (not the wheel): an editable install finds them here.
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+
+
+def model_path(name: str) -> Path:
+    """Path of a model's scene file by name, floor and light included.
+
+    ``model_path("gantry_gripper")`` is the file to pass to ``mujoco.MjModel.from_xml_path``.
+    """
+    path = MODELS_DIR / name / "scene.xml"
+    if not path.is_file():
+        known = sorted(p.name for p in MODELS_DIR.iterdir() if (p / "scene.xml").is_file())
+        raise FileNotFoundError(f"model {name!r}: no {path}; known models: {known}")
+    return path

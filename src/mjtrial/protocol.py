@@ -1,0 +1,101 @@
+"""The episode protocol: one place for every timing, target and threshold of a lift.
+
+The protocol is open loop, so an episode's whole control sequence is known before it starts;
+`control_sequence` builds it, and both the reference stepper and the rollout engine follow it.
+Times are simulated seconds; "hold t" means stepping with ctrl unchanged for round(t / timestep)
+steps.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+# Actuator order in the model: ctrl = [x, y, z, gripper opening].
+CTRL_X, CTRL_Y, CTRL_Z, CTRL_GRIPPER = range(4)
+N_CTRL = 4
+
+
+class Phase(enum.IntEnum):
+    """Protocol phases, in order; each control step belongs to exactly one."""
+
+    SETTLE = 0
+    DESCEND = 1
+    PRE_CLOSE = 2
+    CLOSE = 3
+    LIFT = 4
+    HOLD = 5
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """Timings and targets of the grasp-and-lift episode (DESIGN.md, "Episode protocol")."""
+
+    home_x: float = 0.12
+    cube_z: float = 0.02
+    gripper_open: float = 0.04
+    gripper_closed: float = 0.0
+    z_down: float = -0.33
+    z_up: float = 0.0
+    settle_time: float = 0.3
+    descend_segments: int = 100
+    segment_time: float = 0.01
+    pre_close_time: float = 0.3
+    close_time: float = 0.6
+    hold_time: float = 0.5
+    success_height: float = 0.2
+
+    def lift_segments(self, lift_time: float) -> int:
+        """Number of lift set-points: one per 10 ms, at least one."""
+        return max(1, round(lift_time / self.segment_time))
+
+
+PROTOCOL = Protocol()
+
+
+def hold_steps(duration: float, timestep: float) -> int:
+    """Steps that make up a hold of `duration` seconds."""
+    return round(duration / timestep)
+
+
+def control_sequence(
+    lift_time: float, *, timestep: float, protocol: Protocol = PROTOCOL
+) -> tuple[np.ndarray, np.ndarray]:
+    """Open-loop controls of one episode, one row per physics step.
+
+    Args:
+      lift_time: duration of the lift, seconds (> 0).
+      timestep: the model's timestep, seconds.
+      protocol: timings and targets.
+
+    Returns:
+      ctrl: (n_steps, 4) float64, the ctrl applied before each step.
+      phase: (n_steps,) int8, the `Phase` of each step.
+    """
+    if not lift_time > 0:
+        raise ValueError(f"lift_time: expected a positive number of seconds, got {lift_time!r}")
+    p = protocol
+    rows: list[np.ndarray] = []
+    phases: list[np.ndarray] = []
+    ctrl = np.array([p.home_x, 0.0, p.z_up, p.gripper_open])
+
+    def hold(duration: float, phase: Phase) -> None:
+        n = hold_steps(duration, timestep)
+        rows.append(np.tile(ctrl, (n, 1)))
+        phases.append(np.full(n, phase, dtype=np.int8))
+
+    hold(p.settle_time, Phase.SETTLE)
+    for k in range(p.descend_segments):
+        ctrl[CTRL_Z] = p.z_down * (k + 1) / p.descend_segments
+        hold(p.segment_time, Phase.DESCEND)
+    hold(p.pre_close_time, Phase.PRE_CLOSE)
+    ctrl[CTRL_GRIPPER] = p.gripper_closed
+    hold(p.close_time, Phase.CLOSE)
+    n_lift = p.lift_segments(lift_time)
+    for k in range(n_lift):
+        ctrl[CTRL_Z] = p.z_down + (p.z_up - p.z_down) * (k + 1) / n_lift
+        hold(lift_time / n_lift, Phase.LIFT)
+    hold(p.hold_time, Phase.HOLD)
+    return np.concatenate(rows), np.concatenate(phases)

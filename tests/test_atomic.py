@@ -1,0 +1,105 @@
+"""Tests for mjtrial.atomic: outputs appear whole or not at all."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from mjtrial.atomic import atomic_path, temp_path_for, write_json_atomic, write_text_atomic
+
+
+def _leftovers(directory: Path) -> list[str]:
+    return sorted(p.name for p in directory.iterdir() if ".tmp-" in p.name)
+
+
+def test_content_lands(tmp_path: Path) -> None:
+    target = tmp_path / "out.txt"
+    with atomic_path(target) as tmp:
+        assert tmp.parent == target.parent
+        assert not tmp.exists()
+        assert not target.exists()  # nothing under the final name while writing
+        tmp.write_text("hello\n")
+        assert not target.exists()
+    assert target.read_text() == "hello\n"
+    assert _leftovers(tmp_path) == []
+
+
+def test_temp_name_hidden_unique_and_keeps_suffix(tmp_path: Path) -> None:
+    target = tmp_path / "table.parquet"
+    a, b = temp_path_for(target), temp_path_for(target)
+    assert a != b
+    for t in (a, b):
+        assert t.parent == tmp_path
+        assert t.name.startswith(".table.parquet.tmp-")
+        assert f"-{os.getpid()}-" in t.name
+        assert t.suffix == ".parquet"
+
+
+def test_exception_keeps_old_file_and_no_temp(tmp_path: Path) -> None:
+    target = tmp_path / "result.json"
+    target.write_bytes(b'{"good": true}\n')
+    before = target.read_bytes()
+    with pytest.raises(RuntimeError, match="boom"):
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b'{"good": fal')  # half-written
+            raise RuntimeError("boom")
+    assert target.read_bytes() == before
+    assert _leftovers(tmp_path) == []
+
+
+def test_keyboard_interrupt_also_cleans_up(tmp_path: Path) -> None:
+    target = tmp_path / "x.txt"
+    target.write_text("old")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(target) as tmp:
+            tmp.write_text("partial")
+            raise KeyboardInterrupt
+    assert target.read_text() == "old"
+    assert _leftovers(tmp_path) == []
+
+
+def test_writer_that_creates_nothing_is_an_error(tmp_path: Path) -> None:
+    target = tmp_path / "x.txt"
+    target.write_text("old")
+    with pytest.raises(FileNotFoundError):
+        with atomic_path(target):
+            pass
+    assert target.read_text() == "old"
+    assert _leftovers(tmp_path) == []
+
+
+def test_parent_dirs_created(tmp_path: Path) -> None:
+    target = tmp_path / "a" / "b" / "c" / "out.txt"
+    write_text_atomic(target, "x")
+    assert target.read_text() == "x"
+
+
+def test_overwrites_existing(tmp_path: Path) -> None:
+    target = tmp_path / "out.txt"
+    write_text_atomic(target, "one")
+    write_text_atomic(target, "two\r\nlines\n")
+    assert target.read_bytes() == b"two\r\nlines\n"  # no newline translation
+    assert _leftovers(tmp_path) == []
+
+
+def test_write_json_atomic_format(tmp_path: Path) -> None:
+    target = tmp_path / "o.json"
+    obj = {"z": 1, "a": [1.5, "é"], "m": {"k": None}}
+    write_json_atomic(target, obj)
+    text = target.read_text(encoding="utf-8")
+    assert text == json.dumps(obj, indent=2) + "\n"
+    assert text.endswith("}\n")
+    assert list(json.loads(text)) == ["z", "a", "m"]  # key order kept
+
+
+def test_write_json_atomic_rejects_nan_without_touching_disk(tmp_path: Path) -> None:
+    target = tmp_path / "o.json"
+    target.write_text('{"old": 1}\n')
+    with pytest.raises(ValueError):
+        write_json_atomic(target, {"x": math.nan})
+    assert target.read_text() == '{"old": 1}\n'
+    assert _leftovers(tmp_path) == []

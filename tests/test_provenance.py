@@ -1,0 +1,603 @@
+"""Tests for mjtrial.provenance: building stamps, embedding them in every format, reading back."""
+
+from __future__ import annotations
+
+import getpass
+import hashlib
+import importlib.metadata
+import json
+import os
+import re
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import types
+import zlib
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from mjtrial import provenance
+from mjtrial.provenance import (
+    MissingStampError,
+    code_hash,
+    config_hash,
+    file_sha256,
+    git_state,
+    library_versions,
+    make_stamp,
+    platform_fingerprint,
+    read_stamp,
+    stamp_parquet_metadata,
+    stamp_png_bytes,
+    write_json,
+    write_markdown,
+    write_parquet,
+    write_png,
+)
+
+needs_git = pytest.mark.skipif(shutil.which("git") is None, reason="git executable not installed")
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def git_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> dict[str, str]:
+    """Environment for git subprocesses: identity via env, no user/system config read."""
+    monkeypatch.setenv("GIT_CONFIG_GLOBAL", os.devnull)
+    monkeypatch.setenv("GIT_CONFIG_NOSYSTEM", "1")
+    return {
+        **os.environ,
+        "GIT_AUTHOR_NAME": "Test Author",
+        "GIT_AUTHOR_EMAIL": "author@example.invalid",
+        "GIT_COMMITTER_NAME": "Test Committer",
+        "GIT_COMMITTER_EMAIL": "committer@example.invalid",
+    }
+
+
+def _git(cwd: Path, env: dict[str, str], *args: str) -> str:
+    out = subprocess.run(
+        ["git", *args], cwd=cwd, env=env, check=True, capture_output=True, text=True
+    )
+    return out.stdout.strip()
+
+
+@pytest.fixture
+def repo(tmp_path: Path, git_env: dict[str, str]) -> Path:
+    """A throwaway repo with one commit: tracked.txt, .gitignore (*.log), data/input.csv."""
+    root = tmp_path / "repo"
+    root.mkdir()
+    _git(root, git_env, "init", "-q", "-b", "main")
+    (root / "tracked.txt").write_text("line 1\n")
+    (root / ".gitignore").write_text("*.log\n")
+    (root / "data").mkdir()
+    (root / "data" / "input.csv").write_text("a,b\n1,2\n")
+    _git(root, git_env, "add", "-A")
+    _git(root, git_env, "commit", "-q", "-m", "initial")
+    return root
+
+
+@pytest.fixture
+def stamp(repo: Path, tmp_path: Path) -> dict:
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    (outside / "external.bin").write_bytes(b"\x00\x01\x02")
+    return make_stamp(
+        rule="simulate",
+        config_slice={"episodes": 3, "model": "gantry_gripper", "noise": [0.1, 0.2]},
+        inputs={
+            "data": repo / "data" / "input.csv",
+            "external": outside / "external.bin",
+            "many": [repo / "tracked.txt", str(repo / ".gitignore")],
+        },
+        seeds={"master": 12345},
+        repo_dir=repo,
+        extra={"code_sha256": "0" * 64, "note": "ünïcode ✓"},
+    )
+
+
+def _png_chunk(ctype: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + ctype + data + struct.pack(">I", zlib.crc32(ctype + data))
+
+
+def _tiny_png() -> bytes:
+    """A valid 1x1 8-bit greyscale PNG built by hand."""
+    ihdr = struct.pack(">IIBBBBB", 1, 1, 8, 0, 0, 0, 0)
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + _png_chunk(b"IHDR", ihdr)
+        + _png_chunk(b"IDAT", zlib.compress(b"\x00\x7f"))
+        + _png_chunk(b"IEND", b"")
+    )
+
+
+def _parse_png(data: bytes) -> list[tuple[bytes, bytes]]:
+    """Independent PNG chunk parser that checks every CRC and that IEND ends the file."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, chunks = 8, []
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        ctype = data[pos + 4 : pos + 8]
+        body = data[pos + 8 : pos + 8 + length]
+        (crc,) = struct.unpack(">I", data[pos + 8 + length : pos + 12 + length])
+        assert len(body) == length
+        assert zlib.crc32(ctype + body) == crc, f"bad CRC in {ctype!r}"
+        chunks.append((ctype, body))
+        pos += 12 + length
+    assert pos == len(data)
+    assert chunks[0][0] == b"IHDR"
+    assert chunks[-1] == (b"IEND", b"")
+    assert [c for c, _ in chunks].count(b"IEND") == 1
+    return chunks
+
+
+# --------------------------------------------------------------------------------------------
+# Hashes
+# --------------------------------------------------------------------------------------------
+
+FAKE_PKG = "mjtrial_fake_codehash_pkg"
+
+
+@pytest.fixture
+def fake_pkg(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    root = tmp_path / "site"
+    pkg = root / FAKE_PKG
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "alpha.py").write_text("X = 1\n")
+    (pkg / "beta.py").write_text("raise RuntimeError('must not be imported')\n")
+    monkeypatch.syspath_prepend(str(root))
+    yield pkg
+    for name in [m for m in sys.modules if m == FAKE_PKG or m.startswith(FAKE_PKG + ".")]:
+        del sys.modules[name]
+
+
+def test_code_hash_changes_with_module_source(fake_pkg: Path) -> None:
+    mods = [f"{FAKE_PKG}.alpha", f"{FAKE_PKG}.beta"]
+    h1 = code_hash(mods)
+    assert re.fullmatch(r"[0-9a-f]{64}", h1)
+    assert code_hash(list(reversed(mods))) == h1  # order irrelevant
+    assert code_hash(mods + mods[:1]) == h1  # duplicates irrelevant
+    assert f"{FAKE_PKG}.beta" not in sys.modules  # located, not imported
+    assert code_hash(mods) == h1  # stable
+
+    (fake_pkg / "alpha.py").write_text("X = 2\n")
+    h2 = code_hash(mods)
+    assert h2 != h1
+    assert code_hash([f"{FAKE_PKG}.alpha"]) != code_hash([f"{FAKE_PKG}.beta"])
+
+    (fake_pkg / "alpha.py").write_text("X = 1\n")
+    assert code_hash(mods) == h1
+
+
+def test_code_hash_unknown_module(fake_pkg: Path) -> None:
+    with pytest.raises(ModuleNotFoundError):
+        code_hash([f"{FAKE_PKG}.does_not_exist"])
+
+
+def test_code_hash_of_real_modules() -> None:
+    h = code_hash(["mjtrial.provenance", "mjtrial.atomic"])
+    assert re.fullmatch(r"[0-9a-f]{64}", h)
+
+
+def test_config_hash_independent_of_key_order() -> None:
+    a = {"b": 1, "a": {"y": [1, 2], "x": "s"}}
+    b = {"a": {"x": "s", "y": [1, 2]}, "b": 1}
+    assert config_hash(a) == config_hash(b)
+    canonical = b'{"a":{"x":"s","y":[1,2]},"b":1}'
+    assert config_hash(a) == hashlib.sha256(canonical).hexdigest()
+    assert config_hash(a) != config_hash({**a, "b": 2})
+    assert config_hash([1, 2]) != config_hash([2, 1])  # list order matters
+
+
+def test_file_sha256_streams_large_file(tmp_path: Path) -> None:
+    data = os.urandom((5 << 20) // 2 + 17)  # 2.5 MiB + a bit: several 1 MiB blocks
+    p = tmp_path / "big.bin"
+    p.write_bytes(data)
+    assert file_sha256(p) == hashlib.sha256(data).hexdigest()
+    empty = tmp_path / "empty"
+    empty.write_bytes(b"")
+    assert file_sha256(str(empty)) == hashlib.sha256(b"").hexdigest()
+
+
+# --------------------------------------------------------------------------------------------
+# Git
+# --------------------------------------------------------------------------------------------
+
+
+@needs_git
+def test_git_state_clean(repo: Path, git_env: dict[str, str]) -> None:
+    state = git_state(repo)
+    assert state == {
+        "available": True,
+        "commit": _git(repo, git_env, "rev-parse", "HEAD"),
+        "branch": "main",
+        "dirty": False,
+        "diff_sha256": None,
+    }
+    assert git_state(repo / "data") == state  # found from a subdirectory too
+
+
+@needs_git
+def test_git_state_modified_tracked_file(repo: Path, git_env: dict[str, str]) -> None:
+    (repo / "tracked.txt").write_text("line 1\nchange A\n")
+    a = git_state(repo)
+    assert a["available"] and a["dirty"] is True
+    assert re.fullmatch(r"[0-9a-f]{64}", a["diff_sha256"])
+    assert git_state(repo)["diff_sha256"] == a["diff_sha256"]  # deterministic
+
+    (repo / "tracked.txt").write_text("line 1\nchange B\n")
+    b = git_state(repo)
+    assert b["dirty"] is True and b["diff_sha256"] != a["diff_sha256"]
+
+    _git(repo, git_env, "add", "tracked.txt")  # staged changes count as well
+    assert git_state(repo)["diff_sha256"] == b["diff_sha256"]
+
+    (repo / "tracked.txt").write_text("line 1\n")
+    _git(repo, git_env, "add", "tracked.txt")
+    assert git_state(repo)["dirty"] is False
+
+
+@needs_git
+def test_git_state_untracked_files(repo: Path) -> None:
+    # Outputs and ignored files do not count.
+    (repo / "results").mkdir()
+    (repo / "results" / "table.parquet").write_bytes(b"x")
+    (repo / ".snakemake").mkdir()
+    (repo / ".snakemake" / "log.txt").write_text("x")
+    (repo / "debug.log").write_text("ignored by .gitignore")
+    clean = git_state(repo)
+    assert clean["dirty"] is False and clean["diff_sha256"] is None
+
+    new = repo / "src_new.py"
+    new.write_text("print(1)\n")
+    a = git_state(repo)
+    assert a["dirty"] is True and a["diff_sha256"] is not None
+
+    new.write_text("print(2)\n")  # untracked content is part of the hash
+    assert git_state(repo)["diff_sha256"] != a["diff_sha256"]
+
+
+@needs_git
+def test_git_state_detached_head(repo: Path, git_env: dict[str, str]) -> None:
+    head = _git(repo, git_env, "rev-parse", "HEAD")
+    _git(repo, git_env, "checkout", "-q", "--detach", head)
+    state = git_state(repo)
+    assert state["available"] is True
+    assert state["commit"] == head and state["branch"] is None
+
+
+def _inside_some_repo(path: Path) -> bool:
+    return any((p / ".git").exists() for p in [path, *path.parents])
+
+
+@needs_git
+def test_git_state_not_a_repo(tmp_path: Path, git_env: dict[str, str]) -> None:
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    if _inside_some_repo(plain):
+        pytest.skip("tmp_path lies inside a git repository")
+    state = git_state(plain)
+    assert state["available"] is False
+    assert isinstance(state["reason"], str) and state["reason"]
+    assert "\n" not in state["reason"]
+    assert str(tmp_path) not in state["reason"]
+
+    missing = git_state(tmp_path / "no" / "such" / "dir")
+    assert missing["available"] is False and missing["reason"]
+
+
+@needs_git
+def test_git_state_no_commits(tmp_path: Path, git_env: dict[str, str]) -> None:
+    root = tmp_path / "empty_repo"
+    root.mkdir()
+    _git(root, git_env, "init", "-q", "-b", "main")
+    (root / "file.txt").write_text("x")
+    state = git_state(root)
+    assert state["available"] is False
+    assert "commit" in state["reason"]
+
+
+def test_git_state_git_missing(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    git = pytest.importorskip("git")
+
+    def boom(*args, **kwargs):
+        raise git.GitCommandNotFound("git", "not installed")
+
+    monkeypatch.setattr(git, "Repo", boom)
+    state = git_state(tmp_path)
+    assert state["available"] is False and "git" in state["reason"]
+
+
+@needs_git
+def test_git_state_never_raises(monkeypatch: pytest.MonkeyPatch, repo: Path) -> None:
+    def boom(*args, **kwargs):
+        raise RuntimeError(f"exploded in {repo}\nsecond line")
+
+    monkeypatch.setattr(provenance, "_git_state_of", boom)
+    state = git_state(repo)
+    assert state["available"] is False
+    assert "RuntimeError" in state["reason"]
+    assert "\n" not in state["reason"] and str(repo) not in state["reason"]
+
+
+# --------------------------------------------------------------------------------------------
+# Environment
+# --------------------------------------------------------------------------------------------
+
+
+def test_library_versions(monkeypatch: pytest.MonkeyPatch) -> None:
+    real = importlib.metadata.version
+
+    def fake(name: str) -> str:
+        if name == "rerun-sdk":
+            raise importlib.metadata.PackageNotFoundError(name)
+        return real(name)
+
+    monkeypatch.setattr(importlib.metadata, "version", fake)
+    v = library_versions()
+    assert set(v) == {
+        "python",
+        "mujoco",
+        "numpy",
+        "snakemake",
+        "rerun-sdk",
+        "gitpython",
+        "pyarrow",
+        "mjtrial",
+    }
+    assert v["rerun-sdk"] is None
+    assert v["python"] and v["numpy"] == real("numpy") and v["pyarrow"] == pa.__version__
+
+
+def test_platform_fingerprint() -> None:
+    fp = platform_fingerprint()
+    assert set(fp) == {
+        "system",
+        "machine",
+        "python_implementation",
+        "cpu_model",
+        "cpu_flags_fp",
+        "ncpu",
+    }
+    assert fp["cpu_flags_fp"] == sorted(fp["cpu_flags_fp"])
+    assert set(fp["cpu_flags_fp"]) <= provenance._FP_FLAGS
+    assert fp["ncpu"] is None or fp["ncpu"] >= 1
+    json.dumps(fp)
+
+
+# --------------------------------------------------------------------------------------------
+# make_stamp
+# --------------------------------------------------------------------------------------------
+
+
+@needs_git
+def test_make_stamp_fields(stamp: dict, repo: Path, git_env: dict[str, str]) -> None:
+    assert stamp["mjtrial_stamp"] == 1
+    assert stamp["rule"] == "simulate"
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", stamp["created_utc"])
+    assert stamp["git"]["available"] is True
+    assert stamp["git"]["commit"] == _git(repo, git_env, "rev-parse", "HEAD")
+    assert stamp["config_slice"] == {
+        "episodes": 3,
+        "model": "gantry_gripper",
+        "noise": [0.1, 0.2],
+    }
+    assert stamp["config_slice_sha256"] == config_hash(stamp["config_slice"])
+    assert stamp["inputs"]["data"] == {
+        "path": "data/input.csv",
+        "sha256": file_sha256(repo / "data" / "input.csv"),
+    }
+    assert stamp["inputs"]["external"]["path"] == "external.bin"  # outside repo: basename
+    assert [i["path"] for i in stamp["inputs"]["many"]] == ["tracked.txt", ".gitignore"]
+    assert stamp["seeds"] == {"master": 12345}
+    assert stamp["extra"] == {"code_sha256": "0" * 64, "note": "ünïcode ✓"}
+    assert stamp["versions"] == library_versions()
+    assert stamp["platform"] == platform_fingerprint()
+    json.dumps(stamp, allow_nan=False)
+
+
+def test_make_stamp_relative_inputs_and_defaults(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "a.yaml").write_text("a: 1\n")
+    monkeypatch.chdir(tmp_path)
+    s = make_stamp(rule="r", config_slice=None, inputs={"cfg": "cfg/a.yaml"}, repo_dir=Path("."))
+    assert s["inputs"]["cfg"]["path"] == "cfg/a.yaml"
+    assert s["seeds"] == {} and s["extra"] == {}
+    assert s["git"]["available"] in (True, False)
+
+
+@needs_git
+def test_make_stamp_holds_nothing_private(
+    repo: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    secret = "s3cret-token-value-9f8e7d"
+    monkeypatch.setenv("MJTRIAL_TEST_SECRET", secret)
+    monkeypatch.setenv("MJTRIAL_TEST_SECRET_PATH", str(tmp_path / "private" / "dir"))
+    (tmp_path / "elsewhere.txt").write_text("e")
+    s = make_stamp(
+        rule="r",
+        config_slice={"k": 1},
+        inputs={"x": repo / "tracked.txt", "y": tmp_path / "elsewhere.txt"},
+        repo_dir=repo,
+    )
+    text = json.dumps(s, ensure_ascii=False)
+    assert secret not in text
+    assert str(tmp_path) not in text
+
+    # Values recorded on purpose (library versions, platform) may coincide with an env var
+    # such as PYTHON_VERSION; anything else taken from the environment must not appear.
+    public = {str(v) for part in ("versions", "platform") for v in s[part].values()}
+    for key, value in os.environ.items():
+        if len(value) >= 4 and value not in public:
+            assert value not in text, f"value of ${key} leaked into the stamp"
+
+    home = str(Path.home())
+    if home not in ("/", ""):
+        assert home not in text
+    user = getpass.getuser()
+    if len(user) >= 4:
+        assert user not in text
+    host = socket.gethostname()
+    if len(host) >= 4:
+        assert host not in text
+
+
+# --------------------------------------------------------------------------------------------
+# Formats
+# --------------------------------------------------------------------------------------------
+
+
+@needs_git
+def test_parquet_roundtrip(stamp: dict, tmp_path: Path) -> None:
+    table = pa.table({"a": [1, 2, 3], "b": ["x", "y", "z"]}).replace_schema_metadata(
+        {b"other": b"keep me"}
+    )
+    stamped = stamp_parquet_metadata(table, stamp)
+    assert stamped.schema.metadata[b"other"] == b"keep me"
+    assert table.schema.metadata == {b"other": b"keep me"}  # input not modified
+
+    path = tmp_path / "out" / "table.parquet"
+    write_parquet(table, path, stamp)
+    assert read_stamp(path) == stamp
+
+    back = pq.read_table(path)
+    assert back.equals(table)  # data unchanged
+    assert back.schema.metadata[b"other"] == b"keep me"
+    assert json.loads(back.schema.metadata[b"mjtrial.provenance"]) == stamp
+    assert not [p for p in path.parent.iterdir() if ".tmp-" in p.name]
+
+
+@needs_git
+def test_json_roundtrip(stamp: dict, tmp_path: Path) -> None:
+    obj = {"metric": 0.5, "provenance": "stale", "rows": [1, 2]}
+    path = tmp_path / "summary.json"
+    write_json(obj, path, stamp)
+    assert obj["provenance"] == "stale"  # caller's object untouched
+    assert read_stamp(path) == stamp
+    data = json.loads(path.read_text(encoding="utf-8"))
+    assert data["metric"] == 0.5 and data["rows"] == [1, 2]
+    assert data["provenance"] == stamp
+    assert path.read_text(encoding="utf-8").endswith("}\n")
+
+
+@needs_git
+def test_markdown_roundtrip(stamp: dict, tmp_path: Path) -> None:
+    body = "# Report\n\nSome text.\n\n---\n\nafter a rule\n"
+    path = tmp_path / "report.md"
+    write_markdown(body, path, stamp)
+    text = path.read_text(encoding="utf-8")
+    lines = text.split("\n")
+    assert lines[0] == "---"
+    assert lines[1].startswith("provenance: {")
+    assert lines[2] == "---"
+    assert text == "\n".join(lines[:3]) + "\n" + body
+    assert json.loads(lines[1][len("provenance: ") :]) == stamp
+    assert read_stamp(path) == stamp
+
+    yaml = pytest.importorskip("yaml")
+    assert yaml.safe_load("\n".join(lines[1:2]))["provenance"] == stamp
+
+
+@needs_git
+def test_markdown_merges_existing_front_matter(stamp: dict, tmp_path: Path) -> None:
+    path = tmp_path / "r.md"
+    write_markdown("---\ntitle: Hello\nprovenance: {}\n---\nbody\n", path, stamp)
+    text = path.read_text(encoding="utf-8")
+    assert text.count("provenance:") == 1
+    assert "title: Hello\n---\nbody\n" in text
+    assert read_stamp(path) == stamp
+
+
+@needs_git
+def test_png_roundtrip_is_valid_png(stamp: dict, tmp_path: Path) -> None:
+    png = _tiny_png()
+    original = _parse_png(png)
+    stamped = stamp_png_bytes(png, stamp)
+    chunks = _parse_png(stamped)
+    text_chunks = [d for c, d in chunks if c == b"tEXt"]
+    assert len(text_chunks) == 1
+    keyword, _, value = text_chunks[0].partition(b"\0")
+    assert keyword == b"mjtrial.provenance"
+    assert json.loads(value.decode("latin-1")) == stamp
+    assert [c for c in chunks if c[0] != b"tEXt"] == original  # image data untouched
+    assert chunks[-2][0] == b"tEXt"  # inserted right before IEND
+
+    path = tmp_path / "fig" / "plot.png"
+    write_png(png, path, stamp)
+    assert path.read_bytes() == stamped
+    assert read_stamp(path) == stamp
+
+    # Restamping replaces rather than accumulates.
+    again = stamp_png_bytes(stamped, {**stamp, "rule": "other"})
+    assert [c for c, _ in _parse_png(again)].count(b"tEXt") == 1
+    (tmp_path / "again.png").write_bytes(again)
+    assert read_stamp(tmp_path / "again.png")["rule"] == "other"
+
+
+def test_png_rejects_corrupt_input() -> None:
+    s = {"mjtrial_stamp": 1}
+    with pytest.raises(ValueError):
+        stamp_png_bytes(b"not a png", s)
+    bad = bytearray(_tiny_png())
+    bad[20] ^= 0xFF  # inside IHDR data -> CRC mismatch
+    with pytest.raises(ValueError, match="CRC"):
+        stamp_png_bytes(bytes(bad), s)
+    with pytest.raises(ValueError):
+        stamp_png_bytes(_tiny_png()[:-12], s)  # no IEND
+
+
+def test_rrd_delegates_to_recording(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    path = tmp_path / "run.rrd"
+    path.write_bytes(b"")
+    fake = types.ModuleType("mjtrial.recording")
+    fake.read_rrd_stamp = lambda p: {"mjtrial_stamp": 1, "from": str(Path(p).name)}
+    monkeypatch.setitem(sys.modules, "mjtrial.recording", fake)
+    assert read_stamp(path) == {"mjtrial_stamp": 1, "from": "run.rrd"}
+
+
+def test_rrd_without_recording_module_is_a_clear_error(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    path = tmp_path / "run.rrd"
+    path.write_bytes(b"")
+    monkeypatch.setitem(sys.modules, "mjtrial.recording", None)  # makes the import fail
+    with pytest.raises(ImportError, match=r"mjtrial\.recording"):
+        read_stamp(path)
+
+
+def test_missing_stamp_every_format(tmp_path: Path) -> None:
+    pq.write_table(pa.table({"a": [1]}), tmp_path / "plain.parquet")
+    (tmp_path / "plain.json").write_text('{"a": 1}\n')
+    (tmp_path / "list.json").write_text("[1, 2]\n")
+    (tmp_path / "plain.md").write_text("# Title\n")
+    (tmp_path / "front.md").write_text("---\ntitle: x\n---\n# Title\n")
+    (tmp_path / "plain.png").write_bytes(_tiny_png())
+    for name in ["plain.parquet", "plain.json", "list.json", "plain.md", "front.md", "plain.png"]:
+        path = tmp_path / name
+        with pytest.raises(MissingStampError) as info:
+            read_stamp(path)
+        assert isinstance(info.value, ValueError)
+        assert str(info.value) == f"{path}: no mjtrial provenance stamp"
+
+
+def test_unsupported_suffix_and_missing_file(tmp_path: Path) -> None:
+    (tmp_path / "x.csv").write_text("a\n")
+    with pytest.raises(ValueError, match="supported"):
+        read_stamp(tmp_path / "x.csv")
+    with pytest.raises(FileNotFoundError):
+        read_stamp(tmp_path / "absent.json")
+
+
+def test_writers_reject_non_stamps(tmp_path: Path) -> None:
+    with pytest.raises(ValueError):
+        write_json({"a": 1}, tmp_path / "a.json", {"not": "a stamp"})
+    assert not (tmp_path / "a.json").exists()
