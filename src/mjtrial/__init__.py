@@ -6,8 +6,10 @@ from pathlib import Path
 
 __version__ = "0.1.0"
 
-# The models ship inside the repository (not the wheel): an editable install finds them here.
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+# The models, config and workflow ship inside the repository (not the wheel): an editable
+# install finds them here.
+REPO_ROOT = Path(__file__).resolve().parents[2]
+MODELS_DIR = REPO_ROOT / "models"
 
 
 def model_path(name: str) -> Path:

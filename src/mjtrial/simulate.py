@@ -201,3 +201,65 @@ def reference_episode(
     hold(p.hold_time)
     warnings = np.array([w.number for w in d.warning])
     return np.stack(out), warnings
+
+
+# Columns of the per-episode table, in order (one place for each column's name).
+EPISODE_COLUMNS = (
+    "state_id",
+    "success",
+    "final_height",
+    "final_x",
+    "final_y",
+    "steps_simulated",
+    "nonfinite",
+    "warning",
+)
+
+
+def cube_height(model: mujoco.MjModel, physics: np.ndarray) -> np.ndarray:
+    """Cube centre height from mjSTATE_FULLPHYSICS vectors, shape (..., nstate) -> (...)."""
+    return physics[..., STATE_QPOS + cube_qpos_address(model) + 2]
+
+
+def warning_names(counters: np.ndarray) -> str:
+    """MuJoCo warnings that fired, by name (e.g. "mjWARN_BADQACC"), comma-separated."""
+    return ",".join(mujoco.mjtWarning(i).name for i, n in enumerate(counters) if n)
+
+
+def episode_outcomes(
+    model: mujoco.MjModel,
+    batch: EpisodeBatch,
+    *,
+    lift_time: float,
+    protocol: Protocol = PROTOCOL,
+) -> dict[str, np.ndarray]:
+    """Per-episode results of a batch, keyed by `EPISODE_COLUMNS`.
+
+    An episode that stopped early (a MuJoCo warning froze its state) or went non-finite is a
+    failure; its warning is named by re-running it with the reference stepper, which is rare
+    and so costs nothing in a healthy experiment.
+    """
+    final = batch.physics[:, -1, :]
+    adr = STATE_QPOS + cube_qpos_address(model)
+    # A warning freezes the state (mujoco.rollout stops stepping), and a bad acceleration
+    # resets it first, so time is not a step counter: the first repeated time is the halt.
+    frozen = np.diff(batch.physics[:, :, STATE_TIME], axis=1) == 0
+    halted = frozen.any(axis=1)
+    steps = np.where(halted, frozen.argmax(axis=1) + 1, batch.physics.shape[1]).astype(np.int64)
+    nonfinite = ~np.isfinite(batch.physics).all(axis=(1, 2))
+    height = final[:, adr + 2]
+    success = (height > protocol.success_height) & ~halted & ~nonfinite
+    warning = np.full(len(batch.states), "", dtype=object)
+    for i in np.flatnonzero(halted | nonfinite):
+        _, counters = reference_episode(model, batch.states[i], lift_time=lift_time, protocol=protocol)
+        warning[i] = warning_names(counters)
+    return {
+        "state_id": np.array([s.state_id for s in batch.states], dtype=np.int64),
+        "success": success,
+        "final_height": height,
+        "final_x": final[:, adr],
+        "final_y": final[:, adr + 1],
+        "steps_simulated": steps,
+        "nonfinite": nonfinite,
+        "warning": warning,
+    }

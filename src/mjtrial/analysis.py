@@ -1,0 +1,220 @@
+"""From per-episode outcomes to the numbers a paper reports, and the falsifier's verdict.
+
+Pure functions over arrays: the analysis rule reads the tables, calls `summarize`, and writes
+the result; the printed table is rendered from the same summary, so the two cannot disagree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from mjtrial import stats
+
+VERDICT_SURVIVES = "survives"
+VERDICT_REFUTED = "refuted"
+
+
+def rate_record(success: np.ndarray, *, confidence: float) -> dict[str, Any]:
+    """Successes, n, rate and Wilson interval of a boolean array of shape (n,)."""
+    success = np.asarray(success, dtype=bool)
+    n = int(success.size)
+    k = int(success.sum())
+    low, high = stats.wilson_interval(k, n, confidence) if n else (float("nan"),) * 2
+    return {
+        "n": n,
+        "successes": k,
+        "rate": k / n if n else None,
+        "wilson_low": low if n else None,
+        "wilson_high": high if n else None,
+    }
+
+
+def band_labels(edges: Sequence[float]) -> list[str]:
+    """Labels of the bands [e0, e1), ..., [e(k-1), ek] (the last band is closed)."""
+    labels = [f"[{a:g}, {b:g})" for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    labels[-1] = labels[-1][:-1] + "]"
+    return labels
+
+
+def band_index(values: np.ndarray, edges: Sequence[float]) -> np.ndarray:
+    """Band of each value, 0..k-1; the last band includes its upper edge."""
+    idx = np.searchsorted(np.asarray(edges), values, side="right") - 1
+    return np.clip(idx, 0, len(edges) - 2)
+
+
+def judge_falsifier(
+    falsifier: Mapping[str, Any], paired: Mapping[str, float]
+) -> dict[str, Any]:
+    """Verdict of the preregistered falsifier on the paired-difference interval.
+
+    Refuted when the interval's lower bound is at or below the threshold, i.e. the interval
+    includes the threshold or lies below it.
+    """
+    threshold = float(falsifier["threshold"])
+    refuted = paired["low"] <= threshold
+    verdict = VERDICT_REFUTED if refuted else VERDICT_SURVIVES
+    relation = "at or below" if refuted else "above"
+    reason = (
+        f"{falsifier['statistic']} ({falsifier['treatment']} - {falsifier['baseline']}) = "
+        f"{paired['estimate']:+.3f}, interval [{paired['low']:+.3f}, {paired['high']:+.3f}]: "
+        f"lower bound {relation} the threshold {threshold:g}"
+    )
+    return {**dict(falsifier), "verdict": verdict, "reason": reason}
+
+
+def summarize(
+    *,
+    states: Mapping[str, np.ndarray],
+    outcomes: Mapping[str, Mapping[str, np.ndarray]],
+    nominal: Mapping[str, bool],
+    lift_times: Mapping[str, float],
+    falsifier: Mapping[str, Any],
+    analysis: Mapping[str, Any],
+) -> dict[str, Any]:
+    """The experiment's summary.
+
+    Args:
+      states: columns of the states table (state_id, dx, dy, yaw, mass), each shape (n,).
+      outcomes: per condition, the columns of its rollout table, each shape (n,).
+      nominal: per condition, the success of the nominal state (no offset, no yaw, mass as
+        compiled): the first classic mistake reports it alone.
+      lift_times: per condition, its lift time (s), recorded beside the results.
+      falsifier: the design's falsifier (treatment, baseline, statistic, threshold).
+      analysis: the analysis config slice (n_resamples, confidence, seed, mass_bands, first_k).
+    """
+    confidence = float(analysis["confidence"])
+    order = np.argsort(states["state_id"])
+    state_ids = np.asarray(states["state_id"])[order]
+    success: dict[str, np.ndarray] = {}
+    for name, table in outcomes.items():
+        ids = np.asarray(table["state_id"])
+        sort = np.argsort(ids)
+        if not np.array_equal(ids[sort], state_ids):
+            raise ValueError(f"rollouts of {name!r}: state ids differ from the states table")
+        success[name] = np.asarray(table["success"], dtype=bool)[sort]
+
+    conditions = {}
+    for name, table in outcomes.items():
+        unhealthy = np.asarray(table["nonfinite"], dtype=bool) | (
+            np.asarray(table["warning"], dtype=object) != ""
+        )
+        conditions[name] = {
+            "lift_time": lift_times[name],
+            **rate_record(success[name], confidence=confidence),
+            "unhealthy": int(unhealthy.sum()),
+        }
+
+    treatment, baseline = falsifier["treatment"], falsifier["baseline"]
+    a, b = success[treatment], success[baseline]
+    estimate, low, high = stats.paired_difference_ci(
+        a.astype(float),
+        b.astype(float),
+        n_resamples=int(analysis["n_resamples"]),
+        confidence=confidence,
+        seed=int(analysis["seed"]),
+    )
+    paired = {
+        "treatment": treatment,
+        "baseline": baseline,
+        "estimate": estimate,
+        "low": low,
+        "high": high,
+        "method": f"{stats.BOOTSTRAP_METHOD} over pairs",
+        "n_resamples": int(analysis["n_resamples"]),
+        "confidence": confidence,
+        "seed": int(analysis["seed"]),
+    }
+    test = stats.mcnemar(a, b)
+    discordant = {
+        "both": int((a & b).sum()),
+        f"only_{treatment}": test.only_a,
+        f"only_{baseline}": test.only_b,
+        "neither": int((~a & ~b).sum()),
+    }
+
+    edges = list(analysis["mass_bands"])
+    band = band_index(np.asarray(states["mass"])[order], edges)
+    mass_bands = [
+        {
+            "band": label,
+            "low": edges[i],
+            "high": edges[i + 1],
+            "conditions": {
+                name: rate_record(s[band == i], confidence=confidence)
+                for name, s in success.items()
+            },
+        }
+        for i, label in enumerate(band_labels(edges))
+    ]
+
+    k = min(int(analysis["first_k"]), len(state_ids))
+    mistakes = {
+        "nominal_state": {
+            "what": "the nominal state alone (no offset, no yaw, mass as compiled)",
+            "conditions": {
+                name: rate_record(np.array([nominal[name]]), confidence=confidence)
+                for name in success
+            },
+        },
+        "first_k": {
+            "what": f"the first {k} states alone",
+            "k": k,
+            "conditions": {
+                name: rate_record(s[:k], confidence=confidence) for name, s in success.items()
+            },
+        },
+    }
+    return {
+        "n_states": int(len(state_ids)),
+        "confidence": confidence,
+        "conditions": conditions,
+        "paired_difference": paired,
+        "discordant": discordant,
+        "mcnemar": {"p_value": test.p_value, "method": test.method},
+        "mass_bands": mass_bands,
+        "mistakes": mistakes,
+        "falsifier": judge_falsifier(falsifier, paired),
+    }
+
+
+def _interval(rec: Mapping[str, Any]) -> str:
+    if not rec["n"]:
+        return "      (no states)"
+    return (
+        f"{rec['successes']:>5}/{rec['n']:<5} {rec['rate']:6.3f} "
+        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
+    )
+
+
+def format_table(summary: Mapping[str, Any]) -> str:
+    """The summary as the plain-text table printed to the console and the rule's log."""
+    conf = f"{summary['confidence'] * 100:g}%"
+    lines = [f"Success per condition (Wilson {conf} interval), n = {summary['n_states']} states"]
+    for name, rec in summary["conditions"].items():
+        lines.append(
+            f"  {name:<12} lift {rec['lift_time']:>6g} s  {_interval(rec)}"
+            f"  unhealthy {rec['unhealthy']}"
+        )
+    p = summary["paired_difference"]
+    lines.append(
+        f"Paired difference {p['treatment']} - {p['baseline']}: {p['estimate']:+.3f} "
+        f"[{p['low']:+.3f}, {p['high']:+.3f}] ({p['method']}, {p['n_resamples']} resamples)"
+    )
+    d = summary["discordant"]
+    lines.append("Pairs: " + ", ".join(f"{k} {v}" for k, v in d.items()))
+    lines.append(f"McNemar exact p = {summary['mcnemar']['p_value']:.3g}")
+    lines.append("Success by mass band (kg)")
+    for band in summary["mass_bands"]:
+        for name, rec in band["conditions"].items():
+            lines.append(f"  {band['band']:<14} {name:<12} {_interval(rec)}")
+    lines.append("Classic evaluation mistakes, reproduced")
+    for mistake in summary["mistakes"].values():
+        lines.append(f"  {mistake['what']}:")
+        for name, rec in mistake["conditions"].items():
+            lines.append(f"    {name:<12} {_interval(rec)}")
+    f = summary["falsifier"]
+    lines.append(f"Falsifier: {f['verdict'].upper()}: {f['reason']}")
+    return "\n".join(lines)

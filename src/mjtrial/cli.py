@@ -1,0 +1,73 @@
+"""The `mjtrial` command: read any output's stamp, plan a sample size."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from mjtrial import provenance, stats
+
+
+def _provenance(args: argparse.Namespace) -> int:
+    try:
+        stamp = provenance.read_stamp(args.file)
+    except (OSError, ValueError) as err:
+        print(f"mjtrial provenance: {err}", file=sys.stderr)
+        return 1
+    print(json.dumps(stamp, indent=2))
+    return 0
+
+
+def _plan(args: argparse.Namespace) -> int:
+    if args.halfwidth is None and args.effect is None:
+        print("mjtrial plan: give --halfwidth, or --effect with --discordant", file=sys.stderr)
+        return 2
+    try:
+        if args.halfwidth is not None:
+            worst = stats.episodes_for_halfwidth(args.halfwidth, 0.5, args.confidence)
+            print(
+                f"episodes for a {args.confidence:g} interval of half-width {args.halfwidth:g}: "
+                f"{worst} (worst case, p = 0.5)"
+            )
+            if args.p is not None:
+                at_p = stats.episodes_for_halfwidth(args.halfwidth, args.p, args.confidence)
+                print(f"  at p = {args.p:g}: {at_p}")
+        if args.effect is not None:
+            if args.discordant is None:
+                print("mjtrial plan: --effect needs --discordant", file=sys.stderr)
+                return 2
+            pairs = stats.mcnemar_pairs_needed(
+                args.effect, args.discordant, args.power, args.confidence
+            )
+            print(
+                f"pairs to detect a paired difference of {args.effect:g} with discordant "
+                f"proportion {args.discordant:g} (McNemar, power {args.power:g}, "
+                f"confidence {args.confidence:g}): {pairs}"
+            )
+    except ValueError as err:
+        print(f"mjtrial plan: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("provenance", help="print the provenance stamp of an output as JSON")
+    p.add_argument("file", help="any output: .parquet, .json, .md, .png or .rrd")
+    p.set_defaults(run=_provenance)
+    p = sub.add_parser("plan", help="episodes needed for an interval width or a paired effect")
+    p.add_argument("--halfwidth", type=float, help="half-width of a success rate's interval")
+    p.add_argument("--p", type=float, help="expected success rate (default: worst case 0.5)")
+    p.add_argument("--effect", type=float, help="paired difference to detect")
+    p.add_argument("--discordant", type=float, help="expected proportion of discordant pairs")
+    p.add_argument("--power", type=float, default=0.8)
+    p.add_argument("--confidence", type=float, default=0.95)
+    p.set_defaults(run=_plan)
+    args = parser.parse_args(argv)
+    return args.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,126 @@
+"""Load and check the experiment's config: the schema first, then what a schema cannot say.
+
+Every problem is reported as one line naming the file, the key and what was expected, before
+any work starts, so a typo never costs a run or touches an earlier result.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+from mjtrial import REPO_ROOT
+
+SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+
+
+class ConfigError(ValueError):
+    """The config does not describe a runnable experiment; the message is one line."""
+
+
+def _key(path: Any) -> str:
+    parts = [str(p) if not isinstance(p, int) else f"[{p}]" for p in path]
+    return ".".join(parts).replace(".[", "[") or "(top level)"
+
+
+def _describe(error: jsonschema.ValidationError) -> tuple[str, str]:
+    """(key, expectation) for one schema error, in the config's own words."""
+    key = _key(error.absolute_path)
+    v, s, got = error.validator, error.validator_value, error.instance
+    if v == "additionalProperties":
+        allowed = sorted(error.schema.get("properties", {}))
+        extra = sorted(set(got) - set(allowed)) if isinstance(got, dict) else []
+        name = f"{key}.{extra[0]}" if key != "(top level)" and extra else (extra or [key])[0]
+        hint = f"one of {allowed}" if allowed else "no other keys"
+        return name, f"unknown key; expected {hint}"
+    if v == "required":
+        missing = [k for k in s if k not in got]
+        name = f"{key}.{missing[0]}" if key != "(top level)" else missing[0]
+        return name, "missing; this key is required"
+    expect = {
+        "type": f"expected {s}",
+        "minimum": f"expected >= {s}",
+        "maximum": f"expected <= {s}",
+        "exclusiveMinimum": f"expected > {s}",
+        "exclusiveMaximum": f"expected < {s}",
+        "enum": f"expected one of {s}",
+        "minItems": f"expected at least {s} items",
+        "maxItems": f"expected at most {s} items",
+        "minLength": "expected a non-empty string",
+        "minProperties": f"expected at least {s} entries",
+        "pattern": f"expected a name matching {s}",
+    }.get(v, error.message)
+    return key, f"{expect}, got {got!r}"
+
+
+def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
+    """Read a YAML config file and check it (see `check_config`)."""
+    path = Path(path)
+    try:
+        config = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: not valid YAML: {str(err).splitlines()[0]}") from None
+    check_config(config, source=str(path))
+    return config
+
+
+def check_config(
+    config: Mapping[str, Any], *, source: str = "config/config.yaml", repo_root: Path = REPO_ROOT
+) -> None:
+    """Raise `ConfigError` (one line: file, key, expectation) unless the config is runnable."""
+    if not isinstance(config, Mapping):
+        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    validator = jsonschema.Draft202012Validator(schema)
+    error = jsonschema.exceptions.best_match(validator.iter_errors(dict(config)))
+    if error is not None:
+        key, expectation = _describe(error)
+        raise ConfigError(f"{source}: {key}: {expectation}")
+
+    def fail(key: str, expectation: str) -> None:
+        raise ConfigError(f"{source}: {key}: {expectation}")
+
+    conditions = config["conditions"]
+    falsifier = config["design"]["falsifier"]
+    for role in ("treatment", "baseline"):
+        if falsifier[role] not in conditions:
+            fail(
+                f"design.falsifier.{role}",
+                f"expected one of the conditions {sorted(conditions)}, got {falsifier[role]!r}",
+            )
+    if falsifier["treatment"] == falsifier["baseline"]:
+        fail("design.falsifier.baseline", "expected a condition other than the treatment")
+    for name, (low, high) in config["states"]["ranges"].items():
+        if not low < high:
+            fail(f"states.ranges.{name}", f"expected [low, high] with low < high, got {[low, high]}")
+    if config["states"]["development_seed"] == config["states"]["seed"]:
+        fail(
+            "states.development_seed",
+            "expected a seed other than states.seed (development and evaluation states must be "
+            "disjoint)",
+        )
+    bands = config["analysis"]["mass_bands"]
+    if any(high <= low for low, high in zip(bands[:-1], bands[1:], strict=True)):
+        fail("analysis.mass_bands", f"expected strictly increasing edges, got {bands}")
+    mass_low, mass_high = config["states"]["ranges"]["mass"]
+    if bands[0] > mass_low or bands[-1] < mass_high:
+        fail(
+            "analysis.mass_bands",
+            f"expected edges covering states.ranges.mass {[mass_low, mass_high]}, got {bands}",
+        )
+    model_file = repo_root / config["model"]
+    if not model_file.is_file():
+        fail("model", f"expected an existing model file, got {config['model']!r} (not found)")
+    from mjtrial.simulate import ModelError, load_model
+
+    try:
+        load_model(model_file)
+    except ModelError as err:
+        fail("model", str(err).replace(str(model_file), config["model"]))

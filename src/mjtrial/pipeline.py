@@ -1,0 +1,286 @@
+"""One function per pipeline stage: what a Snakemake script calls, importable and testable.
+
+Each stage reads its inputs, computes, and writes its outputs atomically with a provenance
+stamp; none of them knows about Snakemake.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mjtrial import REPO_ROOT, analysis, provenance
+from mjtrial.protocol import PROTOCOL
+from mjtrial.simulate import (
+    CUBE_BODY,
+    EPISODE_COLUMNS,
+    InitialState,
+    episode_outcomes,
+    iter_episode_batches,
+    load_model,
+)
+from mjtrial.states import generate_initial_states, states_from_table
+
+log = logging.getLogger("mjtrial")
+
+# The package modules each stage runs: their source hash goes into the rule's params, so a
+# real code change reruns the stage and a checkout that leaves the code alone does not.
+STAGE_MODULES: dict[str, tuple[str, ...]] = {
+    "states": ("mjtrial.pipeline", "mjtrial.states", "mjtrial.provenance", "mjtrial.atomic"),
+    "rollout": (
+        "mjtrial.pipeline",
+        "mjtrial.states",
+        "mjtrial.simulate",
+        "mjtrial.protocol",
+        "mjtrial.provenance",
+        "mjtrial.atomic",
+    ),
+    "analysis": (
+        "mjtrial.pipeline",
+        "mjtrial.analysis",
+        "mjtrial.stats",
+        "mjtrial.provenance",
+        "mjtrial.atomic",
+    ),
+    "manifest": ("mjtrial.pipeline", "mjtrial.provenance", "mjtrial.atomic"),
+}
+
+
+def stage_code_hash(stage: str) -> str:
+    """sha256 of the source of the modules `stage` runs."""
+    return provenance.code_hash(STAGE_MODULES[stage])
+
+
+def _stamp(
+    rule: str,
+    config_slice: Any,
+    inputs: Mapping[str, Any],
+    *,
+    seeds: Mapping[str, int] | None = None,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    return provenance.make_stamp(
+        rule=rule,
+        config_slice=config_slice,
+        inputs={k: v for k, v in inputs.items()},
+        seeds=seeds,
+        repo_dir=repo_root,
+        extra={"code_sha256": stage_code_hash(rule.split(":")[0])},
+    )
+
+
+def build_states(
+    *, states_config: Mapping[str, Any], output: Path, repo_root: Path = REPO_ROOT
+) -> pa.Table:
+    """Draw the evaluation states and write `states.parquet`.
+
+    The development states (drawn from `development_seed`) are drawn too, only to refuse a
+    configuration whose development and evaluation states share a state.
+    """
+    table = generate_initial_states(
+        seed=states_config["seed"], n=states_config["n"], ranges=states_config["ranges"]
+    )
+    development = generate_initial_states(
+        seed=states_config["development_seed"], n=states_config["n"], ranges=states_config["ranges"]
+    )
+    rows = {tuple(r) for r in np.column_stack([table.column(c) for c in ("dx", "dy", "yaw", "mass")])}
+    dev_rows = np.column_stack([development.column(c) for c in ("dx", "dy", "yaw", "mass")])
+    if any(tuple(r) in rows for r in dev_rows):
+        raise ValueError(
+            "states.development_seed: development and evaluation states overlap; "
+            "expected disjoint seeds"
+        )
+    stamp = _stamp(
+        "states",
+        dict(states_config),
+        {},
+        seeds={"states": states_config["seed"], "development": states_config["development_seed"]},
+        repo_root=repo_root,
+    )
+    provenance.write_parquet(table, output, stamp)
+    log.info("states: %d initial states (seed %d) -> %s", table.num_rows, states_config["seed"], output)
+    return table
+
+
+def read_states(path: Path) -> list[InitialState]:
+    """The initial states stored in `states.parquet`, checked."""
+    return states_from_table(pq.read_table(path), source=str(path))
+
+
+def nominal_state(model: Any) -> InitialState:
+    """The state a careless evaluation uses alone: no offset, no yaw, the mass as compiled."""
+    import mujoco
+
+    cube = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, CUBE_BODY)
+    return InitialState(-1, 0.0, 0.0, 0.0, float(model.body_mass[cube]))
+
+
+def run_condition(
+    *,
+    condition: str,
+    condition_config: Mapping[str, Any],
+    states_path: Path,
+    model_file: Path,
+    output_table: Path,
+    output_nominal: Path,
+    nthread: int,
+    batch_size: int = 64,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, np.ndarray]:
+    """Roll out every state under one condition; write the per-episode table and the nominal."""
+    model = load_model(model_file)
+    states = read_states(states_path)
+    lift_time = float(condition_config["lift_time"])
+    columns: dict[str, list[np.ndarray]] = {c: [] for c in EPISODE_COLUMNS}
+    for batch in iter_episode_batches(
+        model, states, lift_time=lift_time, nthread=nthread, batch_size=batch_size
+    ):
+        outcome = episode_outcomes(model, batch, lift_time=lift_time)
+        for c in EPISODE_COLUMNS:
+            columns[c].append(outcome[c])
+    merged = {c: np.concatenate(v) for c, v in columns.items()}
+    table = pa.table(
+        {c: pa.array(merged[c].tolist() if c == "warning" else merged[c]) for c in EPISODE_COLUMNS}
+    )
+    nominal = nominal_state(model)
+    nominal_batch = next(iter_episode_batches(model, [nominal], lift_time=lift_time, nthread=1))
+    nominal_outcome = episode_outcomes(model, nominal_batch, lift_time=lift_time)
+
+    slice_ = {"condition": condition, **dict(condition_config)}
+    inputs = {"states": states_path, "model": model_file}
+    stamp = _stamp(f"rollout:{condition}", slice_, inputs, repo_root=repo_root)
+    provenance.write_parquet(table, output_table, stamp)
+    provenance.write_json(
+        {
+            "condition": condition,
+            "state": nominal.__dict__ | {"state_id": None},
+            "success": bool(nominal_outcome["success"][0]),
+            "final_height": float(nominal_outcome["final_height"][0]),
+        },
+        output_nominal,
+        stamp,
+    )
+    log.info(
+        "rollout %s: %d/%d successes (lift %g s) -> %s",
+        condition,
+        int(merged["success"].sum()),
+        len(states),
+        lift_time,
+        output_table,
+    )
+    return merged
+
+
+def run_analysis(
+    *,
+    states_path: Path,
+    rollout_tables: Mapping[str, Path],
+    nominal_files: Mapping[str, Path],
+    conditions: Mapping[str, Mapping[str, Any]],
+    falsifier: Mapping[str, Any],
+    analysis_config: Mapping[str, Any],
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """Compute the summary, write `summary.json`, and log the table."""
+    states_table = pq.read_table(states_path)
+    states = {c: states_table.column(c).to_numpy() for c in states_table.column_names}
+    outcomes = {}
+    for name, path in rollout_tables.items():
+        t = pq.read_table(path)
+        outcomes[name] = {c: t.column(c).to_numpy(zero_copy_only=False) for c in t.column_names}
+    nominal = {name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()}
+    summary = analysis.summarize(
+        states=states,
+        outcomes=outcomes,
+        nominal=nominal,
+        lift_times={name: float(c["lift_time"]) for name, c in conditions.items()},
+        falsifier=falsifier,
+        analysis=analysis_config,
+    )
+    inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
+    inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
+    slice_ = {"analysis": dict(analysis_config), "falsifier": dict(falsifier)}
+    stamp = _stamp("analysis", slice_, inputs, seeds={"bootstrap": analysis_config["seed"]}, repo_root=repo_root)
+    provenance.write_json(summary, output, stamp)
+    log.info("analysis -> %s\n%s", output, analysis.format_table(summary))
+    return summary
+
+
+def write_manifest(
+    *,
+    config: Mapping[str, Any],
+    summary_path: Path,
+    outputs: Sequence[Path],
+    model_file: Path,
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """Gather the reproducibility record and the stamp of every output into `manifest.json`."""
+    import mujoco
+
+    model = load_model(model_file)
+    summary = json.loads(Path(summary_path).read_text())
+
+    def rel(path: Path) -> str:
+        path = Path(path).resolve()
+        try:
+            return path.relative_to(repo_root.resolve()).as_posix()
+        except ValueError:
+            return path.name
+
+    stamps = {rel(p): provenance.read_stamp(p) for p in [*outputs, summary_path]}
+    manifest = {
+        "experiment": config["experiment"],
+        "design": config["design"],
+        "rerun": {
+            "command": "snakemake -c2",
+            "config": dict(config),
+            "commit": next(iter(stamps.values()))["git"].get("commit"),
+        },
+        "versions": provenance.library_versions(),
+        "model": {
+            "path": config["model"],
+            "sha256": provenance.file_sha256(model_file),
+            "timestep": model.opt.timestep,
+            "integrator": mujoco.mjtIntegrator(model.opt.integrator).name,
+            "cone": mujoco.mjtCone(model.opt.cone).name,
+            "impratio": model.opt.impratio,
+        },
+        "seeds": {
+            "states": config["states"]["seed"],
+            "development": config["states"]["development_seed"],
+            "bootstrap": config["analysis"]["seed"],
+        },
+        "n_states": config["states"]["n"],
+        "randomization_ranges": config["states"]["ranges"],
+        "success_definition": {
+            "cube_height_above_m": PROTOCOL.success_height,
+            "judged": f"at the end of the {PROTOCOL.hold_time:g} s hold after the lift",
+        },
+        "results": {
+            "conditions": {
+                name: {"successes": rec["successes"], "n": rec["n"], "rate": rec["rate"]}
+                for name, rec in summary["conditions"].items()
+            },
+            "paired_difference": summary["paired_difference"],
+            "falsifier": summary["falsifier"],
+        },
+        "stamps": stamps,
+    }
+    stamp = _stamp(
+        "manifest",
+        {"design": config["design"]},
+        {rel(p): p for p in [*outputs, summary_path]},
+        repo_root=repo_root,
+    )
+    provenance.write_json(manifest, output, stamp)
+    log.info("manifest -> %s", output)
+    return manifest

@@ -1,0 +1,18 @@
+from pathlib import Path
+
+from mjtrial.pipeline import stage_code_hash
+
+RESULTS = Path("results") / config["experiment"]
+CONDITIONS = list(config["conditions"])
+
+
+def condition_slice(wildcards):
+    """The config a condition's rollout depends on: its own protocol parameters only."""
+    return config["conditions"][wildcards.condition]
+
+
+def model_sha256(wildcards=None):
+    """Content of the model, so a checkout that only touches its mtime reruns nothing."""
+    from mjtrial.provenance import file_sha256
+
+    return file_sha256(config["model"])

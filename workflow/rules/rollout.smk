@@ -1,0 +1,18 @@
+rule rollout:
+    input:
+        states=RESULTS / "states.parquet",
+        model=config["model"],
+    output:
+        table=RESULTS / "rollouts" / "{condition}.parquet",
+        nominal=RESULTS / "rollouts" / "{condition}.nominal.json",
+    params:
+        condition=condition_slice,
+        model_sha256=model_sha256,
+        code=stage_code_hash("rollout"),
+    wildcard_constraints:
+        condition="|".join(CONDITIONS),
+    threads: 2
+    log:
+        RESULTS / "logs" / "rollout_{condition}.log",
+    script:
+        "../scripts/rollout.py"

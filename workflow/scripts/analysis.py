@@ -1,0 +1,19 @@
+"""Snakemake adapter: summarize the rollouts and judge the falsifier (run_analysis)."""
+
+from pathlib import Path
+
+from mjtrial.pipeline import run_analysis
+from mjtrial.workflow_script import setup_logging
+
+snakemake = globals()["snakemake"]
+setup_logging(snakemake.log[0])
+conditions = snakemake.params.conditions
+run_analysis(
+    states_path=Path(snakemake.input.states),
+    rollout_tables=dict(zip(conditions, map(Path, snakemake.input.rollouts), strict=True)),
+    nominal_files=dict(zip(conditions, map(Path, snakemake.input.nominals), strict=True)),
+    conditions=conditions,
+    falsifier=snakemake.params.falsifier,
+    analysis_config=snakemake.params.analysis,
+    output=Path(snakemake.output.summary),
+)

@@ -1,0 +1,17 @@
+"""Snakemake adapter: write the reproducibility record (mjtrial.pipeline.write_manifest)."""
+
+from pathlib import Path
+
+from mjtrial.pipeline import write_manifest
+from mjtrial.workflow_script import setup_logging
+
+snakemake = globals()["snakemake"]
+setup_logging(snakemake.log[0])
+write_manifest(
+    config=snakemake.params.config,
+    summary_path=Path(snakemake.input.summary),
+    outputs=[Path(snakemake.input.states), *map(Path, snakemake.input.rollouts),
+             *map(Path, snakemake.input.nominals)],
+    model_file=Path(snakemake.input.model),
+    output=Path(snakemake.output.manifest),
+)

@@ -1,0 +1,18 @@
+"""Snakemake adapter: roll out one condition (mjtrial.pipeline.run_condition)."""
+
+from pathlib import Path
+
+from mjtrial.pipeline import run_condition
+from mjtrial.workflow_script import setup_logging
+
+snakemake = globals()["snakemake"]
+setup_logging(snakemake.log[0])
+run_condition(
+    condition=snakemake.wildcards.condition,
+    condition_config=snakemake.params.condition,
+    states_path=Path(snakemake.input.states),
+    model_file=Path(snakemake.input.model),
+    output_table=Path(snakemake.output.table),
+    output_nominal=Path(snakemake.output.nominal),
+    nthread=snakemake.threads,
+)
