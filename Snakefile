@@ -1,6 +1,7 @@
 # mjtrial: the research-mode experiment. `snakemake -c2` rebuilds every result under
 # results/<experiment>/; the design and parameters live in config/config.yaml.
 import sys
+from pathlib import Path
 
 from mjtrial.config import ConfigError, check_config
 
@@ -14,6 +15,7 @@ try:
     check_config(
         config,
         source=", ".join(str(p) for p in workflow.configfiles) or "config/config.yaml",
+        repo_root=Path.cwd(),
     )
 except ConfigError as err:
     sys.exit(f"Config error: {err}")

@@ -16,4 +16,5 @@ run_analysis(
     falsifier=snakemake.params.falsifier,
     analysis_config=snakemake.params.analysis,
     output=Path(snakemake.output.summary),
+    repo_root=Path.cwd(),
 )

@@ -14,4 +14,5 @@ write_manifest(
              *map(Path, snakemake.input.nominals)],
     model_file=Path(snakemake.input.model),
     output=Path(snakemake.output.manifest),
+    repo_root=Path.cwd(),
 )

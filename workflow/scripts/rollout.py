@@ -15,4 +15,5 @@ run_condition(
     output_table=Path(snakemake.output.table),
     output_nominal=Path(snakemake.output.nominal),
     nthread=snakemake.threads,
+    repo_root=Path.cwd(),
 )

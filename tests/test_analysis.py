@@ -1,0 +1,134 @@
+"""The summary against naive recomputation and scipy, on outcomes built by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from mjtrial.analysis import band_index, band_labels, format_table, judge_falsifier, summarize
+
+ANALYSIS = {"n_resamples": 2000, "confidence": 0.95, "seed": 5, "mass_bands": [0.05, 0.23, 0.42, 0.6], "first_k": 10}
+FALSIFIER = {"treatment": "slow", "baseline": "fast", "statistic": "paired_difference", "threshold": 0.0}
+
+
+def _experiment(n=60, seed=0, slow_rate=0.9, fast_rate=0.5):
+    rng = np.random.default_rng(seed)
+    states = {
+        "state_id": np.arange(n),
+        "dx": rng.uniform(-1, 1, n),
+        "dy": rng.uniform(-1, 1, n),
+        "yaw": rng.uniform(-1, 1, n),
+        "mass": rng.uniform(0.05, 0.6, n),
+    }
+    slow = rng.uniform(size=n) < slow_rate
+    fast = rng.uniform(size=n) < fast_rate
+    outcomes = {}
+    for name, success in (("fast", fast), ("slow", slow)):
+        order = rng.permutation(n)  # tables need not be in state order
+        outcomes[name] = {
+            "state_id": states["state_id"][order],
+            "success": success[order],
+            "nonfinite": np.zeros(n, bool),
+            "warning": np.array([""] * n, dtype=object),
+        }
+    return states, outcomes, fast, slow
+
+
+def _summary(states, outcomes, **over):
+    return summarize(
+        states=states,
+        outcomes=outcomes,
+        nominal={"fast": True, "slow": False},
+        lift_times={"fast": 0.15, "slow": 1.5},
+        falsifier=over.get("falsifier", FALSIFIER),
+        analysis=over.get("analysis", ANALYSIS),
+    )
+
+
+def test_rates_and_wilson_match_scipy():
+    states, outcomes, fast, slow = _experiment()
+    summary = _summary(states, outcomes)
+    for name, truth in (("fast", fast), ("slow", slow)):
+        rec = summary["conditions"][name]
+        assert rec["successes"] == int(truth.sum()) and rec["n"] == truth.size
+        ci = sps.binomtest(int(truth.sum()), truth.size).proportion_ci(0.95, method="wilson")
+        assert rec["wilson_low"] == pytest.approx(ci.low, abs=1e-12)
+        assert rec["wilson_high"] == pytest.approx(ci.high, abs=1e-12)
+
+
+def test_paired_counts_and_mcnemar_match_naive_loop_and_scipy():
+    states, outcomes, fast, slow = _experiment()
+    summary = _summary(states, outcomes)
+    only_slow = sum(1 for f, s in zip(fast, slow) if s and not f)
+    only_fast = sum(1 for f, s in zip(fast, slow) if f and not s)
+    both = sum(1 for f, s in zip(fast, slow) if f and s)
+    assert summary["discordant"] == {
+        "both": both,
+        "only_slow": only_slow,
+        "only_fast": only_fast,
+        "neither": len(fast) - both - only_slow - only_fast,
+    }
+    p = sps.binomtest(min(only_slow, only_fast), only_slow + only_fast, 0.5).pvalue
+    assert summary["mcnemar"]["p_value"] == pytest.approx(p, rel=1e-9)
+    paired = summary["paired_difference"]
+    assert paired["estimate"] == pytest.approx((only_slow - only_fast) / len(fast))
+    assert paired["low"] < paired["estimate"] < paired["high"]
+
+
+def test_mass_bands_and_first_k_match_naive_selection():
+    states, outcomes, fast, slow = _experiment(n=80, seed=3)
+    summary = _summary(states, outcomes)
+    edges = ANALYSIS["mass_bands"]
+    for i, band in enumerate(summary["mass_bands"]):
+        last = i == len(edges) - 2
+        inside = [
+            j for j, m in enumerate(states["mass"])
+            if edges[i] <= m and (m <= edges[i + 1] if last else m < edges[i + 1])
+        ]
+        assert band["conditions"]["slow"]["n"] == len(inside)
+        assert band["conditions"]["slow"]["successes"] == int(slow[inside].sum())
+    first = summary["mistakes"]["first_k"]["conditions"]
+    assert first["fast"]["successes"] == int(fast[:10].sum()) and first["fast"]["n"] == 10
+    nominal = summary["mistakes"]["nominal_state"]["conditions"]
+    assert nominal["fast"]["successes"] == 1 and nominal["slow"]["successes"] == 0
+
+
+def test_falsifier_survives_a_clear_effect_and_is_refuted_by_none():
+    states, outcomes, *_ = _experiment(n=200, slow_rate=0.95, fast_rate=0.4)
+    assert _summary(states, outcomes)["falsifier"]["verdict"] == "survives"
+    states, outcomes, *_ = _experiment(n=200, slow_rate=0.5, fast_rate=0.5, seed=1)
+    # Same rates: the interval includes zero, or lies below it.
+    verdict = _summary(states, outcomes)["falsifier"]
+    assert verdict["verdict"] == "refuted", verdict["reason"]
+
+
+@pytest.mark.parametrize(
+    ("low", "threshold", "verdict"),
+    [(0.01, 0.0, "survives"), (0.0, 0.0, "refuted"), (-0.2, 0.0, "refuted"), (0.05, 0.1, "refuted")],
+)
+def test_judge_falsifier_threshold_rule(low, threshold, verdict):
+    paired = {"estimate": low + 0.1, "low": low, "high": low + 0.2}
+    assert judge_falsifier({**FALSIFIER, "threshold": threshold}, paired)["verdict"] == verdict
+
+
+def test_band_edges():
+    edges = [0.05, 0.23, 0.42, 0.6]
+    assert band_index(np.array([0.05, 0.2299, 0.23, 0.42, 0.6]), edges).tolist() == [0, 0, 1, 2, 2]
+    assert band_labels(edges) == ["[0.05, 0.23)", "[0.23, 0.42)", "[0.42, 0.6]"]
+
+
+def test_state_ids_must_match():
+    states, outcomes, *_ = _experiment(n=20)
+    outcomes["fast"]["state_id"] = outcomes["fast"]["state_id"] + 1
+    with pytest.raises(ValueError, match="rollouts of 'fast': state ids differ"):
+        _summary(states, outcomes)
+
+
+def test_table_shows_every_number_of_the_summary():
+    states, outcomes, *_ = _experiment()
+    summary = _summary(states, outcomes)
+    table = format_table(summary)
+    assert summary["falsifier"]["verdict"].upper() in table
+    for name, rec in summary["conditions"].items():
+        assert f"{rec['successes']}/{rec['n']}" in table and name in table

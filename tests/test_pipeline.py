@@ -1,0 +1,171 @@
+"""End to end: a small copy of the experiment run by Snakemake itself.
+
+Checks that a second run has nothing to do, that changing one config value reruns exactly the
+stages that depend on it (by Snakemake's own dry run), that bad config stops before any work
+with one line and leaves the results alone, and that every output is stamped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from mjtrial import provenance
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
+COPY = ("Snakefile", "workflow", "config", "models", "profiles")
+
+
+def run(workdir: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    proc = subprocess.run(
+        [SNAKEMAKE, "-c2", *args], cwd=workdir, capture_output=True, text=True, timeout=600
+    )
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake {args} failed:\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+def planned_jobs(workdir: Path) -> dict[str, int]:
+    """Rules and job counts that a dry run would execute, from Snakemake's job stats table."""
+    out = run(workdir, "-n").stdout
+    if "Nothing to be done" in out:
+        return {}
+    table = out.split("Job stats:")[1]
+    jobs = {}
+    for line in table.splitlines()[3:]:
+        m = re.match(r"^(\w+)\s+(\d+)$", line.strip())
+        if m and m.group(1) != "total":
+            jobs[m.group(1)] = int(m.group(2))
+        elif jobs and not line.strip():
+            break
+    return jobs
+
+
+def edit_config(workdir: Path, edit) -> None:
+    path = workdir / "config" / "config.yaml"
+    config = yaml.safe_load(path.read_text())
+    edit(config)
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and "logs" not in p.parts
+    }
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    """A small experiment (12 states, 500 resamples) built once from nothing."""
+    workdir = tmp_path_factory.mktemp("experiment")
+    for name in COPY:
+        src = REPO_ROOT / name
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+
+    def small(config):
+        config["states"]["n"] = 12
+        config["analysis"]["n_resamples"] = 500
+
+    edit_config(workdir, small)
+    run(workdir)
+    return workdir
+
+
+def test_builds_everything_and_second_run_has_nothing_to_do(built):
+    results = built / "results" / "research_mode"
+    for rel in (
+        "states.parquet",
+        "rollouts/fast.parquet",
+        "rollouts/slow.parquet",
+        "analysis/summary.json",
+        "manifest.json",
+    ):
+        assert (results / rel).is_file(), rel
+    assert planned_jobs(built) == {}
+
+
+def test_every_output_is_stamped_with_commit_state_and_versions(built):
+    results = built / "results" / "research_mode"
+    outputs = [p for p in results.rglob("*") if p.is_file() and "logs" not in p.parts]
+    assert len(outputs) >= 7
+    for path in outputs:
+        stamp = provenance.read_stamp(path)
+        assert stamp["versions"]["mujoco"] == "3.14.0"
+        # The copy is not a git repository: the stamp says so instead of crashing.
+        assert stamp["git"]["available"] is False and stamp["git"]["reason"]
+    rollout = provenance.read_stamp(results / "rollouts" / "fast.parquet")
+    assert rollout["inputs"]["model"]["sha256"] == provenance.file_sha256(
+        built / "models" / "gantry_gripper" / "scene.xml"
+    )
+    assert rollout["config_slice"] == {"condition": "fast", "lift_time": 0.15}
+    manifest = json.loads((results / "manifest.json").read_text())
+    assert manifest["model"]["integrator"] == "mjINT_IMPLICITFAST"
+    assert manifest["results"]["conditions"]["fast"]["n"] == 12
+    assert manifest["results"]["falsifier"]["verdict"] in ("survives", "refuted")
+    assert len(manifest["stamps"]) == 6
+
+
+def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_path):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    edit_config(workdir, lambda c: c["analysis"].update(n_resamples=600))
+    assert planned_jobs(workdir) == {"all": 1, "analysis": 1, "manifest": 1}
+
+
+def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    edit_config(workdir, lambda c: c["conditions"]["fast"].update(lift_time=0.2))
+    out = run(workdir, "-n").stdout
+    assert planned_jobs(workdir) == {"all": 1, "analysis": 1, "manifest": 1, "rollout": 1}
+    assert "wildcards: condition=fast" in out and "condition=slow" not in out
+
+
+def test_touching_files_without_changing_them_reruns_nothing(built, tmp_path):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    for path in [workdir / "models" / "gantry_gripper" / "gantry_gripper.xml", workdir / "Snakefile"]:
+        path.touch()
+    assert planned_jobs(workdir) == {}
+
+
+BAD_CONFIGS = [
+    ("unknown key", lambda c: c["states"].update(seeed=1), "states.seeed: unknown key"),
+    ("wrong type", lambda c: c["states"].update(n="many"), "states.n: expected integer"),
+    ("out of range", lambda c: c["analysis"].update(confidence=1.2), "analysis.confidence: expected < 1"),
+    ("missing lift time", lambda c: c["conditions"]["fast"].pop("lift_time"),
+     "conditions.fast.lift_time: missing"),
+    ("missing model", lambda c: c.update(model="models/nowhere/scene.xml"),
+     "model: expected an existing model file"),
+]
+
+
+@pytest.mark.parametrize(("case", "edit", "message"), BAD_CONFIGS, ids=[c[0] for c in BAD_CONFIGS])
+def test_bad_config_stops_with_one_line_and_touches_nothing(built, tmp_path, case, edit, message):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    before = digest(workdir / "results")
+    edit_config(workdir, edit)
+    proc = run(workdir, check=False)
+    assert proc.returncode != 0
+    # Snakemake's own notice about the profile aside, the error is a single line.
+    errors = [
+        line
+        for line in proc.stderr.splitlines()
+        if line.strip() and not line.startswith("Using workflow specific profile")
+    ]
+    assert len(errors) == 1, proc.stderr
+    assert errors[0].startswith("Config error: config/config.yaml: ")
+    assert message in errors[0]
+    assert digest(workdir / "results") == before
