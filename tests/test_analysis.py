@@ -8,8 +8,19 @@ from scipy import stats as sps
 
 from mjtrial.analysis import band_index, band_labels, format_table, judge_falsifier, summarize
 
-ANALYSIS = {"n_resamples": 2000, "confidence": 0.95, "seed": 5, "mass_bands": [0.05, 0.23, 0.42, 0.6], "first_k": 10}
-FALSIFIER = {"treatment": "slow", "baseline": "fast", "statistic": "paired_difference", "threshold": 0.0}
+ANALYSIS = {
+    "n_resamples": 2000,
+    "confidence": 0.95,
+    "seed": 5,
+    "mass_bands": [0.05, 0.23, 0.42, 0.6],
+    "first_k": 10,
+}
+FALSIFIER = {
+    "treatment": "slow",
+    "baseline": "fast",
+    "statistic": "paired_difference",
+    "threshold": 0.0,
+}
 
 
 def _experiment(n=60, seed=0, slow_rate=0.9, fast_rate=0.5):
@@ -60,9 +71,9 @@ def test_rates_and_wilson_match_scipy():
 def test_paired_counts_and_mcnemar_match_naive_loop_and_scipy():
     states, outcomes, fast, slow = _experiment()
     summary = _summary(states, outcomes)
-    only_slow = sum(1 for f, s in zip(fast, slow) if s and not f)
-    only_fast = sum(1 for f, s in zip(fast, slow) if f and not s)
-    both = sum(1 for f, s in zip(fast, slow) if f and s)
+    only_slow = sum(1 for f, s in zip(fast, slow, strict=True) if s and not f)
+    only_fast = sum(1 for f, s in zip(fast, slow, strict=True) if f and not s)
+    both = sum(1 for f, s in zip(fast, slow, strict=True) if f and s)
     assert summary["discordant"] == {
         "both": both,
         "only_slow": only_slow,
@@ -83,7 +94,8 @@ def test_mass_bands_and_first_k_match_naive_selection():
     for i, band in enumerate(summary["mass_bands"]):
         last = i == len(edges) - 2
         inside = [
-            j for j, m in enumerate(states["mass"])
+            j
+            for j, m in enumerate(states["mass"])
             if edges[i] <= m and (m <= edges[i + 1] if last else m < edges[i + 1])
         ]
         assert band["conditions"]["slow"]["n"] == len(inside)
@@ -105,7 +117,12 @@ def test_falsifier_survives_a_clear_effect_and_is_refuted_by_none():
 
 @pytest.mark.parametrize(
     ("low", "threshold", "verdict"),
-    [(0.01, 0.0, "survives"), (0.0, 0.0, "refuted"), (-0.2, 0.0, "refuted"), (0.05, 0.1, "refuted")],
+    [
+        (0.01, 0.0, "survives"),
+        (0.0, 0.0, "refuted"),
+        (-0.2, 0.0, "refuted"),
+        (0.05, 0.1, "refuted"),
+    ],
 )
 def test_judge_falsifier_threshold_rule(low, threshold, verdict):
     paired = {"estimate": low + 0.1, "low": low, "high": low + 0.2}

@@ -135,7 +135,10 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
 def test_touching_files_without_changing_them_reruns_nothing(built, tmp_path):
     workdir = tmp_path / "copy"
     shutil.copytree(built, workdir, symlinks=True)
-    for path in [workdir / "models" / "gantry_gripper" / "gantry_gripper.xml", workdir / "Snakefile"]:
+    for path in [
+        workdir / "models" / "gantry_gripper" / "gantry_gripper.xml",
+        workdir / "Snakefile",
+    ]:
         path.touch()
     assert planned_jobs(workdir) == {}
 
@@ -143,11 +146,21 @@ def test_touching_files_without_changing_them_reruns_nothing(built, tmp_path):
 BAD_CONFIGS = [
     ("unknown key", lambda c: c["states"].update(seeed=1), "states.seeed: unknown key"),
     ("wrong type", lambda c: c["states"].update(n="many"), "states.n: expected integer"),
-    ("out of range", lambda c: c["analysis"].update(confidence=1.2), "analysis.confidence: expected < 1"),
-    ("missing lift time", lambda c: c["conditions"]["fast"].pop("lift_time"),
-     "conditions.fast.lift_time: missing"),
-    ("missing model", lambda c: c.update(model="models/nowhere/scene.xml"),
-     "model: expected an existing model file"),
+    (
+        "out of range",
+        lambda c: c["analysis"].update(confidence=1.2),
+        "analysis.confidence: expected < 1",
+    ),
+    (
+        "missing lift time",
+        lambda c: c["conditions"]["fast"].pop("lift_time"),
+        "conditions.fast.lift_time: missing",
+    ),
+    (
+        "missing model",
+        lambda c: c.update(model="models/nowhere/scene.xml"),
+        "model: expected an existing model file",
+    ),
 ]
 
 

@@ -46,9 +46,12 @@ def test_results_do_not_depend_on_batch_size_or_threads(gantry_model, evaluation
     sample = evaluation_states[:5]
     runs = [
         np.concatenate(
-            [b.physics[:, -1] for b in iter_episode_batches(
-                gantry_model, sample, lift_time=0.15, nthread=n, batch_size=bs
-            )]
+            [
+                b.physics[:, -1]
+                for b in iter_episode_batches(
+                    gantry_model, sample, lift_time=0.15, nthread=n, batch_size=bs
+                )
+            ]
         )
         for n, bs in [(1, 5), (2, 2), (2, 1)]
     ]
@@ -59,7 +62,9 @@ def test_results_do_not_depend_on_batch_size_or_threads(gantry_model, evaluation
 def test_sample_has_both_outcomes(gantry_model, evaluation_states):
     """The equality test above is only meaningful if the sample holds successes and failures."""
     sample = _sample(evaluation_states)
-    batch = next(iter_episode_batches(gantry_model, sample, lift_time=0.15, nthread=2, batch_size=64))
+    batch = next(
+        iter_episode_batches(gantry_model, sample, lift_time=0.15, nthread=2, batch_size=64)
+    )
     success = episode_outcomes(gantry_model, batch, lift_time=0.15)["success"]
     assert success.any() and not success.all()
 

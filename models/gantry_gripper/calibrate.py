@@ -73,14 +73,22 @@ def main() -> None:
             for torsion in args.torsion:
                 for z_kp in args.z_kp:
                     for timestep in args.timestep:
-                        kw = dict(grip=grip, friction=friction, torsion=torsion, z_kp=z_kp,
-                                  timestep=timestep)
+                        kw = dict(
+                            grip=grip,
+                            friction=friction,
+                            torsion=torsion,
+                            z_kp=z_kp,
+                            timestep=timestep,
+                        )
                         model = variant(**kw)
                         label = ", ".join(f"{k}={v:g}" for k, v in kw.items() if v is not None)
                         row = [label or "as built"]
                         for lift_time in (0.15, 1.5):
                             pooled, bands = band_rates(model, states, lift_time)
-                            row.append(f"{lift_time:g} s: {pooled:.2f} " + " ".join(f"{b:.2f}" for b in bands))
+                            row.append(
+                                f"{lift_time:g} s: {pooled:.2f} "
+                                + " ".join(f"{b:.2f}" for b in bands)
+                            )
                         print(" | ".join(row), flush=True)
 
 

@@ -45,9 +45,7 @@ def band_index(values: np.ndarray, edges: Sequence[float]) -> np.ndarray:
     return np.clip(idx, 0, len(edges) - 2)
 
 
-def judge_falsifier(
-    falsifier: Mapping[str, Any], paired: Mapping[str, float]
-) -> dict[str, Any]:
+def judge_falsifier(falsifier: Mapping[str, Any], paired: Mapping[str, float]) -> dict[str, Any]:
     """Verdict of the preregistered falsifier on the paired-difference interval.
 
     Refuted when the interval's lower bound is at or below the threshold, i.e. the interval

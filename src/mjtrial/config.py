@@ -99,7 +99,9 @@ def check_config(
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
-            fail(f"states.ranges.{name}", f"expected [low, high] with low < high, got {[low, high]}")
+            fail(
+                f"states.ranges.{name}", f"expected [low, high] with low < high, got {[low, high]}"
+            )
     if config["states"]["development_seed"] == config["states"]["seed"]:
         fail(
             "states.development_seed",

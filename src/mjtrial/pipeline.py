@@ -90,7 +90,9 @@ def build_states(
     development = generate_initial_states(
         seed=states_config["development_seed"], n=states_config["n"], ranges=states_config["ranges"]
     )
-    rows = {tuple(r) for r in np.column_stack([table.column(c) for c in ("dx", "dy", "yaw", "mass")])}
+    rows = {
+        tuple(r) for r in np.column_stack([table.column(c) for c in ("dx", "dy", "yaw", "mass")])
+    }
     dev_rows = np.column_stack([development.column(c) for c in ("dx", "dy", "yaw", "mass")])
     if any(tuple(r) in rows for r in dev_rows):
         raise ValueError(
@@ -105,7 +107,9 @@ def build_states(
         repo_root=repo_root,
     )
     provenance.write_parquet(table, output, stamp)
-    log.info("states: %d initial states (seed %d) -> %s", table.num_rows, states_config["seed"], output)
+    log.info(
+        "states: %d initial states (seed %d) -> %s", table.num_rows, states_config["seed"], output
+    )
     return table
 
 
@@ -196,7 +200,9 @@ def run_analysis(
     for name, path in rollout_tables.items():
         t = pq.read_table(path)
         outcomes[name] = {c: t.column(c).to_numpy(zero_copy_only=False) for c in t.column_names}
-    nominal = {name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()}
+    nominal = {
+        name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()
+    }
     summary = analysis.summarize(
         states=states,
         outcomes=outcomes,
@@ -208,7 +214,13 @@ def run_analysis(
     inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
     inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
     slice_ = {"analysis": dict(analysis_config), "falsifier": dict(falsifier)}
-    stamp = _stamp("analysis", slice_, inputs, seeds={"bootstrap": analysis_config["seed"]}, repo_root=repo_root)
+    stamp = _stamp(
+        "analysis",
+        slice_,
+        inputs,
+        seeds={"bootstrap": analysis_config["seed"]},
+        repo_root=repo_root,
+    )
     provenance.write_json(summary, output, stamp)
     log.info("analysis -> %s\n%s", output, analysis.format_table(summary))
     return summary

@@ -182,10 +182,17 @@ def rerun_to_mujoco_quat(q_xyzw: np.ndarray) -> np.ndarray:
     return q[..., [3, 0, 1, 2]]
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis (np.cross costs ~20 us per call on small inputs)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of w-x-y-z quaternions, broadcast over leading axes."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
     return np.stack(
         [
             aw * bw - ax * bx - ay * by - az * bz,
@@ -199,23 +206,67 @@ def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors v (..., 3) by unit w-x-y-z quaternions q (..., 4)."""
-    w = q[..., :1]
     u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    t = 2.0 * _cross(u, v)
+    return v + q[..., :1] * t + _cross(u, t)
 
 
 def _normalize(q: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def _body_frames(
+    model: mujoco.MjModel, qpos: np.ndarray
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per body: position ((3,) if constant, else (n, 3)) and w-x-y-z orientation ((4,) or (n, 4)).
+
+    Follows `mj_kinematics` (engine_core_smooth.c) step by step over all rows at once. Values
+    that do not depend on qpos stay unbroadcast, which keeps the gantry's pure translations cheap
+    and tells the logger which bodies never rotate.
+    """
+    pos: list[np.ndarray] = [np.zeros(3)]
+    quat: list[np.ndarray] = [np.array([1.0, 0.0, 0.0, 0.0])]
+    for i in range(1, model.nbody):
+        jnt0, njnt = int(model.body_jntadr[i]), int(model.body_jntnum[i])
+        if njnt == 1 and model.jnt_type[jnt0] == mujoco.mjtJoint.mjJNT_FREE:
+            adr = int(model.jnt_qposadr[jnt0])
+            pos.append(qpos[:, adr : adr + 3])
+            quat.append(_normalize(qpos[:, adr + 3 : adr + 7]))
+            continue
+        if model.body_mocapid[i] >= 0:
+            raise ValueError(f"body {_body_name(model, i)!r} is a mocap body: not supported")
+        parent = int(model.body_parentid[i])
+        p = pos[parent] + _quat_rotate(quat[parent], model.body_pos[i])
+        q = _quat_mul(quat[parent], model.body_quat[i])
+        for j in range(jnt0, jnt0 + njnt):
+            adr = int(model.jnt_qposadr[j])
+            jtype = model.jnt_type[j]
+            if jtype == mujoco.mjtJoint.mjJNT_SLIDE:
+                dq = (qpos[:, adr] - model.qpos0[adr])[:, None]
+                p = p + _quat_rotate(q, model.jnt_axis[j]) * dq
+            elif jtype in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_BALL):
+                anchor = _quat_rotate(q, model.jnt_pos[j]) + p
+                if jtype == mujoco.mjtJoint.mjJNT_BALL:
+                    qloc = _normalize(qpos[:, adr : adr + 4])
+                else:
+                    half = (0.5 * (qpos[:, adr] - model.qpos0[adr]))[:, None]
+                    qloc = np.concatenate([np.cos(half), np.sin(half) * model.jnt_axis[j]], axis=1)
+                q = _quat_mul(q, qloc)
+                p = anchor - _quat_rotate(q, model.jnt_pos[j])
+            else:
+                raise ValueError(f"body {_body_name(model, i)!r}: unsupported joint type {jtype}")
+        pos.append(p)
+        quat.append(_normalize(q))
+    return pos, quat
+
+
 def body_poses(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World poses of all bodies for many configurations: MuJoCo's `mj_kinematics`, vectorised.
 
-    Follows `mj_kinematics` (engine_core_smooth.c) step by step, over all rows at once, because
-    one `mj_kinematics` call per logged step costs more Python overhead than the whole logging
-    budget. Hinge and slide joints move relative to `qpos0`, as in MuJoCo; mocap bodies are not
-    supported (their poses are not part of the physics state).
+    One `mj_kinematics` call per logged step costs more Python overhead than the whole logging
+    budget, so the recursion runs in numpy over all rows at once. Hinge and slide joints move
+    relative to `qpos0`, as in MuJoCo; mocap bodies are not supported (their poses are not part
+    of the physics state).
 
     Args:
       model: the model.
@@ -227,45 +278,13 @@ def body_poses(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.
     qpos = np.asarray(qpos, dtype=np.float64)
     if qpos.ndim != 2 or qpos.shape[1] != model.nq:
         raise ValueError(f"qpos: expected shape (n, {model.nq}), got {qpos.shape}")
+    pos, quat = _body_frames(model, qpos)
     n = qpos.shape[0]
-    xpos = np.zeros((n, model.nbody, 3))
-    xquat = np.zeros((n, model.nbody, 4))
-    xquat[:, 0, 0] = 1.0
-    free = mujoco.mjtJoint.mjJNT_FREE
-    for i in range(1, model.nbody):
-        jnt0, njnt = int(model.body_jntadr[i]), int(model.body_jntnum[i])
-        if njnt == 1 and model.jnt_type[jnt0] == free:
-            adr = int(model.jnt_qposadr[jnt0])
-            xpos[:, i] = qpos[:, adr : adr + 3]
-            xquat[:, i] = _normalize(qpos[:, adr + 3 : adr + 7])
-            continue
-        if model.body_mocapid[i] >= 0:
-            raise ValueError(f"body {_body_name(model, i)!r} is a mocap body: not supported")
-        parent = int(model.body_parentid[i])
-        pos = xpos[:, parent] + _quat_rotate(xquat[:, parent], model.body_pos[i])
-        quat = _quat_mul(xquat[:, parent], model.body_quat[i])
-        for j in range(jnt0, jnt0 + njnt):
-            adr = int(model.jnt_qposadr[j])
-            jtype = model.jnt_type[j]
-            axis = model.jnt_axis[j]
-            if jtype == mujoco.mjtJoint.mjJNT_SLIDE:
-                q = (qpos[:, adr] - model.qpos0[adr])[:, None]
-                pos = pos + _quat_rotate(quat, axis) * q
-            elif jtype in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_BALL):
-                xanchor = _quat_rotate(quat, model.jnt_pos[j]) + pos
-                if jtype == mujoco.mjtJoint.mjJNT_BALL:
-                    qloc = _normalize(qpos[:, adr : adr + 4])
-                else:
-                    half = 0.5 * (qpos[:, adr] - model.qpos0[adr])
-                    qloc = np.concatenate(
-                        [np.cos(half)[:, None], np.sin(half)[:, None] * axis], axis=1
-                    )
-                quat = _quat_mul(quat, qloc)
-                pos = xanchor - _quat_rotate(quat, model.jnt_pos[j])
-            else:
-                raise ValueError(f"body {_body_name(model, i)!r}: unsupported joint type {jtype}")
-        xpos[:, i] = pos
-        xquat[:, i] = _normalize(quat)
+    xpos = np.empty((n, model.nbody, 3))
+    xquat = np.empty((n, model.nbody, 4))
+    for i in range(model.nbody):
+        xpos[:, i] = pos[i]
+        xquat[:, i] = quat[i]
     return xpos, xquat
 
 
@@ -476,8 +495,18 @@ def _log_episode(
         rr.TimeColumn(TIMELINE, duration=time_ns.astype("timedelta64[ns]")),
         rr.TimeColumn(STEP_TIMELINE, sequence=steps),
     ]
-    xpos, xquat = body_poses(model, rows[:, STATE_QPOS : STATE_QPOS + model.nq])
-    xyzw = mujoco_to_rerun_quat(xquat)
+    positions, orientations = _body_frames(model, rows[:, STATE_QPOS : STATE_QPOS + model.nq])
+    transforms = []
+    for body, entity in layout.bodies:
+        translation = np.broadcast_to(positions[body], (len(steps), 3))
+        quat = orientations[body]
+        if quat.ndim == 1 and np.allclose(quat, (1.0, 0.0, 0.0, 0.0), rtol=0, atol=1e-12):
+            # never rotates: translation only (Transform3D defaults to no rotation)
+            columns = rr.Transform3D.columns(translation=translation)
+        else:
+            xyzw = mujoco_to_rerun_quat(np.broadcast_to(quat, (len(steps), 4)))
+            columns = rr.Transform3D.columns(translation=translation, quaternion=xyzw)
+        transforms.append((entity, columns))
     scalars: list[tuple[str, np.ndarray]] = [
         (CUBE_HEIGHT, rows[:, layout.cube_z]),
         (FINGER_OPENING, rows[:, list(layout.fingers)].mean(axis=1)),
@@ -489,13 +518,8 @@ def _log_episode(
         scalars.append((f"{CONTACT_FORCE}/{side}", column))
 
     with _strict():
-        for body, entity in layout.bodies:
-            rec.send_columns(
-                entity,
-                indexes=indexes,
-                columns=rr.Transform3D.columns(translation=xpos[:, body], quaternion=xyzw[:, body]),
-                strict=True,
-            )
+        for entity, columns in transforms:
+            rec.send_columns(entity, indexes=indexes, columns=columns, strict=True)
         for entity, values in scalars:
             rec.send_columns(
                 entity,
@@ -654,15 +678,36 @@ def _encoded_recording(
         del rec
 
 
+def _blueprint_bytes(application_id: str) -> bytes:
+    """`default_blueprint` encoded as a stream of its own (an .rbl file's content).
+
+    Kept out of the recordings' streams: `rerun rrd route` 0.41 can panic on a stream that
+    mixes a blueprint store into a recording's sink.
+    """
+    with tempfile.TemporaryDirectory(prefix="mjtrial-blueprint-") as tmp:
+        path = Path(tmp) / "blueprint.rbl"
+        default_blueprint().save(application_id, path)
+        return path.read_bytes()
+
+
 def _stamp_json(stamp: Mapping[str, Any]) -> str:
     if not isinstance(stamp, Mapping) or "mjtrial_stamp" not in stamp:
-        raise ValueError("not an mjtrial provenance stamp (missing 'mjtrial_stamp'); use make_stamp")
+        raise ValueError(
+            "not an mjtrial provenance stamp (missing 'mjtrial_stamp'); use make_stamp"
+        )
     return json.dumps(dict(stamp), allow_nan=False)
 
 
-def _send_json_property(rec: rr.RecordingStream, name: str, text: str) -> None:
+def _send_property(rec: rr.RecordingStream, name: str, fields: Mapping[str, Any]) -> None:
+    # One-element lists: rerun converts bare Python scalars ~10x slower (exception paths).
     with _strict():
-        rec.send_property(name, rr.AnyValues(**{_JSON_FIELD: text}))
+        rec.send_property(
+            name, rr.AnyValues(**{k: v if isinstance(v, list) else [v] for k, v in fields.items()})
+        )
+
+
+def _send_json_property(rec: rr.RecordingStream, name: str, text: str) -> None:
+    _send_property(rec, name, {_JSON_FIELD: text})
 
 
 def write_condition_recordings(
@@ -699,11 +744,11 @@ def write_condition_recordings(
             if sid in seen:
                 raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
             rid = episode_recording_id(condition, sid)
+            if not seen:
+                out.write(_blueprint_bytes(application_id))
             with _encoded_recording(
                 application_id, rid, episode_recording_name(condition, sid)
             ) as (rec, encoded):
-                if not seen:
-                    rec.send_blueprint(default_blueprint(), make_active=True, make_default=True)
                 _send_episode_properties(rec, ep, condition=condition, log_every=log_every)
                 _send_json_property(rec, PROVENANCE_PROPERTY, stamp_text)
                 _log_geometry(rec, geometry)
@@ -740,8 +785,7 @@ def _send_episode_properties(
     }
     if ep.failure_category is not None:  # absent means None: rerun has no typed null
         values["failure_category"] = str(ep.failure_category)
-    with _strict():
-        rec.send_property(EPISODE_PROPERTY, rr.AnyValues(**values))
+    _send_property(rec, EPISODE_PROPERTY, values)
 
 
 def write_failures_rrd(
@@ -773,16 +817,15 @@ def write_failures_rrd(
                 failures.append((source, entry, props))
 
     with atomic_path(path) as tmp, _rrd_file(tmp) as out:
+        out.write(_blueprint_bytes(application_id))
         name = f"failures: {len(failures)} episode(s) from {len(sources)} file(s)"
         with _encoded_recording(application_id, FAILURES_SUMMARY, name) as (rec, encoded):
-            rec.send_blueprint(default_blueprint(), make_active=True, make_default=True)
             _send_json_property(rec, PROVENANCE_PROPERTY, stamp_text)
             sources_json = json.dumps([Path(s).name for s in sources])
+            _send_property(
+                rec, FAILURES_PROPERTY, {"n_failures": len(failures), "sources": sources_json}
+            )
             with _strict():
-                rec.send_property(
-                    FAILURES_PROPERTY,
-                    rr.AnyValues(n_failures=len(failures), sources=sources_json),
-                )
                 rec.log(FAILURES_SUMMARY, _failures_table(failures), static=True, strict=True)
         out.write(encoded[0])
 
@@ -810,8 +853,7 @@ def _copy_properties(
     for prop, fields in _raw_properties(reader, entry).items():
         if prop is None or prop in skip:
             continue
-        with _strict():
-            rec.send_property(prop, rr.AnyValues(**fields))
+        _send_property(rec, prop, fields)
 
 
 def _failures_table(failures: Sequence[tuple[Path, Any, dict[str, Any]]]) -> rr.TextDocument:

@@ -140,7 +140,12 @@ def iter_episode_batches(
         for start in range(0, len(states), batch_size):
             batch = states[start : start + batch_size]
             models = [episode_model(model, s.mass) for s in batch]
-            initial = np.stack([initial_physics_state(m, s, protocol=protocol) for m, s in zip(models, batch, strict=True)])
+            initial = np.stack(
+                [
+                    initial_physics_state(m, s, protocol=protocol)
+                    for m, s in zip(models, batch, strict=True)
+                ]
+            )
             physics, sensordata = runner.rollout(models, datas, initial, ctrl[None])
             yield EpisodeBatch(states=batch, physics=physics, sensordata=sensordata)
 
@@ -251,7 +256,9 @@ def episode_outcomes(
     success = (height > protocol.success_height) & ~halted & ~nonfinite
     warning = np.full(len(batch.states), "", dtype=object)
     for i in np.flatnonzero(halted | nonfinite):
-        _, counters = reference_episode(model, batch.states[i], lift_time=lift_time, protocol=protocol)
+        _, counters = reference_episode(
+            model, batch.states[i], lift_time=lift_time, protocol=protocol
+        )
         warning[i] = warning_names(counters)
     return {
         "state_id": np.array([s.state_id for s in batch.states], dtype=np.int64),

@@ -51,7 +51,9 @@ def states_from_table(table: pa.Table, *, source: str = "states table") -> list[
         bad = ~np.isfinite(cols[c].astype(float))
         if bad.any():
             first = int(cols["state_id"][np.argmax(bad)])
-            raise ValueError(f"{source}: column {c!r} has non-finite values (first at state {first})")
+            raise ValueError(
+                f"{source}: column {c!r} has non-finite values (first at state {first})"
+            )
     return [
         InitialState(int(i), float(dx), float(dy), float(yaw), float(mass))
         for i, dx, dy, yaw, mass in zip(*(cols[c] for c in STATE_COLUMNS), strict=True)

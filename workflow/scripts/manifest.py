@@ -10,8 +10,11 @@ setup_logging(snakemake.log[0])
 write_manifest(
     config=snakemake.params.config,
     summary_path=Path(snakemake.input.summary),
-    outputs=[Path(snakemake.input.states), *map(Path, snakemake.input.rollouts),
-             *map(Path, snakemake.input.nominals)],
+    outputs=[
+        Path(snakemake.input.states),
+        *map(Path, snakemake.input.rollouts),
+        *map(Path, snakemake.input.nominals),
+    ],
     model_file=Path(snakemake.input.model),
     output=Path(snakemake.output.manifest),
     repo_root=Path.cwd(),

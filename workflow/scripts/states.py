@@ -7,4 +7,8 @@ from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
-build_states(states_config=snakemake.params.states, output=Path(snakemake.output.states), repo_root=Path.cwd())
+build_states(
+    states_config=snakemake.params.states,
+    output=Path(snakemake.output.states),
+    repo_root=Path.cwd(),
+)
