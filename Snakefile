@@ -29,6 +29,6 @@ include: "workflow/rules/manifest.smk"
 
 
 rule all:
+    default_target: True
     input:
         manifest=RESULTS / "manifest.json",
-    default_target: True

@@ -69,10 +69,11 @@ def test_sample_has_both_outcomes(gantry_model, evaluation_states):
     assert success.any() and not success.all()
 
 
-def test_unhealthy_episode_is_a_failure_with_its_warning(gantry_model):
+def test_unhealthy_episode_is_a_failure_with_its_warning(gantry_model, tmp_path, monkeypatch):
     """A diverging simulation is recorded as a failure naming the warning, not a crash."""
     import copy
 
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes MUJOCO_LOG.TXT into the working directory
     model = copy.copy(gantry_model)
     # An absurd z servo gain, unlimited: the first descent set-point blows up the acceleration.
     model.actuator_gainprm[2, 0] = 1e10

@@ -1,17 +1,21 @@
 rule manifest:
     input:
         states=RESULTS / "states.parquet",
-        rollouts=expand(RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS),
-        nominals=expand(RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS),
+        rollouts=expand(
+            RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS
+        ),
+        nominals=expand(
+            RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS
+        ),
         summary=RESULTS / "analysis" / "summary.json",
         model=config["model"],
     output:
         manifest=RESULTS / "manifest.json",
+    log:
+        RESULTS / "logs" / "manifest.log",
     params:
         # The manifest records the whole config, so it depends on all of it.
         config=config,
         code=stage_code_hash("manifest"),
-    log:
-        RESULTS / "logs" / "manifest.log",
     script:
         "../scripts/manifest.py"

@@ -5,14 +5,14 @@ rule rollout:
     output:
         table=RESULTS / "rollouts" / "{condition}.parquet",
         nominal=RESULTS / "rollouts" / "{condition}.nominal.json",
+    log:
+        RESULTS / "logs" / "rollout_{condition}.log",
+    wildcard_constraints:
+        condition="|".join(CONDITIONS),
+    threads: 2
     params:
         condition=condition_slice,
         model_sha256=model_sha256,
         code=stage_code_hash("rollout"),
-    wildcard_constraints:
-        condition="|".join(CONDITIONS),
-    threads: 2
-    log:
-        RESULTS / "logs" / "rollout_{condition}.log",
     script:
         "../scripts/rollout.py"

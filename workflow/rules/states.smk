@@ -1,10 +1,10 @@
 rule states:
     output:
         states=RESULTS / "states.parquet",
+    log:
+        RESULTS / "logs" / "states.log",
     params:
         states=config["states"],
         code=stage_code_hash("states"),
-    log:
-        RESULTS / "logs" / "states.log",
     script:
         "../scripts/states.py"
