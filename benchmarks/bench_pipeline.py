@@ -88,13 +88,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         states_path = tmp / "states.parquet"
-        pipeline.build_states(states_config={**s, "n": n}, output=states_path, repo_root=REPO_ROOT)
+        pipeline.build_states(states_slice={**s, "n": n}, output=states_path, repo_root=REPO_ROOT)
 
         def stage():
             return {
                 name: pipeline.run_condition(
-                    condition=name,
-                    condition_config={"lift_time": lt},
+                    condition_slice={"condition": name, "lift_time": lt},
                     states_path=states_path,
                     model_file=REPO_ROOT / config["model"],
                     output_table=tmp / f"{name}.parquet",

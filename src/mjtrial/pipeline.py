@@ -53,6 +53,28 @@ STAGE_MODULES: dict[str, tuple[str, ...]] = {
 }
 
 
+def config_slice(
+    stage: str, config: Mapping[str, Any], *, condition: str | None = None
+) -> dict[str, Any]:
+    """The part of the config a stage depends on: its rule's params and its stamp's record.
+
+    Changing a value outside a stage's slice never reruns that stage.
+    """
+    if stage == "states":
+        return dict(config["states"])
+    if stage == "rollout":
+        return {"condition": condition, **config["conditions"][condition]}
+    if stage == "analysis":
+        return {
+            "conditions": dict(config["conditions"]),
+            "falsifier": dict(config["design"]["falsifier"]),
+            "analysis": dict(config["analysis"]),
+        }
+    if stage == "manifest":
+        return dict(config)
+    raise ValueError(f"stage: expected one of {sorted(STAGE_MODULES)}, got {stage!r}")
+
+
 def stage_code_hash(stage: str) -> str:
     """sha256 of the source of the modules `stage` runs."""
     return provenance.code_hash(STAGE_MODULES[stage])
@@ -77,7 +99,7 @@ def _stamp(
 
 
 def build_states(
-    *, states_config: Mapping[str, Any], output: Path, repo_root: Path = REPO_ROOT
+    *, states_slice: Mapping[str, Any], output: Path, repo_root: Path = REPO_ROOT
 ) -> pa.Table:
     """Draw the evaluation states and write `states.parquet`.
 
@@ -85,10 +107,10 @@ def build_states(
     configuration whose development and evaluation states share a state.
     """
     table = generate_initial_states(
-        seed=states_config["seed"], n=states_config["n"], ranges=states_config["ranges"]
+        seed=states_slice["seed"], n=states_slice["n"], ranges=states_slice["ranges"]
     )
     development = generate_initial_states(
-        seed=states_config["development_seed"], n=states_config["n"], ranges=states_config["ranges"]
+        seed=states_slice["development_seed"], n=states_slice["n"], ranges=states_slice["ranges"]
     )
     rows = {
         tuple(r) for r in np.column_stack([table.column(c) for c in ("dx", "dy", "yaw", "mass")])
@@ -101,14 +123,14 @@ def build_states(
         )
     stamp = _stamp(
         "states",
-        dict(states_config),
+        dict(states_slice),
         {},
-        seeds={"states": states_config["seed"], "development": states_config["development_seed"]},
+        seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
         repo_root=repo_root,
     )
     provenance.write_parquet(table, output, stamp)
     log.info(
-        "states: %d initial states (seed %d) -> %s", table.num_rows, states_config["seed"], output
+        "states: %d initial states (seed %d) -> %s", table.num_rows, states_slice["seed"], output
     )
     return table
 
@@ -128,8 +150,7 @@ def nominal_state(model: Any) -> InitialState:
 
 def run_condition(
     *,
-    condition: str,
-    condition_config: Mapping[str, Any],
+    condition_slice: Mapping[str, Any],
     states_path: Path,
     model_file: Path,
     output_table: Path,
@@ -141,7 +162,8 @@ def run_condition(
     """Roll out every state under one condition; write the per-episode table and the nominal."""
     model = load_model(model_file)
     states = read_states(states_path)
-    lift_time = float(condition_config["lift_time"])
+    condition = condition_slice["condition"]
+    lift_time = float(condition_slice["lift_time"])
     columns: dict[str, list[np.ndarray]] = {c: [] for c in EPISODE_COLUMNS}
     for batch in iter_episode_batches(
         model, states, lift_time=lift_time, nthread=nthread, batch_size=batch_size
@@ -157,9 +179,8 @@ def run_condition(
     nominal_batch = next(iter_episode_batches(model, [nominal], lift_time=lift_time, nthread=1))
     nominal_outcome = episode_outcomes(model, nominal_batch, lift_time=lift_time)
 
-    slice_ = {"condition": condition, **dict(condition_config)}
     inputs = {"states": states_path, "model": model_file}
-    stamp = _stamp(f"rollout:{condition}", slice_, inputs, repo_root=repo_root)
+    stamp = _stamp(f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root)
     provenance.write_parquet(table, output_table, stamp)
     provenance.write_json(
         {
@@ -187,13 +208,13 @@ def run_analysis(
     states_path: Path,
     rollout_tables: Mapping[str, Path],
     nominal_files: Mapping[str, Path],
-    conditions: Mapping[str, Mapping[str, Any]],
-    falsifier: Mapping[str, Any],
-    analysis_config: Mapping[str, Any],
+    analysis_slice: Mapping[str, Any],
     output: Path,
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """Compute the summary, write `summary.json`, and log the table."""
+    conditions = analysis_slice["conditions"]
+    analysis_config = analysis_slice["analysis"]
     states_table = pq.read_table(states_path)
     states = {c: states_table.column(c).to_numpy() for c in states_table.column_names}
     outcomes = {}
@@ -208,15 +229,14 @@ def run_analysis(
         outcomes=outcomes,
         nominal=nominal,
         lift_times={name: float(c["lift_time"]) for name, c in conditions.items()},
-        falsifier=falsifier,
+        falsifier=analysis_slice["falsifier"],
         analysis=analysis_config,
     )
     inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
     inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
-    slice_ = {"analysis": dict(analysis_config), "falsifier": dict(falsifier)}
     stamp = _stamp(
         "analysis",
-        slice_,
+        dict(analysis_slice),
         inputs,
         seeds={"bootstrap": analysis_config["seed"]},
         repo_root=repo_root,
@@ -289,7 +309,7 @@ def write_manifest(
     }
     stamp = _stamp(
         "manifest",
-        {"design": config["design"]},
+        dict(config),
         {rel(p): p for p in [*outputs, summary_path]},
         repo_root=repo_root,
     )

@@ -12,9 +12,7 @@ rule analysis:
     log:
         RESULTS / "logs" / "analysis.log",
     params:
-        conditions=config["conditions"],
-        falsifier=config["design"]["falsifier"],
-        analysis=config["analysis"],
+        slice=config_slice("analysis", config),
         code=stage_code_hash("analysis"),
     script:
         "../scripts/analysis.py"

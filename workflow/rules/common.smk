@@ -1,14 +1,14 @@
 from pathlib import Path
 
-from mjtrial.pipeline import stage_code_hash
+from mjtrial.pipeline import config_slice, stage_code_hash
 
 RESULTS = Path("results") / config["experiment"]
 CONDITIONS = list(config["conditions"])
 
 
-def condition_slice(wildcards):
+def rollout_slice(wildcards):
     """The config a condition's rollout depends on: its own protocol parameters only."""
-    return config["conditions"][wildcards.condition]
+    return config_slice("rollout", config, condition=wildcards.condition)
 
 
 def model_sha256(wildcards=None):

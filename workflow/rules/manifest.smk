@@ -15,7 +15,7 @@ rule manifest:
         RESULTS / "logs" / "manifest.log",
     params:
         # The manifest records the whole config, so it depends on all of it.
-        config=config,
+        slice=config_slice("manifest", config),
         code=stage_code_hash("manifest"),
     script:
         "../scripts/manifest.py"

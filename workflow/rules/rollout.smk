@@ -11,7 +11,7 @@ rule rollout:
         condition="|".join(CONDITIONS),
     threads: 2
     params:
-        condition=condition_slice,
+        slice=rollout_slice,
         model_sha256=model_sha256,
         code=stage_code_hash("rollout"),
     script:

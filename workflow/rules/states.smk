@@ -4,7 +4,7 @@ rule states:
     log:
         RESULTS / "logs" / "states.log",
     params:
-        states=config["states"],
+        slice=config_slice("states", config),
         code=stage_code_hash("states"),
     script:
         "../scripts/states.py"

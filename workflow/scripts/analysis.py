@@ -7,14 +7,12 @@ from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
-conditions = snakemake.params.conditions
+conditions = list(snakemake.params.slice["conditions"])
 run_analysis(
     states_path=Path(snakemake.input.states),
     rollout_tables=dict(zip(conditions, map(Path, snakemake.input.rollouts), strict=True)),
     nominal_files=dict(zip(conditions, map(Path, snakemake.input.nominals), strict=True)),
-    conditions=conditions,
-    falsifier=snakemake.params.falsifier,
-    analysis_config=snakemake.params.analysis,
+    analysis_slice=snakemake.params.slice,
     output=Path(snakemake.output.summary),
     repo_root=Path.cwd(),
 )

@@ -8,7 +8,7 @@ from mjtrial.workflow_script import setup_logging
 snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
 write_manifest(
-    config=snakemake.params.config,
+    config=snakemake.params.slice,
     summary_path=Path(snakemake.input.summary),
     outputs=[
         Path(snakemake.input.states),

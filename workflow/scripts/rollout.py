@@ -8,8 +8,7 @@ from mjtrial.workflow_script import setup_logging
 snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
 run_condition(
-    condition=snakemake.wildcards.condition,
-    condition_config=snakemake.params.condition,
+    condition_slice=snakemake.params.slice,
     states_path=Path(snakemake.input.states),
     model_file=Path(snakemake.input.model),
     output_table=Path(snakemake.output.table),

@@ -8,7 +8,7 @@ from mjtrial.workflow_script import setup_logging
 snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
 build_states(
-    states_config=snakemake.params.states,
+    states_slice=snakemake.params.slice,
     output=Path(snakemake.output.states),
     repo_root=Path.cwd(),
 )
