@@ -93,7 +93,7 @@ def main() -> None:
         def stage():
             return {
                 name: pipeline.run_condition(
-                    condition_slice={"condition": name, "lift_time": lt},
+                    condition_slice=pipeline.config_slice("rollout", config, condition=name),
                     states_path=states_path,
                     model_file=REPO_ROOT / config["model"],
                     output_table=tmp / f"{name}.parquet",

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +16,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, analysis, provenance
-from mjtrial.protocol import PROTOCOL
+from mjtrial import REPO_ROOT, analysis, provenance, taxonomy
+from mjtrial.protocol import PROTOCOL, control_sequence
 from mjtrial.simulate import (
     CUBE_BODY,
     EPISODE_COLUMNS,
+    EpisodeBatch,
     InitialState,
     episode_outcomes,
     iter_episode_batches,
@@ -39,6 +40,7 @@ STAGE_MODULES: dict[str, tuple[str, ...]] = {
         "mjtrial.states",
         "mjtrial.simulate",
         "mjtrial.protocol",
+        "mjtrial.taxonomy",
         "mjtrial.provenance",
         "mjtrial.atomic",
     ),
@@ -63,7 +65,11 @@ def config_slice(
     if stage == "states":
         return dict(config["states"])
     if stage == "rollout":
-        return {"condition": condition, **config["conditions"][condition]}
+        return {
+            "condition": condition,
+            **config["conditions"][condition],
+            "failure_taxonomy": dict(config["failure_taxonomy"]),
+        }
     if stage == "analysis":
         return {
             "conditions": dict(config["conditions"]),
@@ -148,6 +154,31 @@ def nominal_state(model: Any) -> InitialState:
     return InitialState(-1, 0.0, 0.0, 0.0, float(model.body_mass[cube]))
 
 
+# Columns of `rollouts/<condition>.parquet`, in order: the outcome, then the failure analysis.
+ROLLOUT_COLUMNS = (*EPISODE_COLUMNS, "failure_category", "peak_slip", "peak_carriage_accel")
+
+
+def condition_outcomes(
+    model: Any,
+    states: Sequence[InitialState],
+    *,
+    lift_time: float,
+    thresholds: taxonomy.Thresholds,
+    nthread: int,
+    batch_size: int = 64,
+) -> Iterator[tuple[EpisodeBatch, dict[str, np.ndarray]]]:
+    """Each batch of episodes with its per-episode columns (`ROLLOUT_COLUMNS`)."""
+    _, phase = control_sequence(lift_time, timestep=model.opt.timestep)
+    for batch in iter_episode_batches(
+        model, states, lift_time=lift_time, nthread=nthread, batch_size=batch_size
+    ):
+        outcome = episode_outcomes(model, batch, lift_time=lift_time)
+        traj = taxonomy.trajectories_from_batch(
+            model, batch, phase=phase, home_xy=(PROTOCOL.home_x, 0.0)
+        )
+        yield batch, outcome | taxonomy.classify(traj, outcome["success"], thresholds)
+
+
 def run_condition(
     *,
     condition_slice: Mapping[str, Any],
@@ -164,20 +195,29 @@ def run_condition(
     states = read_states(states_path)
     condition = condition_slice["condition"]
     lift_time = float(condition_slice["lift_time"])
-    columns: dict[str, list[np.ndarray]] = {c: [] for c in EPISODE_COLUMNS}
-    for batch in iter_episode_batches(
-        model, states, lift_time=lift_time, nthread=nthread, batch_size=batch_size
+    thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
+    columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
+    for _, outcome in condition_outcomes(
+        model,
+        states,
+        lift_time=lift_time,
+        thresholds=thresholds,
+        nthread=nthread,
+        batch_size=batch_size,
     ):
-        outcome = episode_outcomes(model, batch, lift_time=lift_time)
-        for c in EPISODE_COLUMNS:
+        for c in ROLLOUT_COLUMNS:
             columns[c].append(outcome[c])
     merged = {c: np.concatenate(v) for c, v in columns.items()}
     table = pa.table(
-        {c: pa.array(merged[c].tolist() if c == "warning" else merged[c]) for c in EPISODE_COLUMNS}
+        {
+            c: pa.array(merged[c].tolist() if merged[c].dtype == object else merged[c])
+            for c in ROLLOUT_COLUMNS
+        }
     )
     nominal = nominal_state(model)
-    nominal_batch = next(iter_episode_batches(model, [nominal], lift_time=lift_time, nthread=1))
-    nominal_outcome = episode_outcomes(model, nominal_batch, lift_time=lift_time)
+    _, nominal_outcome = next(
+        condition_outcomes(model, [nominal], lift_time=lift_time, thresholds=thresholds, nthread=1)
+    )
 
     inputs = {"states": states_path, "model": model_file}
     stamp = _stamp(f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root)
@@ -188,6 +228,7 @@ def run_condition(
             "state": nominal.__dict__ | {"state_id": None},
             "success": bool(nominal_outcome["success"][0]),
             "final_height": float(nominal_outcome["final_height"][0]),
+            "failure_category": nominal_outcome["failure_category"][0],
         },
         output_nominal,
         stamp,
