@@ -108,7 +108,13 @@ def test_every_output_is_stamped_with_commit_state_and_versions(built):
     assert rollout["inputs"]["model"]["sha256"] == provenance.file_sha256(
         built / "models" / "gantry_gripper" / "scene.xml"
     )
-    assert rollout["config_slice"] == {"condition": "fast", "lift_time": 0.15}
+    config = yaml.safe_load((built / "config" / "config.yaml").read_text())
+    assert rollout["config_slice"] == {
+        "condition": "fast",
+        "lift_time": 0.15,
+        "failure_taxonomy": config["failure_taxonomy"],
+    }
+    assert rollout["config_slice_sha256"] == provenance.config_hash(rollout["config_slice"])
     manifest = json.loads((results / "manifest.json").read_text())
     assert manifest["model"]["integrator"] == "mjINT_IMPLICITFAST"
     assert manifest["results"]["conditions"]["fast"]["n"] == 12
