@@ -12,7 +12,7 @@ ANALYSIS = {
     "n_resamples": 2000,
     "confidence": 0.95,
     "seed": 5,
-    "mass_bands": [0.05, 0.23, 0.42, 0.6],
+    "bands": {"mass": [0.05, 0.23, 0.42, 0.6], "abs_dx": [0, 0.5, 1.0]},
     "first_k": 10,
 }
 FALSIFIER = {
@@ -21,6 +21,9 @@ FALSIFIER = {
     "statistic": "paired_difference",
     "threshold": 0.0,
 }
+
+
+CATEGORIES = ("never grasped", "slipped during the lift")
 
 
 def _experiment(n=60, seed=0, slow_rate=0.9, fast_rate=0.5):
@@ -41,6 +44,9 @@ def _experiment(n=60, seed=0, slow_rate=0.9, fast_rate=0.5):
             "state_id": states["state_id"][order],
             "success": success[order],
             "nonfinite": np.zeros(n, bool),
+            "failure_category": np.array(
+                [None if ok else CATEGORIES[i % 2] for i, ok in enumerate(success)], dtype=object
+            )[order],
             "warning": np.array([""] * n, dtype=object),
         }
     return states, outcomes, fast, slow
@@ -90,8 +96,11 @@ def test_paired_counts_and_mcnemar_match_naive_loop_and_scipy():
 def test_mass_bands_and_first_k_match_naive_selection():
     states, outcomes, fast, slow = _experiment(n=80, seed=3)
     summary = _summary(states, outcomes)
-    edges = ANALYSIS["mass_bands"]
-    for i, band in enumerate(summary["mass_bands"]):
+    edges = ANALYSIS["bands"]["mass"]
+    assert [b["n"] for b in summary["pooled_over"]["mass_bands"]] == [
+        b["n"] for b in summary["bands"]["mass"]
+    ]
+    for i, band in enumerate(summary["bands"]["mass"]):
         last = i == len(edges) - 2
         inside = [
             j
@@ -100,6 +109,10 @@ def test_mass_bands_and_first_k_match_naive_selection():
         ]
         assert band["conditions"]["slow"]["n"] == len(inside)
         assert band["conditions"]["slow"]["successes"] == int(slow[inside].sum())
+    dx_band = summary["bands"]["abs_dx"]
+    near = np.abs(states["dx"]) < 0.5
+    assert dx_band[0]["n"] == int(near.sum())
+    assert dx_band[0]["conditions"]["fast"]["successes"] == int(fast[near].sum())
     first = summary["mistakes"]["first_k"]["conditions"]
     assert first["fast"]["successes"] == int(fast[:10].sum()) and first["fast"]["n"] == 10
     nominal = summary["mistakes"]["nominal_state"]["conditions"]
@@ -149,3 +162,14 @@ def test_table_shows_every_number_of_the_summary():
     assert summary["falsifier"]["verdict"].upper() in table
     for name, rec in summary["conditions"].items():
         assert f"{rec['successes']}/{rec['n']}" in table and name in table
+
+
+def test_failure_counts_add_up_to_failures_in_taxonomy_order():
+    states, outcomes, fast, slow = _experiment(n=50, seed=4)
+    summary = _summary(states, outcomes)
+    for name, truth in (("fast", fast), ("slow", slow)):
+        counts = summary["failures"][name]
+        assert list(counts)[0] == "simulation unhealthy" and len(counts) == 5
+        assert sum(counts.values()) == int((~truth).sum())
+        failed = [i for i in range(truth.size) if not truth[i]]
+        assert counts["never grasped"] == sum(1 for i in failed if i % 2 == 0)

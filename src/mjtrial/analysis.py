@@ -45,6 +45,44 @@ def band_index(values: np.ndarray, edges: Sequence[float]) -> np.ndarray:
     return np.clip(idx, 0, len(edges) - 2)
 
 
+def band_values(states: Mapping[str, np.ndarray], parameter: str) -> np.ndarray:
+    """Values a band table sorts by: a state column, or its magnitude for `abs_<column>`."""
+    if parameter.startswith("abs_"):
+        return np.abs(np.asarray(states[parameter.removeprefix("abs_")], dtype=float))
+    return np.asarray(states[parameter], dtype=float)
+
+
+def band_table(
+    values: np.ndarray,
+    edges: Sequence[float],
+    success: Mapping[str, np.ndarray],
+    *,
+    confidence: float,
+) -> list[dict[str, Any]]:
+    """Success per band of `values` (shape (n,)) for each condition's success (shape (n,))."""
+    band = band_index(values, edges)
+    return [
+        {
+            "band": label,
+            "low": edges[i],
+            "high": edges[i + 1],
+            "n": int((band == i).sum()),
+            "conditions": {
+                name: rate_record(s[band == i], confidence=confidence)
+                for name, s in success.items()
+            },
+        }
+        for i, label in enumerate(band_labels(edges))
+    ]
+
+
+def failure_counts(categories: np.ndarray) -> dict[str, int]:
+    """Failed episodes per category, in the taxonomy's order (zeros included)."""
+    from mjtrial.taxonomy import FailureCategory
+
+    return {c.value: int(sum(1 for x in categories if x == c.value)) for c in FailureCategory}
+
+
 def judge_falsifier(falsifier: Mapping[str, Any], paired: Mapping[str, float]) -> dict[str, Any]:
     """Verdict of the preregistered falsifier on the paired-difference interval.
 
@@ -81,7 +119,7 @@ def summarize(
         compiled): the first classic mistake reports it alone.
       lift_times: per condition, its lift time (s), recorded beside the results.
       falsifier: the design's falsifier (treatment, baseline, statistic, threshold).
-      analysis: the analysis config slice (n_resamples, confidence, seed, mass_bands, first_k).
+      analysis: the analysis config slice (n_resamples, confidence, seed, bands, first_k).
     """
     confidence = float(analysis["confidence"])
     order = np.argsort(states["state_id"])
@@ -133,20 +171,16 @@ def summarize(
         "neither": int((~a & ~b).sum()),
     }
 
-    edges = list(analysis["mass_bands"])
-    band = band_index(np.asarray(states["mass"])[order], edges)
-    mass_bands = [
-        {
-            "band": label,
-            "low": edges[i],
-            "high": edges[i + 1],
-            "conditions": {
-                name: rate_record(s[band == i], confidence=confidence)
-                for name, s in success.items()
-            },
-        }
-        for i, label in enumerate(band_labels(edges))
-    ]
+    bands = {
+        parameter: band_table(
+            band_values(states, parameter)[order], list(edges), success, confidence=confidence
+        )
+        for parameter, edges in analysis["bands"].items()
+    }
+    failures = {
+        name: failure_counts(np.asarray(table["failure_category"], dtype=object))
+        for name, table in outcomes.items()
+    }
 
     k = min(int(analysis["first_k"]), len(state_ids))
     mistakes = {
@@ -172,7 +206,12 @@ def summarize(
         "paired_difference": paired,
         "discordant": discordant,
         "mcnemar": {"p_value": test.p_value, "method": test.method},
-        "mass_bands": mass_bands,
+        "bands": bands,
+        "pooled_over": {
+            "what": "pooled rates average over this mass distribution; per-band rates beside them",
+            "mass_bands": [{"band": b["band"], "n": b["n"]} for b in bands["mass"]],
+        },
+        "failures": failures,
         "mistakes": mistakes,
         "falsifier": judge_falsifier(falsifier, paired),
     }
@@ -204,10 +243,14 @@ def format_table(summary: Mapping[str, Any]) -> str:
     d = summary["discordant"]
     lines.append("Pairs: " + ", ".join(f"{k} {v}" for k, v in d.items()))
     lines.append(f"McNemar exact p = {summary['mcnemar']['p_value']:.3g}")
-    lines.append("Success by mass band (kg)")
-    for band in summary["mass_bands"]:
-        for name, rec in band["conditions"].items():
-            lines.append(f"  {band['band']:<14} {name:<12} {_interval(rec)}")
+    for parameter, table in summary["bands"].items():
+        lines.append(f"Success by {parameter} band")
+        for band in table:
+            for name, rec in band["conditions"].items():
+                lines.append(f"  {band['band']:<16} {name:<12} {_interval(rec)}")
+    lines.append("Failures by category")
+    for name, counts in summary["failures"].items():
+        lines.append(f"  {name:<12} " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     lines.append("Classic evaluation mistakes, reproduced")
     for mistake in summary["mistakes"].values():
         lines.append(f"  {mistake['what']}:")

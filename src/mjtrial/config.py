@@ -108,15 +108,16 @@ def check_config(
             "expected a seed other than states.seed (development and evaluation states must be "
             "disjoint)",
         )
-    bands = config["analysis"]["mass_bands"]
-    if any(high <= low for low, high in zip(bands[:-1], bands[1:], strict=True)):
-        fail("analysis.mass_bands", f"expected strictly increasing edges, got {bands}")
-    mass_low, mass_high = config["states"]["ranges"]["mass"]
-    if bands[0] > mass_low or bands[-1] < mass_high:
-        fail(
-            "analysis.mass_bands",
-            f"expected edges covering states.ranges.mass {[mass_low, mass_high]}, got {bands}",
-        )
+    for name, edges in config["analysis"]["bands"].items():
+        key = f"analysis.bands.{name}"
+        if any(high <= low for low, high in zip(edges[:-1], edges[1:], strict=True)):
+            fail(key, f"expected strictly increasing edges, got {edges}")
+        parameter = name.removeprefix("abs_")
+        low, high = config["states"]["ranges"][parameter]
+        if name.startswith("abs_"):
+            low, high = 0.0, max(abs(low), abs(high))
+        if edges[0] > low or edges[-1] < high:
+            fail(key, f"expected edges covering the range of {name} [{low}, {high}], got {edges}")
     model_file = repo_root / config["model"]
     if not model_file.is_file():
         fail("model", f"expected an existing model file, got {config['model']!r} (not found)")
