@@ -173,3 +173,19 @@ def test_failure_counts_add_up_to_failures_in_taxonomy_order():
         assert sum(counts.values()) == int((~truth).sum())
         failed = [i for i in range(truth.size) if not truth[i]]
         assert counts["never grasped"] == sum(1 for i in failed if i % 2 == 0)
+
+
+@pytest.mark.parametrize(("n", "met"), [(196, True), (195, False)])
+def test_sample_size_plan_is_checked(n, met):
+    states, outcomes, *_ = _experiment(n=n)
+    summary = summarize(
+        states=states,
+        outcomes=outcomes,
+        nominal={"fast": True, "slow": True},
+        lift_times={"fast": 0.15, "slow": 1.5},
+        falsifier=FALSIFIER,
+        analysis=ANALYSIS,
+        sample_size={"target_halfwidth": 0.07},
+    )
+    # 1.959964^2 * 0.25 / 0.07^2 = 195.99..., so 196 states are needed.
+    assert summary["sample_size"] == {"target_halfwidth": 0.07, "required": 196, "n": n, "met": met}

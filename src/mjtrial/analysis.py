@@ -109,6 +109,7 @@ def summarize(
     lift_times: Mapping[str, float],
     falsifier: Mapping[str, Any],
     analysis: Mapping[str, Any],
+    sample_size: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The experiment's summary.
 
@@ -120,6 +121,8 @@ def summarize(
       lift_times: per condition, its lift time (s), recorded beside the results.
       falsifier: the design's falsifier (treatment, baseline, statistic, threshold).
       analysis: the analysis config slice (n_resamples, confidence, seed, bands, first_k).
+      sample_size: the design's sample-size plan (target_halfwidth); the summary says whether
+        n met it.
     """
     confidence = float(analysis["confidence"])
     order = np.argsort(states["state_id"])
@@ -214,7 +217,19 @@ def summarize(
         "failures": failures,
         "mistakes": mistakes,
         "falsifier": judge_falsifier(falsifier, paired),
+        "sample_size": sample_size_check(sample_size, len(state_ids), confidence=confidence),
     }
+
+
+def sample_size_check(
+    plan: Mapping[str, Any] | None, n: int, *, confidence: float
+) -> dict[str, Any] | None:
+    """Whether n met the design's plan: the worst-case episodes for its target half-width."""
+    if plan is None:
+        return None
+    halfwidth = float(plan["target_halfwidth"])
+    required = stats.episodes_for_halfwidth(halfwidth, 0.5, confidence)
+    return {"target_halfwidth": halfwidth, "required": required, "n": n, "met": n >= required}
 
 
 def _interval(rec: Mapping[str, Any]) -> str:
@@ -256,6 +271,13 @@ def format_table(summary: Mapping[str, Any]) -> str:
         lines.append(f"  {mistake['what']}:")
         for name, rec in mistake["conditions"].items():
             lines.append(f"    {name:<12} {_interval(rec)}")
+    plan = summary.get("sample_size")
+    if plan:
+        met = "met" if plan["met"] else "NOT met"
+        lines.append(
+            f"Sample size: n = {plan['n']}, plan needs {plan['required']} for a half-width of "
+            f"{plan['target_halfwidth']:g} at worst: {met}"
+        )
     f = summary["falsifier"]
     lines.append(f"Falsifier: {f['verdict'].upper()}: {f['reason']}")
     return "\n".join(lines)

@@ -74,6 +74,7 @@ def config_slice(
         return {
             "conditions": dict(config["conditions"]),
             "falsifier": dict(config["design"]["falsifier"]),
+            "sample_size": dict(config["design"]["sample_size"]),
             "analysis": dict(config["analysis"]),
         }
     if stage == "manifest":
@@ -272,6 +273,7 @@ def run_analysis(
         lift_times={name: float(c["lift_time"]) for name, c in conditions.items()},
         falsifier=analysis_slice["falsifier"],
         analysis=analysis_config,
+        sample_size=analysis_slice.get("sample_size"),
     )
     inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
     inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
