@@ -24,6 +24,7 @@ except ConfigError as err:
 include: "workflow/rules/common.smk"
 include: "workflow/rules/states.smk"
 include: "workflow/rules/rollout.smk"
+include: "workflow/rules/failures.smk"
 include: "workflow/rules/analysis.smk"
 include: "workflow/rules/manifest.smk"
 
@@ -32,3 +33,4 @@ rule all:
     default_target: True
     input:
         manifest=RESULTS / "manifest.json",
+        failures=RESULTS / "replay" / "failures.rrd",

@@ -41,6 +41,7 @@ STAGE_MODULES: dict[str, tuple[str, ...]] = {
         "mjtrial.simulate",
         "mjtrial.protocol",
         "mjtrial.taxonomy",
+        "mjtrial.recording",
         "mjtrial.provenance",
         "mjtrial.atomic",
     ),
@@ -51,6 +52,7 @@ STAGE_MODULES: dict[str, tuple[str, ...]] = {
         "mjtrial.provenance",
         "mjtrial.atomic",
     ),
+    "failures": ("mjtrial.pipeline", "mjtrial.recording", "mjtrial.provenance", "mjtrial.atomic"),
     "manifest": ("mjtrial.pipeline", "mjtrial.provenance", "mjtrial.atomic"),
 }
 
@@ -69,6 +71,7 @@ def config_slice(
             "condition": condition,
             **config["conditions"][condition],
             "failure_taxonomy": dict(config["failure_taxonomy"]),
+            "recording": dict(config["recording"]),
         }
     if stage == "analysis":
         return {
@@ -180,6 +183,26 @@ def condition_outcomes(
         yield batch, outcome | taxonomy.classify(traj, outcome["success"], thresholds)
 
 
+def log_every(rate_hz: float, timestep: float) -> int:
+    """Physics steps between logged steps for a logging rate (at least every step)."""
+    return max(1, round(1.0 / (rate_hz * timestep)))
+
+
+def episode_records(batch: EpisodeBatch, outcome: Mapping[str, np.ndarray]) -> Iterator[Any]:
+    """The batch's episodes as `recording.EpisodeRecord`s, with their outcomes."""
+    from mjtrial.recording import EpisodeRecord
+
+    for i, state in enumerate(batch.states):
+        yield EpisodeRecord(
+            state=state,
+            physics=batch.physics[i],
+            sensordata=batch.sensordata[i],
+            success=bool(outcome["success"][i]),
+            final_height=float(outcome["final_height"][i]),
+            failure_category=outcome["failure_category"][i],
+        )
+
+
 def run_condition(
     *,
     condition_slice: Mapping[str, Any],
@@ -187,27 +210,53 @@ def run_condition(
     model_file: Path,
     output_table: Path,
     output_nominal: Path,
+    output_recording: Path | None = None,
     nthread: int,
     batch_size: int = 64,
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, np.ndarray]:
-    """Roll out every state under one condition; write the per-episode table and the nominal."""
+    """Roll out every state under one condition.
+
+    Writes the per-episode table, the nominal state's episode, and (given `output_recording`)
+    every episode's trajectory as one Rerun recording per episode, streamed batch by batch.
+    """
+    from mjtrial import recording
+
     model = load_model(model_file)
     states = read_states(states_path)
     condition = condition_slice["condition"]
     lift_time = float(condition_slice["lift_time"])
     thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
+    inputs = {"states": states_path, "model": model_file}
+    stamp = _stamp(f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root)
     columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
-    for _, outcome in condition_outcomes(
-        model,
-        states,
-        lift_time=lift_time,
-        thresholds=thresholds,
-        nthread=nthread,
-        batch_size=batch_size,
-    ):
-        for c in ROLLOUT_COLUMNS:
-            columns[c].append(outcome[c])
+
+    def episodes() -> Iterator[recording.EpisodeRecord]:
+        for batch, outcome in condition_outcomes(
+            model,
+            states,
+            lift_time=lift_time,
+            thresholds=thresholds,
+            nthread=nthread,
+            batch_size=batch_size,
+        ):
+            for c in ROLLOUT_COLUMNS:
+                columns[c].append(outcome[c])
+            yield from episode_records(batch, outcome)
+
+    if output_recording is None:
+        for _ in episodes():
+            pass
+    else:
+        recording.write_condition_recordings(
+            output_recording,
+            model=model,
+            condition=condition,
+            episodes=episodes(),
+            ctrl=control_sequence(lift_time, timestep=model.opt.timestep)[0],
+            stamp=stamp,
+            log_every=log_every(condition_slice["recording"]["rate_hz"], model.opt.timestep),
+        )
     merged = {c: np.concatenate(v) for c, v in columns.items()}
     table = pa.table(
         {
@@ -220,8 +269,6 @@ def run_condition(
         condition_outcomes(model, [nominal], lift_time=lift_time, thresholds=thresholds, nthread=1)
     )
 
-    inputs = {"states": states_path, "model": model_file}
-    stamp = _stamp(f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root)
     provenance.write_parquet(table, output_table, stamp)
     provenance.write_json(
         {
@@ -287,6 +334,18 @@ def run_analysis(
     provenance.write_json(summary, output, stamp)
     log.info("analysis -> %s\n%s", output, analysis.format_table(summary))
     return summary
+
+
+def gather_failures(
+    *, recordings: Sequence[Path], output: Path, repo_root: Path = REPO_ROOT
+) -> int:
+    """Gather every failed episode of every condition into one `failures.rrd`."""
+    from mjtrial import recording
+
+    stamp = _stamp("failures", {}, {p.stem: p for p in recordings}, repo_root=repo_root)
+    count = recording.write_failures_rrd(output, recordings, stamp=stamp)
+    log.info("failures: %d failed episodes -> %s", count, output)
+    return count
 
 
 def write_manifest(

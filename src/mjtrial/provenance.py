@@ -11,6 +11,8 @@ Every output format carries its stamp in-band:
 * JSON: top-level key ``"provenance"``.
 * Markdown: front matter line ``provenance: <single-line JSON>``.
 * PNG: a ``tEXt`` chunk with keyword ``mjtrial.provenance``, just before ``IEND``.
+* SVG: a ``<metadata id="mjtrial.provenance">`` element (the JSON as escaped text), first child
+  of the root ``<svg>``.
 * Rerun ``.rrd``: a recording property, read by :mod:`mjtrial.recording`.
 
 :func:`read_stamp` reads any of them back.
@@ -24,12 +26,14 @@ import importlib.util
 import json
 import os
 import platform
+import re
 import struct
 import zlib
 from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from xml.sax.saxutils import escape as xml_escape
 
 from mjtrial.atomic import atomic_path, write_bytes_atomic, write_json_atomic, write_text_atomic
 
@@ -50,10 +54,12 @@ __all__ = [
     "read_stamp",
     "stamp_png_bytes",
     "stamp_parquet_metadata",
+    "stamp_svg_text",
     "write_json",
     "write_markdown",
     "write_parquet",
     "write_png",
+    "write_svg",
 ]
 
 STAMP_VERSION = 1
@@ -607,6 +613,63 @@ def _read_png_stamp(path: Path) -> dict[str, Any]:
     raise _missing(path)
 
 
+# --- SVG -------------------------------------------------------------------------------------
+
+# An element rather than an XML comment: JSON may contain "--", which a comment cannot hold.
+_SVG_STAMP_RE = re.compile(
+    r'\s*<metadata id="' + re.escape(STAMP_KEY) + r'">[^<]*</metadata>', re.DOTALL
+)
+# The root start tag; quoted attribute values may contain ">".
+_SVG_ROOT_RE = re.compile(r"""<svg\b(?:[^>"']|"[^"]*"|'[^']*')*>""")
+_SVG_NS = "{http://www.w3.org/2000/svg}"
+
+
+def _svg_root(svg: bytes) -> Any:
+    """The parsed root element of an SVG document; ValueError when it is not one."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(svg)
+    except ET.ParseError as exc:
+        raise ValueError(f"not an SVG file (XML parse error: {exc})") from exc
+    if root.tag not in ("svg", f"{_SVG_NS}svg"):
+        raise ValueError(f"not an SVG file (root element {root.tag!r})")
+    return root
+
+
+def stamp_svg_text(svg: str | bytes, stamp: Mapping[str, Any]) -> str:
+    """Return ``svg`` with ``<metadata id="mjtrial.provenance">`` as the root's first child.
+
+    Any previous stamp element is removed; the rest of the document is kept byte for byte.  The
+    input must parse as XML with an ``<svg>`` root (a bytes input is decoded as UTF-8).
+    """
+    text = svg.decode("utf-8") if isinstance(svg, bytes) else str(svg)
+    _svg_root(text.encode("utf-8"))
+    body = _stamp_json(stamp, ascii_only=True)
+    text = _SVG_STAMP_RE.sub("", text)
+    match = _SVG_ROOT_RE.search(text)
+    if match is None or match.group(0).endswith("/>"):
+        raise ValueError("SVG has no root <svg> start tag to hold a stamp")
+    element = f'\n <metadata id="{STAMP_KEY}">{xml_escape(body)}</metadata>'
+    return text[: match.end()] + element + text[match.end() :]
+
+
+def write_svg(svg: str | bytes, path: str | os.PathLike[str], stamp: Mapping[str, Any]) -> None:
+    """Atomically write the SVG document ``svg`` to ``path`` (UTF-8) with the stamp embedded."""
+    write_text_atomic(path, stamp_svg_text(svg, stamp))
+
+
+def _read_svg_stamp(path: Path) -> dict[str, Any]:
+    try:
+        root = _svg_root(path.read_bytes())
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+    for element in root:
+        if element.tag in ("metadata", f"{_SVG_NS}metadata") and element.get("id") == STAMP_KEY:
+            return _parse_stamp(element.text or "", path)
+    raise _missing(path)
+
+
 # --- Rerun -----------------------------------------------------------------------------------
 
 
@@ -631,6 +694,7 @@ _READERS = {
     ".json": _read_json_stamp,
     ".md": _read_markdown_stamp,
     ".png": _read_png_stamp,
+    ".svg": _read_svg_stamp,
     ".rrd": _read_rrd_stamp,
 }
 

@@ -7,6 +7,10 @@ rule manifest:
         nominals=expand(
             RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS
         ),
+        recordings=expand(
+            RESULTS / "rollouts" / "{condition}.rrd", condition=CONDITIONS
+        ),
+        failures=RESULTS / "replay" / "failures.rrd",
         summary=RESULTS / "analysis" / "summary.json",
         model=config["model"],
     output:

@@ -5,6 +5,7 @@ rule rollout:
     output:
         table=RESULTS / "rollouts" / "{condition}.parquet",
         nominal=RESULTS / "rollouts" / "{condition}.nominal.json",
+        recording=RESULTS / "rollouts" / "{condition}.rrd",
     log:
         RESULTS / "logs" / "rollout_{condition}.log",
     wildcard_constraints:

@@ -14,6 +14,8 @@ write_manifest(
         Path(snakemake.input.states),
         *map(Path, snakemake.input.rollouts),
         *map(Path, snakemake.input.nominals),
+        *map(Path, snakemake.input.recordings),
+        Path(snakemake.input.failures),
     ],
     model_file=Path(snakemake.input.model),
     output=Path(snakemake.output.manifest),

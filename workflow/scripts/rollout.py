@@ -13,6 +13,7 @@ run_condition(
     model_file=Path(snakemake.input.model),
     output_table=Path(snakemake.output.table),
     output_nominal=Path(snakemake.output.nominal),
+    output_recording=Path(snakemake.output.recording),
     nthread=snakemake.threads,
     repo_root=Path.cwd(),
 )

@@ -1,0 +1,13 @@
+rule failures:
+    input:
+        recordings=expand(
+            RESULTS / "rollouts" / "{condition}.rrd", condition=CONDITIONS
+        ),
+    output:
+        failures=RESULTS / "replay" / "failures.rrd",
+    log:
+        RESULTS / "logs" / "failures.log",
+    params:
+        code=stage_code_hash("failures"),
+    script:
+        "../scripts/failures.py"

@@ -1,0 +1,14 @@
+"""Snakemake adapter: gather every failed lift into one replay file (gather_failures)."""
+
+from pathlib import Path
+
+from mjtrial.pipeline import gather_failures
+from mjtrial.workflow_script import setup_logging
+
+snakemake = globals()["snakemake"]
+setup_logging(snakemake.log[0])
+gather_failures(
+    recordings=[Path(p) for p in snakemake.input.recordings],
+    output=Path(snakemake.output.failures),
+    repo_root=Path.cwd(),
+)
