@@ -90,6 +90,8 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
         "rollouts/slow.parquet",
         "analysis/summary.json",
         "manifest.json",
+        "rollouts/fast.rrd",
+        "replay/failures.rrd",
     ):
         assert (results / rel).is_file(), rel
     assert planned_jobs(built) == {}
@@ -98,7 +100,7 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
 def test_every_output_is_stamped_with_commit_state_and_versions(built):
     results = built / "results" / "research_mode"
     outputs = [p for p in results.rglob("*") if p.is_file() and "logs" not in p.parts]
-    assert len(outputs) >= 7
+    assert len(outputs) == 10
     for path in outputs:
         stamp = provenance.read_stamp(path)
         assert stamp["versions"]["mujoco"] == "3.14.0"
@@ -113,13 +115,15 @@ def test_every_output_is_stamped_with_commit_state_and_versions(built):
         "condition": "fast",
         "lift_time": 0.15,
         "failure_taxonomy": config["failure_taxonomy"],
+        "recording": config["recording"],
     }
     assert rollout["config_slice_sha256"] == provenance.config_hash(rollout["config_slice"])
     manifest = json.loads((results / "manifest.json").read_text())
     assert manifest["model"]["integrator"] == "mjINT_IMPLICITFAST"
     assert manifest["results"]["conditions"]["fast"]["n"] == 12
     assert manifest["results"]["falsifier"]["verdict"] in ("survives", "refuted")
-    assert len(manifest["stamps"]) == 6
+    # states, 2 tables, 2 nominal episodes, 2 recordings, failures, summary
+    assert len(manifest["stamps"]) == 9
 
 
 def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_path):
