@@ -138,7 +138,13 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
     shutil.copytree(built, workdir, symlinks=True)
     edit_config(workdir, lambda c: c["conditions"]["fast"].update(lift_time=0.2))
     out = run(workdir, "-n").stdout
-    assert planned_jobs(workdir) == {"all": 1, "analysis": 1, "manifest": 1, "rollout": 1}
+    assert planned_jobs(workdir) == {
+        "all": 1,
+        "analysis": 1,
+        "failures": 1,
+        "manifest": 1,
+        "rollout": 1,
+    }
     assert "wildcards: condition=fast" in out and "condition=slow" not in out
 
 
