@@ -40,3 +40,47 @@ def evaluation_states():
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     s = config["states"]
     return states_from_table(generate_initial_states(seed=s["seed"], n=s["n"], ranges=s["ranges"]))
+
+
+SNAKEMAKE = str(Path(__import__("sys").executable).parent / "snakemake")
+WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "profiles")
+
+
+def edit_config(workdir: Path, edit) -> None:
+    """Apply `edit` to the workdir's config/config.yaml."""
+    import yaml
+
+    path = workdir / "config" / "config.yaml"
+    config = yaml.safe_load(path.read_text())
+    edit(config)
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+
+
+def run_snakemake(workdir: Path, *args: str, check: bool = True):
+    import subprocess
+
+    proc = subprocess.run(
+        [SNAKEMAKE, "-c2", *args], cwd=workdir, capture_output=True, text=True, timeout=600
+    )
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake {args} failed:\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+@pytest.fixture(scope="session")
+def built(tmp_path_factory) -> Path:
+    """A small copy of the experiment (12 states, 500 resamples) built once by Snakemake."""
+    import shutil
+
+    workdir = tmp_path_factory.mktemp("experiment")
+    for name in WORKFLOW_FILES:
+        src = REPO_ROOT / name
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+
+    def small(config):
+        config["states"]["n"] = 12
+        config["analysis"]["n_resamples"] = 500
+
+    edit_config(workdir, small)
+    run_snakemake(workdir)
+    return workdir

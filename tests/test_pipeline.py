@@ -11,27 +11,14 @@ import hashlib
 import json
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
+from conftest import edit_config
+from conftest import run_snakemake as run
 
 from mjtrial import provenance
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
-COPY = ("Snakefile", "workflow", "config", "models", "profiles")
-
-
-def run(workdir: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
-    proc = subprocess.run(
-        [SNAKEMAKE, "-c2", *args], cwd=workdir, capture_output=True, text=True, timeout=600
-    )
-    if check and proc.returncode != 0:
-        raise AssertionError(f"snakemake {args} failed:\n{proc.stdout}\n{proc.stderr}")
-    return proc
 
 
 def planned_jobs(workdir: Path) -> dict[str, int]:
@@ -50,36 +37,12 @@ def planned_jobs(workdir: Path) -> dict[str, int]:
     return jobs
 
 
-def edit_config(workdir: Path, edit) -> None:
-    path = workdir / "config" / "config.yaml"
-    config = yaml.safe_load(path.read_text())
-    edit(config)
-    path.write_text(yaml.safe_dump(config, sort_keys=False))
-
-
 def digest(folder: Path) -> dict[str, str]:
     return {
         str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(folder.rglob("*"))
         if p.is_file() and "logs" not in p.parts
     }
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    """A small experiment (12 states, 500 resamples) built once from nothing."""
-    workdir = tmp_path_factory.mktemp("experiment")
-    for name in COPY:
-        src = REPO_ROOT / name
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
-
-    def small(config):
-        config["states"]["n"] = 12
-        config["analysis"]["n_resamples"] = 500
-
-    edit_config(workdir, small)
-    run(workdir)
-    return workdir
 
 
 def test_builds_everything_and_second_run_has_nothing_to_do(built):

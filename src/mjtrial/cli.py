@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from mjtrial import provenance, stats
 
@@ -51,6 +52,34 @@ def _plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _replay(args: argparse.Namespace) -> int:
+    from mjtrial.replay import ReplayMismatch, open_viewer, replay_episode
+
+    try:
+        result = replay_episode(
+            condition=args.condition,
+            state_id=args.state,
+            output=Path(args.output) if args.output else None,
+            config_path=Path(args.config) if args.config else None,
+        )
+    except (KeyError, OSError, ValueError, ReplayMismatch) as err:
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"mjtrial replay: {message}", file=sys.stderr)
+        return 1
+    outcome = (
+        "success"
+        if result.outcome["success"]
+        else (f"failure ({result.outcome['failure_category']})")
+    )
+    print(
+        f"{result.condition} state {result.state_id}: {outcome}, final height "
+        f"{result.outcome['final_height']:.4f} m, as recorded -> {result.recording}"
+    )
+    if not args.no_viewer and open_viewer(result.recording) is None:
+        print("mjtrial replay: no `rerun` viewer found; open the file yourself", file=sys.stderr)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -65,6 +94,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--power", type=float, default=0.8)
     p.add_argument("--confidence", type=float, default=0.95)
     p.set_defaults(run=_plan)
+    p = sub.add_parser(
+        "replay",
+        help="re-simulate one episode, write its .rrd at full rate, check it matches the record",
+    )
+    p.add_argument("--condition", required=True)
+    p.add_argument("--state", type=int, required=True, help="state_id")
+    p.add_argument("--output", help="the .rrd to write (default: results/<exp>/replay/...)")
+    p.add_argument("--config", help="config file (default: config/config.yaml)")
+    p.add_argument("--no-viewer", action="store_true", help="do not open the Rerun viewer")
+    p.set_defaults(run=_replay)
     args = parser.parse_args(argv)
     return args.run(args)
 

@@ -1,0 +1,152 @@
+"""Replay one episode: re-simulate it from the stored states, the model and the config, write
+its trajectory at full simulation rate, and check it reproduces what the pipeline recorded.
+
+`read_episode` reads a logged episode's time series back from any `.rrd` for scripts and
+notebooks (see the README for the entity layout).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from mjtrial import pipeline, provenance, taxonomy
+from mjtrial.config import load_config
+from mjtrial.protocol import control_sequence
+from mjtrial.recording import read_episode, write_condition_recordings
+from mjtrial.simulate import load_model
+
+__all__ = ["ReplayMismatch", "Replay", "read_episode", "replay_episode"]
+
+# Compared exactly: the engine is deterministic for a given MuJoCo build and CPU.
+COMPARED = ("success", "final_height", "final_x", "final_y", "failure_category", "warning")
+
+
+class ReplayMismatch(RuntimeError):
+    """The re-simulated episode differs from the recorded one."""
+
+
+@dataclass(frozen=True)
+class Replay:
+    """What a replay produced: the episode's outcome and where its recording went."""
+
+    condition: str
+    state_id: int
+    outcome: dict[str, Any]
+    recording: Path
+
+
+def _recorded_row(table_path: Path, state_id: int) -> dict[str, Any]:
+    table = pq.read_table(table_path)
+    ids = table.column("state_id").to_numpy()
+    rows = np.flatnonzero(ids == state_id)
+    if rows.size != 1:
+        raise KeyError(f"{table_path}: no episode for state {state_id}")
+    return {c: table.column(c)[int(rows[0])].as_py() for c in table.column_names}
+
+
+def replay_episode(
+    *,
+    condition: str,
+    state_id: int,
+    output: Path | None = None,
+    config_path: Path | None = None,
+    repo_root: Path | None = None,
+) -> Replay:
+    """Re-simulate one episode, write its `.rrd` at full rate, and check it against the record.
+
+    Raises:
+      ReplayMismatch: the outcome or final state differs from `rollouts/<condition>.parquet`;
+        the message says what differs and, when they differ, the MuJoCo version and CPU of
+        both runs.
+      KeyError: unknown condition or state.
+    """
+    repo_root = Path.cwd() if repo_root is None else repo_root
+    config = load_config(config_path or repo_root / "config" / "config.yaml")
+    if condition not in config["conditions"]:
+        raise KeyError(f"condition {condition!r}: expected one of {sorted(config['conditions'])}")
+    results = repo_root / "results" / config["experiment"]
+    table_path = results / "rollouts" / f"{condition}.parquet"
+    recorded = _recorded_row(table_path, state_id)
+    recorded_stamp = provenance.read_stamp(table_path)
+    slice_ = pipeline.config_slice("rollout", config, condition=condition)
+    if provenance.config_hash(slice_) != recorded_stamp["config_slice_sha256"]:
+        raise ReplayMismatch(
+            f"{table_path}: recorded with a different config for {condition!r} than "
+            f"config/config.yaml has now; rerun `snakemake -c2` first"
+        )
+
+    model = load_model(repo_root / config["model"])
+    states = [s for s in pipeline.read_states(results / "states.parquet") if s.state_id == state_id]
+    if not states:
+        raise KeyError(f"{results / 'states.parquet'}: no state {state_id}")
+    lift_time = float(slice_["lift_time"])
+    batch, outcome = next(
+        pipeline.condition_outcomes(
+            model,
+            states,
+            lift_time=lift_time,
+            thresholds=taxonomy.Thresholds.from_config(slice_["failure_taxonomy"]),
+            nthread=1,
+        )
+    )
+    replayed = {c: outcome[c][0] for c in pipeline.ROLLOUT_COLUMNS}
+    replayed = {k: (v.item() if hasattr(v, "item") else v) for k, v in replayed.items()}
+
+    output = output or results / "replay" / f"{condition}_state{state_id}.rrd"
+    stamp = provenance.make_stamp(
+        rule="replay",
+        config_slice=slice_,
+        inputs={"states": results / "states.parquet", "model": repo_root / config["model"]},
+        repo_dir=repo_root,
+        extra={"replay_of": {"condition": condition, "state_id": state_id}},
+    )
+    write_condition_recordings(
+        output,
+        model=model,
+        condition=condition,
+        episodes=pipeline.episode_records(batch, outcome),
+        ctrl=control_sequence(lift_time, timestep=model.opt.timestep)[0],
+        stamp=stamp,
+        log_every=1,
+    )
+
+    differences = [
+        f"{c}: recorded {recorded[c]!r}, replayed {replayed[c]!r}"
+        for c in COMPARED
+        if recorded[c] != replayed[c]
+        and not (recorded[c] in (None, "") and replayed[c] in (None, ""))
+    ]
+    if differences:
+        now = (
+            provenance.library_versions()["mujoco"],
+            provenance.platform_fingerprint()["cpu_model"],
+        )
+        then = recorded_stamp["versions"]["mujoco"], recorded_stamp["platform"]["cpu_model"]
+        where = ""
+        if now != then:
+            where = (
+                f" (recorded with MuJoCo {then[0]} on {then[1]}; "
+                f"replayed with MuJoCo {now[0]} on {now[1]})"
+            )
+        raise ReplayMismatch(
+            f"{condition} state {state_id} does not reproduce: " + "; ".join(differences) + where
+        )
+    return Replay(condition=condition, state_id=state_id, outcome=replayed, recording=output)
+
+
+def open_viewer(path: Path) -> subprocess.Popen | None:
+    """Spawn the Rerun viewer on `path` (the `rerun` command installed with rerun-sdk)."""
+    import sys
+
+    exe = Path(sys.executable).parent / "rerun"
+    command = str(exe) if exe.exists() else shutil.which("rerun")
+    if command is None:
+        return None
+    return subprocess.Popen([command, str(path)])

@@ -1,0 +1,88 @@
+"""Replays reproduce what the pipeline recorded; the logged trajectories agree with the tables."""
+
+from __future__ import annotations
+
+import shutil
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from mjtrial import provenance
+from mjtrial.recording import list_recordings
+from mjtrial.replay import ReplayMismatch, read_episode, replay_episode
+
+
+def _rollouts(built, condition):
+    return pq.read_table(built / "results" / "research_mode" / "rollouts" / f"{condition}.parquet")
+
+
+@pytest.mark.parametrize("condition", ["fast", "slow"])
+def test_logged_trajectories_match_the_tables(built, condition):
+    results = built / "results" / "research_mode"
+    table = _rollouts(built, condition)
+    rrd = results / "rollouts" / f"{condition}.rrd"
+    assert len(list_recordings(rrd)) == table.num_rows
+    for row in table.to_pylist():
+        episode = read_episode(rrd, condition=condition, state_id=row["state_id"])
+        assert episode["cube_height"][-1] == row["final_height"]
+        assert bool(episode["cube_height"][-1] > 0.2) == row["success"]
+
+
+def test_failures_file_holds_every_failed_episode(built):
+    results = built / "results" / "research_mode"
+    failed = {
+        (c, r["state_id"])
+        for c in ("fast", "slow")
+        for r in _rollouts(built, c).to_pylist()
+        if not r["success"]
+    }
+    assert failed, "the small experiment should have failures to gather"
+    listed = {
+        (r["condition"], r["state_id"])
+        for r in list_recordings(results / "replay" / "failures.rrd")
+        if "state_id" in r
+    }
+    assert listed == failed
+
+
+def test_replay_reproduces_recorded_failures(built, tmp_path):
+    failed = [
+        (c, r)
+        for c in ("fast", "slow")
+        for r in _rollouts(built, c).to_pylist()
+        if not r["success"]
+    ]
+    for condition, row in failed[:3]:
+        out = tmp_path / f"{condition}_{row['state_id']}.rrd"
+        replay = replay_episode(
+            condition=condition, state_id=row["state_id"], output=out, repo_root=built
+        )
+        assert replay.outcome["final_height"] == row["final_height"]
+        assert replay.outcome["failure_category"] == row["failure_category"]
+        episode = read_episode(out, condition=condition, state_id=row["state_id"])
+        # Full simulation rate: one logged row per physics step.
+        assert len(episode["cube_height"]) in (1425, 2100)
+        assert episode["cube_height"][-1] == row["final_height"]
+        assert provenance.read_stamp(out)["rule"] == "replay"
+
+
+def test_replay_reports_what_differs(built, tmp_path):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir)
+    path = workdir / "results" / "research_mode" / "rollouts" / "fast.parquet"
+    table = pq.read_table(path)
+    heights = table.column("final_height").to_numpy().copy()
+    heights[0] += 1e-9  # a result that no longer matches what the engine produces
+    stamp = provenance.read_stamp(path)
+    tampered = table.set_column(
+        table.column_names.index("final_height"), "final_height", pa.array(heights)
+    )
+    provenance.write_parquet(tampered, path, stamp)
+    state_id = table.column("state_id")[0].as_py()
+    with pytest.raises(ReplayMismatch, match=r"fast state \d+ does not reproduce: final_height"):
+        replay_episode(
+            condition="fast", state_id=state_id, output=tmp_path / "x.rrd", repo_root=workdir
+        )
+    with pytest.raises(KeyError, match="no episode for state 999"):
+        replay_episode(condition="fast", state_id=999, output=tmp_path / "y.rrd", repo_root=workdir)
