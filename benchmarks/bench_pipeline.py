@@ -1,5 +1,6 @@
-"""Benchmark: the pipeline's engine against the reference stepper and bare mujoco.rollout,
-and a clean `snakemake -c2` against a plain single-process loop over the same episodes.
+"""Benchmark: the pipeline's engine against the reference stepper and bare mujoco.rollout;
+the cost of replay logging; a clean `snakemake -c2` against a plain single-process loop; and
+a replay of every failed episode.
 
 Figures are ratios measured in this one run (the machines are shared and noisy):
 
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -20,17 +22,14 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import pyarrow.parquet as pq
 import yaml
 from mujoco import rollout
 
 from mjtrial import REPO_ROOT, pipeline
 from mjtrial.protocol import control_sequence
-from mjtrial.simulate import (
-    episode_model,
-    initial_physics_state,
-    load_model,
-    reference_episode,
-)
+from mjtrial.replay import replay_episode
+from mjtrial.simulate import episode_model, initial_physics_state, load_model, reference_episode
 from mjtrial.states import generate_initial_states, states_from_table
 
 
@@ -44,13 +43,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, help="states (default: the config's n)")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3, help="repeats of the stage timings")
     args = parser.parse_args()
+    os.environ.setdefault("CI", "1")  # rerun's CLI: no analytics files in the home folder
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     n = args.n or config["states"]["n"]
     s = config["states"]
-    table = generate_initial_states(seed=s["seed"], n=n, ranges=s["ranges"])
-    states = states_from_table(table)
-    model = load_model(REPO_ROOT / config["model"])
+    states = states_from_table(generate_initial_states(seed=s["seed"], n=n, ranges=s["ranges"]))
+    model_file = REPO_ROOT / config["model"]
+    model = load_model(model_file)
     conditions = {name: c["lift_time"] for name, c in config["conditions"].items()}
     episodes = n * len(conditions)
     print(f"{episodes} episodes: {n} states x {len(conditions)} conditions, {args.threads} threads")
@@ -81,29 +82,36 @@ def main() -> None:
                 finals[name] = physics[:, -1]
         return finals
 
-    t_bare, bare_finals = timed(bare)
-
-    # 3. The rollout stage as the pipeline runs it: read states, copy models, roll out in
-    # batches, compute outcomes, write the stamped tables.
+    # 3. The rollout stage as the pipeline runs it (read states, copy models, roll out in
+    # batches, classify failures, write the stamped tables), without and with replay logging.
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         states_path = tmp / "states.parquet"
         pipeline.build_states(states_slice={**s, "n": n}, output=states_path, repo_root=REPO_ROOT)
 
-        def stage():
+        def stage(record: bool):
             return {
                 name: pipeline.run_condition(
                     condition_slice=pipeline.config_slice("rollout", config, condition=name),
                     states_path=states_path,
-                    model_file=REPO_ROOT / config["model"],
+                    model_file=model_file,
                     output_table=tmp / f"{name}.parquet",
                     output_nominal=tmp / f"{name}.nominal.json",
+                    output_recording=tmp / f"{name}.rrd" if record else None,
                     nthread=args.threads,
                 )
-                for name, lt in conditions.items()
+                for name in conditions
             }
 
-        t_stage, stage_out = timed(stage)
+        times: dict[str, list[float]] = {"bare": [], "stage": [], "stage+rrd": []}
+        for _ in range(args.repeats):  # interleaved, so drifts in machine load hit all three
+            t, bare_finals = timed(bare)
+            times["bare"].append(t)
+            t, stage_out = timed(lambda: stage(False))
+            times["stage"].append(t)
+            t, _ = timed(lambda: stage(True))
+            times["stage+rrd"].append(t)
+        t_bare, t_stage, t_rec = (statistics.median(times[k]) for k in times)
 
     for name in conditions:
         np.testing.assert_array_equal(np.stack(reference[name]), bare_finals[name])
@@ -111,7 +119,8 @@ def main() -> None:
         assert np.array_equal(heights, stage_out[name]["final_height"]), name
     print("engine, bare rollout and reference agree on every episode's final state: yes")
 
-    # 4. A clean `snakemake -c2` of the experiment, in a fresh copy of the workflow.
+    # 4. A clean `snakemake -c2` of the experiment, in a fresh copy of the workflow; then a
+    # replay of every failed episode from its results.
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name in ("Snakefile", "workflow", "config", "models", "profiles"):
@@ -128,27 +137,63 @@ def main() -> None:
                 cwd=work,
                 capture_output=True,
                 text=True,
-                env=os.environ,
             )
         )
         if proc.returncode:
             sys.exit(f"snakemake failed:\n{proc.stderr[-2000:]}")
+        results = work / "results" / config["experiment"]
+        rrd_sizes = {
+            p.relative_to(results).as_posix(): p.stat().st_size for p in results.rglob("*.rrd")
+        }
+        failed = [
+            (name, row["state_id"])
+            for name in conditions
+            for row in pq.read_table(results / "rollouts" / f"{name}.parquet").to_pylist()
+            if not row["success"]
+        ]
+
+        def replay_all():
+            for name, state_id in failed:
+                replay_episode(
+                    condition=name,
+                    state_id=state_id,
+                    output=work / "replay.rrd",
+                    repo_root=work,
+                )
+
+        t_replay, _ = timed(replay_all)  # raises ReplayMismatch on the first that differs
+    print(f"replayed all {len(failed)} failed episodes: every outcome and final state as recorded")
 
     rows = [
         ("reference stepper (plain mj_step loop, 1 process)", t_loop),
-        (f"bare mujoco.rollout, {args.threads} threads", t_bare),
-        (f"rollout stage (pipeline.run_condition), {args.threads} threads", t_stage),
+        (f"bare mujoco.rollout, {args.threads} threads (median)", t_bare),
+        ("rollout stage without replay logging (median)", t_stage),
+        ("rollout stage with replay logging (median)", t_rec),
         (f"clean snakemake -c{args.threads}, whole pipeline", t_smk),
     ]
-    print(f"\n{'':<62} {'wall s':>8} {'episodes/s':>11}")
+    print(f"\n{'':<58} {'wall s':>8} {'episodes/s':>11}")
     for label, t in rows:
-        print(f"{label:<62} {t:8.2f} {episodes / t:11.1f}")
-    print()
-    print(f"engine speed-up over the reference stepper:      {t_loop / t_stage:6.1f}x")
+        print(f"{label:<58} {t:8.2f} {episodes / t:11.1f}")
     print(
-        f"rollout stage throughput / bare mujoco.rollout:  {t_bare / t_stage:6.3f}  (goal >= 0.90)"
+        f"{'replay of each failed episode (1 thread, full-rate .rrd)':<58} "
+        f"{t_replay / max(1, len(failed)):8.3f} s each"
     )
-    print(f"clean snakemake wall time / plain loop:          {t_smk / t_loop:6.3f}  (goal <= 1.00)")
+    print()
+    for name, size in sorted(rrd_sizes.items()):
+        print(f"{name:<40} {size / 1e6:8.1f} MB")
+    print(f"{'all .rrd files':<40} {sum(rrd_sizes.values()) / 1e6:8.1f} MB  (goal < 50 MB)")
+    print()
+    print(f"engine speed-up over the reference stepper:       {t_loop / t_rec:6.1f}x")
+    print(
+        f"rollout stage throughput / bare mujoco.rollout:   {t_bare / t_stage:6.3f}  (goal >= 0.90)"
+    )
+    print(
+        f"replay logging cost / rollout stage:              {t_rec / t_stage - 1:+6.1%}"
+        "  (goal <= +10%)"
+    )
+    print(
+        f"clean snakemake wall time / plain loop:           {t_smk / t_loop:6.3f}  (goal <= 1.00)"
+    )
 
 
 if __name__ == "__main__":
