@@ -27,6 +27,10 @@ include: "workflow/rules/rollout.smk"
 include: "workflow/rules/failures.smk"
 include: "workflow/rules/analysis.smk"
 include: "workflow/rules/manifest.smk"
+include: "workflow/rules/report.smk"
+
+
+report: "workflow/report/workflow.rst"
 
 
 rule all:
@@ -34,3 +38,4 @@ rule all:
     input:
         manifest=RESULTS / "manifest.json",
         failures=RESULTS / "replay" / "failures.rrd",
+        report=RESULTS / "report.md",

@@ -55,6 +55,8 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
         "manifest.json",
         "rollouts/fast.rrd",
         "replay/failures.rrd",
+        "report.md",
+        "figures/cube_height.svg",
     ):
         assert (results / rel).is_file(), rel
     assert planned_jobs(built) == {}
@@ -63,7 +65,8 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
 def test_every_output_is_stamped_with_commit_state_and_versions(built):
     results = built / "results" / "research_mode"
     outputs = [p for p in results.rglob("*") if p.is_file() and "logs" not in p.parts]
-    assert len(outputs) == 10
+    # 10 data files, report.md, 5 figures as PNG and SVG
+    assert len(outputs) == 21
     for path in outputs:
         stamp = provenance.read_stamp(path)
         assert stamp["versions"]["mujoco"] == "3.14.0"
@@ -93,7 +96,7 @@ def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_p
     workdir = tmp_path / "copy"
     shutil.copytree(built, workdir, symlinks=True)
     edit_config(workdir, lambda c: c["analysis"].update(n_resamples=600))
-    assert planned_jobs(workdir) == {"all": 1, "analysis": 1, "manifest": 1}
+    assert planned_jobs(workdir) == {"all": 1, "analysis": 1, "manifest": 1, "report": 1}
 
 
 def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
@@ -106,6 +109,7 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
         "analysis": 1,
         "failures": 1,
         "manifest": 1,
+        "report": 1,
         "rollout": 1,
     }
     assert "wildcards: condition=fast" in out and "condition=slow" not in out
@@ -120,6 +124,15 @@ def test_touching_files_without_changing_them_reruns_nothing(built, tmp_path):
     ]:
         path.touch()
     assert planned_jobs(workdir) == {}
+
+
+def test_snakemake_html_report_holds_figures_and_summary(built, tmp_path):
+    out = tmp_path / "report.html"
+    run(built, "--report", str(out))
+    html = out.read_text(errors="replace")
+    assert out.stat().st_size > 100_000
+    for name in ("success_by_condition.png", "cube_height.png", "summary.json", "report.md"):
+        assert name in html
 
 
 BAD_CONFIGS = [

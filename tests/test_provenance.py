@@ -601,3 +601,59 @@ def test_writers_reject_non_stamps(tmp_path: Path) -> None:
     with pytest.raises(ValueError):
         write_json({"a": 1}, tmp_path / "a.json", {"not": "a stamp"})
     assert not (tmp_path / "a.json").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# SVG
+# --------------------------------------------------------------------------------------------
+
+_SVG = (
+    '<?xml version="1.0" encoding="utf-8" standalone="no"?>\n'
+    '<!DOCTYPE svg PUBLIC "-//W3C//DTD SVG 1.1//EN"\n'
+    '  "http://www.w3.org/Graphics/SVG/1.1/DTD/svg11.dtd">\n'
+    '<svg xmlns="http://www.w3.org/2000/svg" width="10pt" height="10pt" data-x="a>b">\n'
+    " <metadata><title>other metadata</title></metadata>\n"
+    ' <rect width="5" height="5"/>\n'
+    "</svg>\n"
+)
+
+
+def test_svg_roundtrip_and_restamp(tmp_path: Path) -> None:
+    import xml.etree.ElementTree as ET
+
+    # JSON that an XML comment could not hold ("--") and that needs escaping (<, &, >).
+    stamp = {"mjtrial_stamp": 1, "rule": "report", "extra": {"cmd": "plan --x <a & b>", "u": "ü"}}
+    stamped = provenance.stamp_svg_text(_SVG, stamp)
+    root = ET.fromstring(stamped.encode("utf-8"))
+    assert root[0].tag == "{http://www.w3.org/2000/svg}metadata"
+    assert root[0].get("id") == "mjtrial.provenance"
+    assert json.loads(root[0].text) == stamp
+    # The rest of the document is untouched.
+    assert provenance._SVG_STAMP_RE.sub("", stamped) == _SVG
+
+    path = tmp_path / "fig" / "plot.svg"
+    provenance.write_svg(_SVG.encode("utf-8"), path, stamp)
+    assert path.read_text(encoding="utf-8") == stamped
+    assert read_stamp(path) == stamp
+
+    again = provenance.stamp_svg_text(stamped, {**stamp, "rule": "other"})
+    assert again.count("mjtrial.provenance") == 1
+    (tmp_path / "again.svg").write_text(again, encoding="utf-8")
+    assert read_stamp(tmp_path / "again.svg")["rule"] == "other"
+
+
+def test_svg_missing_stamp_and_bad_input(tmp_path: Path) -> None:
+    (tmp_path / "plain.svg").write_text(_SVG, encoding="utf-8")
+    with pytest.raises(MissingStampError):
+        read_stamp(tmp_path / "plain.svg")
+    (tmp_path / "broken.svg").write_text("<svg><g></svg>", encoding="utf-8")
+    with pytest.raises(ValueError, match="not an SVG"):
+        read_stamp(tmp_path / "broken.svg")
+    s = {"mjtrial_stamp": 1}
+    with pytest.raises(ValueError, match="not an SVG"):
+        provenance.stamp_svg_text("<html></html>", s)
+    with pytest.raises(ValueError, match="not an SVG"):
+        provenance.stamp_svg_text("not xml", s)
+    with pytest.raises(ValueError, match="mjtrial_stamp"):
+        provenance.write_svg(_SVG, tmp_path / "x.svg", {"not": "a stamp"})
+    assert not (tmp_path / "x.svg").exists()

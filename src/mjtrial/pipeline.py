@@ -54,6 +54,14 @@ STAGE_MODULES: dict[str, tuple[str, ...]] = {
     ),
     "failures": ("mjtrial.pipeline", "mjtrial.recording", "mjtrial.provenance", "mjtrial.atomic"),
     "manifest": ("mjtrial.pipeline", "mjtrial.provenance", "mjtrial.atomic"),
+    "report": (
+        "mjtrial.pipeline",
+        "mjtrial.report",
+        "mjtrial.simulate",
+        "mjtrial.protocol",
+        "mjtrial.provenance",
+        "mjtrial.atomic",
+    ),
 }
 
 
@@ -80,7 +88,7 @@ def config_slice(
             "sample_size": dict(config["design"]["sample_size"]),
             "analysis": dict(config["analysis"]),
         }
-    if stage == "manifest":
+    if stage in ("manifest", "report"):
         return dict(config)
     raise ValueError(f"stage: expected one of {sorted(STAGE_MODULES)}, got {stage!r}")
 
@@ -418,3 +426,49 @@ def write_manifest(
     provenance.write_json(manifest, output, stamp)
     log.info("manifest -> %s", output)
     return manifest
+
+
+def write_report_stage(
+    *,
+    config: Mapping[str, Any],
+    summary_path: Path,
+    manifest_path: Path,
+    states_path: Path,
+    rollout_tables: Mapping[str, Path],
+    model_file: Path,
+    figures_dir: Path,
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> list[Path]:
+    """Draw the figures and write `report.md`; every number in them comes from the inputs."""
+    from mjtrial import report
+
+    inputs = {
+        "summary": summary_path,
+        "manifest": manifest_path,
+        "states": states_path,
+        "model": model_file,
+        **{f"rollout:{k}": v for k, v in rollout_tables.items()},
+    }
+    stamp = _stamp("report", dict(config), inputs, repo_root=repo_root)
+    summary = json.loads(Path(summary_path).read_text())
+    figures = report.write_figures(
+        summary=summary,
+        states_path=states_path,
+        rollout_tables=rollout_tables,
+        model_file=model_file,
+        lift_times={name: float(c["lift_time"]) for name, c in config["conditions"].items()},
+        out_dir=figures_dir,
+        stamp=stamp,
+    )
+    report.write_report(
+        summary_path=summary_path,
+        config=dict(config),
+        manifest_path=manifest_path,
+        figure_paths=figures,
+        output=output,
+        stamp=stamp,
+        repo_root=repo_root,
+    )
+    log.info("report -> %s (%d figure files)", output, len(figures))
+    return figures

@@ -9,6 +9,7 @@ is stamped like every other output.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
@@ -79,7 +80,6 @@ _STYLE = {
     "svg.fonttype": "path",
     "svg.hashsalt": "mjtrial",
     "svg.id": "mjtrial",
-    "path.simplify": False,
 }
 _SAVE_METADATA = {
     "png": {"Software": None},
@@ -157,15 +157,13 @@ def _figure_bytes(fig: Figure, fmt: str) -> bytes:
 def _styled(draw: Any) -> Any:
     """Run a figure builder under the fixed style (fonts are resolved when artists are made)."""
 
+    @functools.wraps(draw)
     def wrapper(**kwargs: Any) -> Figure:
         import matplotlib
 
         with matplotlib.rc_context(_STYLE):
             return draw(**kwargs)
 
-    wrapper.__name__ = draw.__name__
-    wrapper.__doc__ = draw.__doc__
-    wrapper.__wrapped__ = draw  # type: ignore[attr-defined]
     return wrapper
 
 
@@ -504,6 +502,18 @@ def figure_cube_height(
             "lift",
             transform=ax.get_xaxis_transform(),
             ha="center",
+            va="top",
+            color=_GREY,
+        )
+        # Episodes of different conditions end at different times: mark where success is judged.
+        judged = float(t.time[-1] - t.lift_start)
+        ax.axvline(judged, color=_GREY, linestyle=":", linewidth=0.8, zorder=1)
+        ax.text(
+            judged,
+            1.0,
+            "judged ",
+            transform=ax.get_xaxis_transform(),
+            ha="right",
             va="top",
             color=_GREY,
         )

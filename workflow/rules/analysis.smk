@@ -8,7 +8,11 @@ rule analysis:
             RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS
         ),
     output:
-        summary=RESULTS / "analysis" / "summary.json",
+        summary=report(
+            RESULTS / "analysis" / "summary.json",
+            caption="../report/summary.rst",
+            category="Results",
+        ),
     log:
         RESULTS / "logs" / "analysis.log",
     params:

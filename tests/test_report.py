@@ -1,0 +1,294 @@
+"""Figures and report of a small real experiment (12 states), built with the package's stages."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import shutil
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+from mjtrial import provenance, report
+from mjtrial.pipeline import build_states, config_slice, run_analysis, run_condition, write_manifest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def experiment(tmp_path_factory) -> dict:
+    """States, rollouts, summary and manifest of a 12-state copy of the experiment, and its
+    figures and report; the folder is not a git repository."""
+    root = tmp_path_factory.mktemp("report_experiment")
+    shutil.copytree(REPO_ROOT / "models", root / "models")
+    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    config["states"]["n"] = 12
+    config["analysis"]["n_resamples"] = 300
+    results = root / "results" / config["experiment"]
+    model_file = root / config["model"]
+    states_path = results / "states.parquet"
+    build_states(states_slice=config_slice("states", config), output=states_path, repo_root=root)
+    tables, nominals = {}, {}
+    for name in config["conditions"]:
+        tables[name] = results / "rollouts" / f"{name}.parquet"
+        nominals[name] = results / "rollouts" / f"{name}.nominal.json"
+        run_condition(
+            condition_slice=config_slice("rollout", config, condition=name),
+            states_path=states_path,
+            model_file=model_file,
+            output_table=tables[name],
+            output_nominal=nominals[name],
+            nthread=1,
+            repo_root=root,
+        )
+    summary_path = results / "analysis" / "summary.json"
+    summary = run_analysis(
+        states_path=states_path,
+        rollout_tables=tables,
+        nominal_files=nominals,
+        analysis_slice=config_slice("analysis", config),
+        output=summary_path,
+        repo_root=root,
+    )
+    manifest_path = results / "manifest.json"
+    write_manifest(
+        config=config,
+        summary_path=summary_path,
+        outputs=[states_path, *tables.values(), *nominals.values()],
+        model_file=model_file,
+        output=manifest_path,
+        repo_root=root,
+    )
+    stamp = provenance.make_stamp(
+        rule="report",
+        config_slice=config_slice("analysis", config),
+        inputs={"summary": summary_path, "manifest": manifest_path},
+        repo_dir=root,
+    )
+    figure_args = dict(
+        summary=summary,
+        states_path=states_path,
+        rollout_tables=tables,
+        model_file=model_file,
+        lift_times={name: c["lift_time"] for name, c in config["conditions"].items()},
+        stamp=stamp,
+    )
+    figures = report.write_figures(**figure_args, out_dir=results / "report" / "figures")
+    output = results / "report" / "report.md"
+    text = report.write_report(
+        summary_path=summary_path,
+        config=config,
+        manifest_path=manifest_path,
+        figure_paths=figures,
+        output=output,
+        stamp=stamp,
+        repo_root=root,
+    )
+    return {
+        "root": root,
+        "config": config,
+        "summary": summary,
+        "manifest": json.loads(manifest_path.read_text()),
+        "stamp": stamp,
+        "figures": figures,
+        "figure_args": figure_args,
+        "report": output,
+        "text": text,
+        "tables": tables,
+    }
+
+
+def test_every_figure_is_a_stamped_png_and_svg(experiment):
+    figures = experiment["figures"]
+    assert [p.name for p in figures] == [
+        f"{name}.{ext}" for name in report.FIGURE_NAMES for ext in ("png", "svg")
+    ]
+    for path in figures:
+        assert path.is_file(), path
+        if path.suffix == ".png":
+            assert path.read_bytes().startswith(PNG_SIGNATURE)
+        else:
+            root = ET.parse(path).getroot()
+            assert root.tag == "{http://www.w3.org/2000/svg}svg"
+        assert provenance.read_stamp(path) == experiment["stamp"]
+
+
+def test_figures_are_deterministic(experiment, tmp_path):
+    again = report.write_figures(**experiment["figure_args"], out_dir=tmp_path)
+    for first, second in zip(experiment["figures"], again, strict=True):
+        assert first.name == second.name
+        assert first.read_bytes() == second.read_bytes(), first.name
+
+
+def test_report_is_stamped_and_has_every_section(experiment):
+    text = experiment["report"].read_text()
+    assert provenance.read_stamp(experiment["report"]) == experiment["stamp"]
+    assert text.endswith(experiment["text"])
+    for heading in (
+        "## Setup",
+        "## Metric",
+        "## Results",
+        "## Failure analysis",
+        "## Falsifier",
+        "## Two classic evaluation mistakes, reproduced",
+        "## What this experiment does not show",
+        "## Reproduction",
+    ):
+        assert f"\n{heading}\n" in text, heading
+
+
+def test_report_quotes_the_summary(experiment):
+    text, summary = experiment["text"], experiment["summary"]
+    for rec in summary["conditions"].values():
+        assert f"{rec['successes']}/{rec['n']}" in text
+    paired = summary["paired_difference"]
+    assert f"**{paired['estimate']:+.3f}**" in text
+    assert f"[{paired['low']:+.3f}, {paired['high']:+.3f}]" in text
+    assert f"{paired['n_resamples']} resamples, seed {paired['seed']}" in text
+    falsifier = summary["falsifier"]
+    assert f"Verdict: **{falsifier['verdict'].upper()}**" in text
+    assert f"> {falsifier['reason']}" in text
+    assert f"p = {summary['mcnemar']['p_value']:.3g}" in text
+    for mistake in summary["mistakes"].values():
+        assert mistake["what"] in text
+    manifest = experiment["manifest"]
+    assert manifest["model"]["sha256"] in text
+    assert f"MuJoCo {manifest['versions']['mujoco']}" in text
+    # The copy is not a git repository, and the report says so.
+    assert "not a git repository" in text
+    # 12 states do not meet the design's plan.
+    assert "**not met**" in text
+
+
+def _table_after(text: str, marker: str) -> list[list[str]]:
+    """Rows (cells) of the first Markdown table after the line starting with `marker`."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(marker))
+    rows, i = [], start
+    while not lines[i].startswith("|"):
+        i += 1
+    while i < len(lines) and lines[i].startswith("|"):
+        cells = [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", lines[i])[1:-1]]
+        rows.append(cells)
+        i += 1
+    return rows[2:]  # header and separator
+
+
+def _cell(rec: dict) -> str:
+    return (
+        f"{rec['successes']}/{rec['n']} {rec['rate']:.3f} "
+        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
+    )
+
+
+def test_results_tables_hold_exactly_the_summary_numbers(experiment):
+    text, summary = experiment["text"], experiment["summary"]
+    rows = _table_after(text, "## Results")
+    assert [r[0] for r in rows] == list(summary["conditions"])
+    for name, lift, successes, rate, interval, unhealthy in rows:
+        rec = summary["conditions"][name]
+        assert float(lift) == rec["lift_time"]
+        assert successes == f"{rec['successes']}/{rec['n']}"
+        assert float(rate) == pytest.approx(rec["rate"], abs=5e-4)
+        low, high = (float(x) for x in interval.strip("[]").split(","))
+        assert low == pytest.approx(rec["wilson_low"], abs=5e-4)
+        assert high == pytest.approx(rec["wilson_high"], abs=5e-4)
+        assert int(unhealthy) == rec["unhealthy"]
+
+    paired = _table_after(text, "Paired outcomes")
+    d, p = summary["discordant"], summary["paired_difference"]
+    assert [r[1:] for r in paired] == [
+        [str(d["both"]), str(d[f"only_{p['baseline']}"])],
+        [str(d[f"only_{p['treatment']}"]), str(d["neither"])],
+    ]
+
+    names = list(summary["conditions"])
+    for parameter, bands in summary["bands"].items():
+        label = f"|{parameter[4:]}|" if parameter.startswith("abs_") else parameter
+        rows = _table_after(text, f"Success by {label} band")
+        assert len(rows) == len(bands) + 1
+        for row, band in zip(rows, bands, strict=False):
+            assert row == [
+                band["band"],
+                str(band["n"]),
+                *(_cell(band["conditions"][n]) for n in names),
+            ]
+        assert rows[-1][1:] == [
+            str(summary["n_states"]),
+            *(_cell(summary["conditions"][n]) for n in names),
+        ]
+
+    failures = _table_after(text, "## Failure analysis")
+    for row in failures[:-1]:
+        assert row[1:] == [str(summary["failures"][n][row[0]]) for n in names]
+    assert len(failures) - 1 == len(summary["failures"][names[0]])
+
+
+def test_figure_links_point_to_files(experiment):
+    text, folder = experiment["text"], experiment["report"].parent
+    links = re.findall(r"\]\(([^)]+)\)", text)
+    embedded = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
+    assert sorted(Path(link).stem for link in embedded) == sorted(report.FIGURE_NAMES)
+    for link in links:
+        assert not Path(link).is_absolute()
+        assert (folder / link).is_file(), link
+
+
+def test_cube_height_traces_pick_lowest_ids_and_refuse_stale_rollouts(experiment, tmp_path):
+    args = experiment["figure_args"]
+    traces = report.cube_height_traces(
+        states_path=args["states_path"],
+        rollout_tables=args["rollout_tables"],
+        model_file=args["model_file"],
+        lift_times=args["lift_times"],
+    )
+    for name, path in experiment["tables"].items():
+        table = pq.read_table(path).to_pydict()
+        outcome = dict(zip(table["state_id"], table["success"], strict=True))
+        t = traces[name]
+        wins = sorted(i for i, ok in outcome.items() if ok)[: report.TRACES_PER_OUTCOME]
+        losses = sorted(i for i, ok in outcome.items() if not ok)[: report.TRACES_PER_OUTCOME]
+        assert t.state_ids == tuple(sorted(wins + losses))
+        assert t.success == tuple(outcome[i] for i in t.state_ids)
+        assert t.height.shape == (len(t.state_ids), t.time.size)
+        assert t.close_start < t.lift_start < t.lift_end < t.time[-1]
+
+    name, path = next(iter(experiment["tables"].items()))
+    table = pq.read_table(path)
+    column = table.schema.get_field_index("success")
+    stale = tmp_path / "stale.parquet"
+    pq.write_table(table.set_column(column, "success", pc.invert(table.column(column))), stale)
+    with pytest.raises(ValueError, match="stale"):
+        report.cube_height_traces(
+            states_path=args["states_path"],
+            rollout_tables={name: stale},
+            model_file=args["model_file"],
+            lift_times=args["lift_times"],
+            per_outcome=1,
+        )
+
+
+def test_render_report_refuses_a_model_that_changed(experiment):
+    manifest = copy.deepcopy(experiment["manifest"])
+    manifest["model"]["sha256"] = "0" * 64
+    with pytest.raises(ValueError, match="sha256"):
+        report.render_report(
+            summary=experiment["summary"],
+            config=experiment["config"],
+            manifest=manifest,
+            figures={},
+            repo_root=experiment["root"],
+        )
+
+
+def test_condition_colours_are_colour_blind_safe_and_stable():
+    colours = report.condition_colors(["fast", "slow", "medium"])
+    assert colours == report.condition_colors(["fast", "slow", "medium"])
+    assert len(set(colours.values())) == 3
+    assert set(colours.values()) <= set(report.CONDITION_PALETTE)
