@@ -14,7 +14,11 @@ rule manifest:
         summary=RESULTS / "analysis" / "summary.json",
         model=config["model"],
     output:
-        manifest=RESULTS / "manifest.json",
+        manifest=report(
+            RESULTS / "manifest.json",
+            caption="../report/manifest.rst",
+            category="Provenance",
+        ),
     log:
         RESULTS / "logs" / "manifest.log",
     params:

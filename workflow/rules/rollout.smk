@@ -3,7 +3,11 @@ rule rollout:
         states=RESULTS / "states.parquet",
         model=config["model"],
     output:
-        table=RESULTS / "rollouts" / "{condition}.parquet",
+        table=report(
+            RESULTS / "rollouts" / "{condition}.parquet",
+            caption="../report/rollout_table.rst",
+            category="Tables",
+        ),
         nominal=RESULTS / "rollouts" / "{condition}.nominal.json",
         recording=RESULTS / "rollouts" / "{condition}.rrd",
     log:
