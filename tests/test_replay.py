@@ -86,3 +86,20 @@ def test_replay_reports_what_differs(built, tmp_path):
         )
     with pytest.raises(KeyError, match="no episode for state 999"):
         replay_episode(condition="fast", state_id=999, output=tmp_path / "y.rrd", repo_root=workdir)
+
+
+def test_every_rrd_passes_rerun_verify(built):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    rerun = Path(sys.executable).parent / "rerun"
+    files = sorted((built / "results" / "research_mode").rglob("*.rrd"))
+    assert len(files) >= 3
+    env = {**os.environ, "CI": "1"}  # rerun's CLI writes no analytics files when CI is set
+    for path in files:
+        proc = subprocess.run(
+            [str(rerun), "rrd", "verify", str(path)], capture_output=True, text=True, env=env
+        )
+        assert proc.returncode == 0, f"{path}: {proc.stderr[-500:]}"
