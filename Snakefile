@@ -3,20 +3,30 @@
 import sys
 from pathlib import Path
 
-from mjtrial.config import ConfigError, check_config
+from mjtrial.config import (
+    ConfigError,
+    check_config,
+    merge_config,
+    preflight,
+    read_config_file,
+)
+
+CONFIG_FILE = "config/config.yaml"
 
 
-configfile: "config/config.yaml"
-
-
-# Validated before any work, with one line naming the file, the key and the expectation
-# (snakemake's validate() prints a multi-line jsonschema dump instead).
+# The config file is read here rather than with `configfile:` so that a YAML error or a
+# duplicated key is one line too; --configfile and --config values still take precedence.
+# Then it is validated before any work, with one line naming the file, the key and the
+# expectation (snakemake's validate() prints a multi-line jsonschema dump instead).
 try:
+    config.update(merge_config(read_config_file(CONFIG_FILE), config))
     check_config(
         config,
-        source=", ".join(str(p) for p in workflow.configfiles) or "config/config.yaml",
+        source=", ".join(map(str, [CONFIG_FILE, *workflow.configfiles])),
         repo_root=Path.cwd(),
     )
+    for warning in preflight(config, repo_root=Path.cwd()):
+        print(warning, file=sys.stderr)
 except ConfigError as err:
     sys.exit(f"Config error: {err}")
 

@@ -58,15 +58,102 @@ def _describe(error: jsonschema.ValidationError) -> tuple[str, str]:
     return key, f"{expect}, got {got!r}"
 
 
-def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
-    """Read a YAML config file and check it (see `check_config`)."""
+def _duplicate_key(node: yaml.Node, path: tuple[str, ...] = ()) -> tuple[str, int] | None:
+    """The first key that appears twice in one mapping, with its line; YAML loaders keep the
+    last silently, so a duplicated condition would quietly replace the first."""
+    if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
+        for key, value in node.value:
+            name = str(key.value)
+            if name in seen:
+                return ".".join((*path, name)), key.start_mark.line + 1
+            seen.add(name)
+            found = _duplicate_key(value, (*path, name))
+            if found:
+                return found
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            found = _duplicate_key(item, (*path[:-1], f"{path[-1]}[{i}]") if path else (f"[{i}]",))
+            if found:
+                return found
+    return None
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """Parse a YAML config file strictly (no duplicate keys); no schema check yet."""
     path = Path(path)
     try:
-        config = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        config = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: not valid YAML: {str(err).splitlines()[0]}") from None
+        mark = getattr(err, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ConfigError(f"{path}: not valid YAML{where}: {problem}") from None
+    duplicate = _duplicate_key(node) if node is not None else None
+    if duplicate:
+        key, line = duplicate
+        raise ConfigError(f"{path}: {key}: duplicate key (line {line}); expected each key once")
+    if not isinstance(config, dict):
+        raise ConfigError(f"{path}: expected a mapping of keys at the top level")
+    return config
+
+
+def merge_config(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """`base` with `override`'s values on top, recursively (how Snakemake merges configs)."""
+    merged = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = merge_config(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
+    """Checks on the run's surroundings, before any work: warnings to print, or a refusal.
+
+    Refuses (`ConfigError`) a results folder that another experiment wrote, and a dirty
+    repository when `provenance.require_clean` is set; a dirty repository otherwise gives one
+    warning, since every output will be stamped dirty.
+    """
+    import json
+
+    from mjtrial.provenance import git_state
+
+    results = Path("results") / config["experiment"]
+    manifest = repo_root / results / "manifest.json"
+    if manifest.is_file():
+        try:
+            recorded = json.loads(manifest.read_text()).get("experiment")
+        except (ValueError, AttributeError):
+            recorded = None
+        if recorded != config["experiment"]:
+            raise ConfigError(
+                f"{results}/: written by experiment {recorded!r} (manifest.json); expected "
+                f"{config['experiment']!r}: choose another experiment name or move the folder"
+            )
+    git = git_state(repo_root)
+    if git.get("available") and git.get("dirty"):
+        if config["provenance"]["require_clean"]:
+            raise ConfigError(
+                "provenance.require_clean is true and the repository has uncommitted changes; "
+                "expected a clean tree (commit or stash them)"
+            )
+        return [
+            "Warning: the repository has uncommitted changes: every output will be stamped "
+            f"dirty: true with the diff's hash {git['diff_sha256'][:12]}"
+        ]
+    return []
+
+
+def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
+    """Read a YAML config file and check it (see `check_config`)."""
+    config = read_config_file(path)
     check_config(config, source=str(path))
     return config
 

@@ -117,12 +117,16 @@ def _stamp(
 
 
 def build_states(
-    *, states_slice: Mapping[str, Any], output: Path, repo_root: Path = REPO_ROOT
+    *,
+    states_slice: Mapping[str, Any],
+    output: Path,
+    development: bool = False,
+    repo_root: Path = REPO_ROOT,
 ) -> pa.Table:
-    """Draw the evaluation states and write `states.parquet`.
+    """Draw the evaluation states (or, with `development`, the tuning states) and write them.
 
-    The development states (drawn from `development_seed`) are drawn too, only to refuse a
-    configuration whose development and evaluation states share a state.
+    Both sets are drawn, to refuse a configuration whose development and evaluation states
+    share a state: no reported number may come from a state used for tuning.
     """
     table = generate_initial_states(
         seed=states_slice["seed"], n=states_slice["n"], ranges=states_slice["ranges"]
@@ -140,17 +144,22 @@ def build_states(
             "expected disjoint seeds"
         )
     stamp = _stamp(
-        "states",
+        "states:development" if development else "states",
         dict(states_slice),
         {},
         seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
         repo_root=repo_root,
     )
-    provenance.write_parquet(table, output, stamp)
+    chosen, seed = (development, "development_seed") if development else (table, "seed")
+    provenance.write_parquet(chosen, output, stamp)
     log.info(
-        "states: %d initial states (seed %d) -> %s", table.num_rows, states_slice["seed"], output
+        "states: %d %s states (seed %d) -> %s",
+        chosen.num_rows,
+        "development" if development else "evaluation",
+        states_slice[seed],
+        output,
     )
-    return table
+    return chosen
 
 
 def read_states(path: Path) -> list[InitialState]:

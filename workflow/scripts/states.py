@@ -9,6 +9,7 @@ snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
 build_states(
     states_slice=snakemake.params.slice,
+    development=snakemake.params.development,
     output=Path(snakemake.output.states),
     repo_root=Path.cwd(),
 )
