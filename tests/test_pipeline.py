@@ -13,6 +13,7 @@ import re
 import shutil
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import pytest
 import yaml
 from conftest import edit_config
@@ -174,3 +175,22 @@ def test_bad_config_stops_with_one_line_and_touches_nothing(built, tmp_path, cas
     assert errors[0].startswith("Config error: config/config.yaml: ")
     assert message in errors[0]
     assert digest(workdir / "results") == before
+
+
+def test_evaluation_states_come_from_the_evaluation_seed(built):
+    from mjtrial.states import generate_initial_states
+
+    config = yaml.safe_load((built / "config" / "config.yaml").read_text())
+    s = config["states"]
+    expected = generate_initial_states(seed=s["seed"], n=s["n"], ranges=s["ranges"])
+    stored = pq.read_table(built / "results" / "research_mode" / "states.parquet")
+    assert stored.replace_schema_metadata(None).equals(expected)
+
+
+def test_editing_the_included_model_file_reruns_both_rollouts(built, tmp_path):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    model = workdir / "models" / "gantry_gripper" / "gantry_gripper.xml"
+    model.write_text(model.read_text().replace('forcerange="-18 18"', 'forcerange="-19 19"'))
+    jobs = planned_jobs(workdir)
+    assert jobs["rollout"] == 2 and "states" not in jobs

@@ -80,6 +80,26 @@ def _replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _verify(args: argparse.Namespace) -> int:
+    from mjtrial.config import ConfigError
+    from mjtrial.verify import load_checked_config, verify_results
+
+    repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
+    config_path = Path(args.config) if args.config else repo_root / "config" / "config.yaml"
+    try:
+        if args.results_dir:
+            results_dir = Path(args.results_dir)
+        else:
+            config = load_checked_config(config_path, repo_root=repo_root)
+            results_dir = repo_root / "results" / config["experiment"]
+        report = verify_results(results_dir, config_path=config_path, repo_root=repo_root)
+    except (ConfigError, OSError, ValueError) as err:
+        print(f"mjtrial verify: {err}", file=sys.stderr)
+        return 2
+    print(report.format())
+    return report.exit_code
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -104,6 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--config", help="config file (default: config/config.yaml)")
     p.add_argument("--no-viewer", action="store_true", help="do not open the Rerun viewer")
     p.set_defaults(run=_replay)
+    p = sub.add_parser(
+        "verify",
+        help="check every output's stamp against the files, config, model and code of now",
+    )
+    p.add_argument("results_dir", nargs="?", help="results folder (default: results/<experiment>)")
+    p.add_argument("--config", help="config file (default: config/config.yaml)")
+    p.add_argument(
+        "--repo-root",
+        help="folder the pipeline ran in; stamps record paths relative to it (default: .)",
+    )
+    p.set_defaults(run=_verify)
     args = parser.parse_args(argv)
     return args.run(args)
 

@@ -93,6 +93,12 @@ def config_slice(
     raise ValueError(f"stage: expected one of {sorted(STAGE_MODULES)}, got {stage!r}")
 
 
+def model_inputs(model_file: Path) -> dict[str, Any]:
+    """A stamp's record of the model: the scene, and the other files it is built from."""
+    scene, *included = provenance.model_files(model_file)
+    return {"model": scene, "model_files": included}
+
+
 def stage_code_hash(stage: str) -> str:
     """sha256 of the source of the modules `stage` runs."""
     return provenance.code_hash(STAGE_MODULES[stage])
@@ -131,13 +137,13 @@ def build_states(
     table = generate_initial_states(
         seed=states_slice["seed"], n=states_slice["n"], ranges=states_slice["ranges"]
     )
-    development = generate_initial_states(
+    tuning = generate_initial_states(
         seed=states_slice["development_seed"], n=states_slice["n"], ranges=states_slice["ranges"]
     )
     rows = {
         tuple(r) for r in np.column_stack([table.column(c) for c in ("dx", "dy", "yaw", "mass")])
     }
-    dev_rows = np.column_stack([development.column(c) for c in ("dx", "dy", "yaw", "mass")])
+    dev_rows = np.column_stack([tuning.column(c) for c in ("dx", "dy", "yaw", "mass")])
     if any(tuple(r) in rows for r in dev_rows):
         raise ValueError(
             "states.development_seed: development and evaluation states overlap; "
@@ -150,7 +156,7 @@ def build_states(
         seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
         repo_root=repo_root,
     )
-    chosen, seed = (development, "development_seed") if development else (table, "seed")
+    chosen, seed = (tuning, "development_seed") if development else (table, "seed")
     provenance.write_parquet(chosen, output, stamp)
     log.info(
         "states: %d %s states (seed %d) -> %s",
@@ -244,7 +250,7 @@ def run_condition(
     condition = condition_slice["condition"]
     lift_time = float(condition_slice["lift_time"])
     thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
-    inputs = {"states": states_path, "model": model_file}
+    inputs = {"states": states_path, **model_inputs(model_file)}
     stamp = _stamp(f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root)
     columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
 
@@ -399,7 +405,11 @@ def write_manifest(
         "versions": provenance.library_versions(),
         "model": {
             "path": config["model"],
-            "sha256": provenance.file_sha256(model_file),
+            "sha256": provenance.model_sha256(model_file),
+            "files": {
+                p.relative_to(model_file.parent).as_posix(): provenance.file_sha256(p)
+                for p in provenance.model_files(model_file)
+            },
             "timestep": model.opt.timestep,
             "integrator": mujoco.mjtIntegrator(model.opt.integrator).name,
             "cone": mujoco.mjtCone(model.opt.cone).name,
@@ -456,7 +466,7 @@ def write_report_stage(
         "summary": summary_path,
         "manifest": manifest_path,
         "states": states_path,
-        "model": model_file,
+        **model_inputs(model_file),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
     }
     stamp = _stamp("report", dict(config), inputs, repo_root=repo_root)

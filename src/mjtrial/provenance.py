@@ -198,6 +198,35 @@ def _untracked_hash_entry(root: Path, rel: str) -> bytes:
     return b"untracked\0" + rel.encode("utf-8", "surrogateescape") + b"\0" + digest.encode()
 
 
+# Files a MuJoCo model can be built from: the scene, the files it includes, meshes, textures.
+MODEL_FILE_SUFFIXES = (".xml", ".stl", ".obj", ".msh", ".skn", ".png")
+
+
+def model_files(scene: str | os.PathLike[str]) -> list[Path]:
+    """Every file in the scene's folder a model can be built from, the scene first.
+
+    A scene includes other files (`<include file=...>`, meshes): hashing the scene alone would
+    miss an edit to the model it includes.
+    """
+    scene = Path(scene)
+    others = sorted(
+        p
+        for p in scene.parent.rglob("*")
+        if p.is_file() and p.suffix.lower() in MODEL_FILE_SUFFIXES and p != scene
+    )
+    return [scene, *others]
+
+
+def model_sha256(scene: str | os.PathLike[str]) -> str:
+    """One hash of all the model's files (`model_files`): names relative to its folder, bytes."""
+    scene = Path(scene)
+    digest = hashlib.sha256()
+    for path in model_files(scene):
+        name = path.relative_to(scene.parent).as_posix()
+        digest.update(f"{name}\0{file_sha256(path)}\n".encode())
+    return digest.hexdigest()
+
+
 def git_state(repo_dir: str | os.PathLike[str]) -> dict[str, Any]:
     """State of the git checkout containing ``repo_dir``; never raises.
 

@@ -103,7 +103,10 @@ def replay_episode(
     stamp = provenance.make_stamp(
         rule="replay",
         config_slice=slice_,
-        inputs={"states": results / "states.parquet", "model": repo_root / config["model"]},
+        inputs={
+            "states": results / "states.parquet",
+            **pipeline.model_inputs(repo_root / config["model"]),
+        },
         repo_dir=repo_root,
         extra={"replay_of": {"condition": condition, "state_id": state_id}},
     )

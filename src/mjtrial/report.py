@@ -690,7 +690,7 @@ def _load_reported_model(manifest: Mapping[str, Any], repo_root: Path) -> mujoco
     import mujoco
 
     path = Path(repo_root) / manifest["model"]["path"]
-    sha = provenance.file_sha256(path)
+    sha = provenance.model_sha256(path)
     if sha != manifest["model"]["sha256"]:
         raise ValueError(
             f"{path}: sha256 {sha} differs from the manifest's {manifest['model']['sha256']}; "

@@ -13,6 +13,6 @@ def rollout_slice(wildcards):
 
 def model_sha256(wildcards=None):
     """Content of the model, so a checkout that only touches its mtime reruns nothing."""
-    from mjtrial.provenance import file_sha256
+    from mjtrial.provenance import model_sha256
 
-    return file_sha256(config["model"])
+    return model_sha256(config["model"])

@@ -1,0 +1,350 @@
+"""Trust: bad input stops with one line and touches nothing; interrupted runs recover to the
+same results; two clean builds give the same data; dirty trees are stamped or refused."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from conftest import SNAKEMAKE, edit_config, run_snakemake
+
+from mjtrial import provenance
+from mjtrial.pipeline import read_states
+
+RESULTS = Path("results") / "research_mode"
+MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and "logs" not in p.parts
+    }
+
+
+def config_case(edit):
+    return lambda workdir: edit_config(workdir, edit)
+
+
+def text_case(path, transform):
+    def apply(workdir):
+        target = workdir / path
+        target.write_text(transform(target.read_text()))
+
+    return apply
+
+
+def _duplicate_condition(text: str) -> str:
+    return text.replace("conditions:\n", "conditions:\n  slow:\n    lift_time: 3.0\n", 1)
+
+
+def _second_actuator_block(text: str) -> str:
+    return text.replace(
+        "</actuator>", '  <motor name="extra" joint="gantry_x" gear="1"/>\n  </actuator>'
+    )
+
+
+def _foreign_results(workdir: Path) -> None:
+    manifest = workdir / RESULTS / "manifest.json"
+    data = json.loads(manifest.read_text())
+    data["experiment"] = "another_experiment"
+    manifest.write_text(json.dumps(data))
+
+
+# (case, how to break a good workdir, what the one-line error must say)
+BAD_INPUT = [
+    (
+        "unknown top-level key",
+        config_case(lambda c: c.update(experimnt="x")),
+        "experimnt: unknown key",
+    ),
+    (
+        "misspelled nested key",
+        config_case(lambda c: c["states"].update(seeed=1)),
+        "states.seeed: unknown key",
+    ),
+    (
+        "misspelled condition key",
+        config_case(lambda c: c["conditions"]["fast"].update(lift_tme=1)),
+        "conditions.fast.lift_tme: unknown key",
+    ),
+    (
+        "wrong type for n",
+        config_case(lambda c: c["states"].update(n="many")),
+        "states.n: expected integer, got 'many'",
+    ),
+    ("float n", config_case(lambda c: c["states"].update(n=12.5)), "states.n: expected integer"),
+    (
+        "n below one",
+        config_case(lambda c: c["states"].update(n=0)),
+        "states.n: expected >= 1, got 0",
+    ),
+    (
+        "negative lift time",
+        config_case(lambda c: c["conditions"]["fast"].update(lift_time=-0.1)),
+        "conditions.fast.lift_time: expected > 0, got -0.1",
+    ),
+    (
+        "lift time as text",
+        config_case(lambda c: c["conditions"]["slow"].update(lift_time="slow")),
+        "conditions.slow.lift_time: expected number",
+    ),
+    (
+        "condition without lift time",
+        config_case(lambda c: c["conditions"]["fast"].pop("lift_time")),
+        "conditions.fast.lift_time: missing",
+    ),
+    (
+        "confidence above one",
+        config_case(lambda c: c["analysis"].update(confidence=1.5)),
+        "analysis.confidence: expected < 1, got 1.5",
+    ),
+    (
+        "confidence zero",
+        config_case(lambda c: c["analysis"].update(confidence=0)),
+        "analysis.confidence: expected > 0, got 0",
+    ),
+    (
+        "too few resamples",
+        config_case(lambda c: c["analysis"].update(n_resamples=10)),
+        "analysis.n_resamples: expected >= 100",
+    ),
+    (
+        "inverted range",
+        config_case(lambda c: c["states"]["ranges"].update(yaw=[0.6, -0.6])),
+        "states.ranges.yaw: expected [low, high] with low < high",
+    ),
+    (
+        "negative mass",
+        config_case(lambda c: c["states"]["ranges"].update(mass=[-0.1, 0.6])),
+        "states.ranges.mass[0]: expected > 0",
+    ),
+    (
+        "same development and evaluation seed",
+        config_case(lambda c: c["states"].update(development_seed=2026)),
+        "states.development_seed: expected a seed other than states.seed",
+    ),
+    (
+        "falsifier names an unknown condition",
+        config_case(lambda c: c["design"]["falsifier"].update(baseline="medium")),
+        "design.falsifier.baseline: expected one of the conditions",
+    ),
+    (
+        "falsifier names an unknown statistic",
+        config_case(lambda c: c["design"]["falsifier"].update(statistic="median")),
+        "design.falsifier.statistic: expected one of ['paired_difference']",
+    ),
+    (
+        "mass bands do not cover the masses",
+        config_case(lambda c: c["analysis"]["bands"].update(mass=[0.1, 0.3, 0.6])),
+        "analysis.bands.mass: expected edges covering",
+    ),
+    (
+        "zero logging rate",
+        config_case(lambda c: c["recording"].update(rate_hz=0)),
+        "recording.rate_hz: expected > 0",
+    ),
+    (
+        "duplicate condition name",
+        text_case("config/config.yaml", _duplicate_condition),
+        "conditions.slow: duplicate key",
+    ),
+    (
+        "YAML syntax error",
+        text_case("config/config.yaml", lambda t: t + "\nstates: [unclosed\n"),
+        "not valid YAML",
+    ),
+    (
+        "missing model file",
+        config_case(lambda c: c.update(model="models/nowhere/scene.xml")),
+        "model: expected an existing model file, got 'models/nowhere/scene.xml'",
+    ),
+    (
+        "malformed model file",
+        text_case(MODEL, lambda t: t.replace("</worldbody>", "", 1)),
+        "model: models/gantry_gripper/scene.xml: MuJoCo could not compile the model",
+    ),
+    (
+        "model without a cube",
+        text_case(MODEL, lambda t: t.replace('<body name="cube"', '<body name="box"')),
+        "expected a body named 'cube'",
+    ),
+    (
+        "model with a fifth actuator",
+        text_case(MODEL, _second_actuator_block),
+        "expected 4 actuators (x, y, z, gripper), found 5",
+    ),
+    (
+        "results of another experiment",
+        _foreign_results,
+        "written by experiment 'another_experiment'",
+    ),
+]
+
+
+@pytest.mark.parametrize(("case", "breaks", "message"), BAD_INPUT, ids=[c[0] for c in BAD_INPUT])
+def test_bad_input_stops_with_one_line_and_touches_nothing(built, tmp_path, case, breaks, message):
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir)
+    breaks(workdir)
+    before = digest(workdir / "results")
+    proc = run_snakemake(workdir, check=False)
+    assert proc.returncode != 0
+    lines = [
+        line
+        for line in proc.stderr.splitlines()
+        if line.strip() and not line.startswith("Using workflow specific profile")
+    ]
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("Config error: ")
+    assert message in lines[0], lines[0]
+    assert digest(workdir / "results") == before
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda t: t.drop_columns(["yaw"]), r"states\.parquet: missing column\(s\) \['yaw'\]"),
+        (
+            lambda t: t.set_column(
+                4, "mass", pa.array([np.nan] + t.column("mass").to_pylist()[1:])
+            ),
+            r"states\.parquet: column 'mass' has non-finite values \(first at state 0\)",
+        ),
+    ],
+    ids=["missing column", "NaN mass"],
+)
+def test_bad_states_table_is_named_in_one_line(built, tmp_path, damage, message):
+    path = tmp_path / "states.parquet"
+    shutil.copy(built / RESULTS / "states.parquet", path)
+    pq.write_table(damage(pq.read_table(path)), path)
+    with pytest.raises(ValueError, match=message) as err:
+        read_states(path)
+    assert "\n" not in str(err.value)
+
+
+def _data(folder: Path) -> dict[str, object]:
+    """What must be identical between two builds: tables' data, summaries without stamps."""
+    out: dict[str, object] = {}
+    for path in sorted(folder.rglob("*.parquet")):
+        out[str(path.relative_to(folder))] = pq.read_table(path).replace_schema_metadata(None)
+    for path in sorted(folder.rglob("*.json")):
+        data = json.loads(path.read_text())
+        data.pop("provenance", None)
+        data.pop("stamps", None)  # the manifest's copies of every stamp
+        out[str(path.relative_to(folder))] = data
+    return out
+
+
+def test_two_clean_builds_give_identical_data(built, tmp_path):
+    workdir = tmp_path / "again"
+    shutil.copytree(built, workdir)
+    shutil.rmtree(workdir / "results")
+    run_snakemake(workdir)
+    first, second = _data(built / RESULTS), _data(workdir / RESULTS)
+    assert first.keys() == second.keys()
+    for name, value in first.items():
+        if isinstance(value, pa.Table):
+            assert value.equals(second[name]), name
+        else:
+            assert value == second[name], name
+
+
+def test_killed_run_recovers_to_the_uninterrupted_results(built, tmp_path):
+    """SIGKILL snakemake part-way through the rollouts, then the README's recovery command."""
+    workdir = tmp_path / "killed"
+    shutil.copytree(built, workdir)
+    shutil.rmtree(workdir / "results")
+    shutil.rmtree(workdir / ".snakemake", ignore_errors=True)
+    proc = subprocess.Popen(
+        [SNAKEMAKE, "-c2"],
+        cwd=workdir,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    rollout_log = workdir / RESULTS / "logs" / "rollout_fast.log"
+    deadline = time.monotonic() + 120
+    while not rollout_log.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    # Nothing under a final name is truncated: whatever exists carries a readable stamp.
+    for path in (workdir / RESULTS).rglob("*"):
+        if path.is_file() and "logs" not in path.parts and not path.name.startswith("."):
+            provenance.read_stamp(path)
+    # The README's recovery command: release the dead run's lock, redo what it left incomplete.
+    run_snakemake(workdir, "--unlock")
+    run_snakemake(workdir, "--rerun-incomplete")
+    first, second = _data(built / RESULTS), _data(workdir / RESULTS)
+    assert first.keys() == second.keys()
+    for name, value in first.items():
+        if isinstance(value, pa.Table):
+            assert value.equals(second[name]), name
+        else:
+            assert value == second[name], name
+
+
+def _git(workdir: Path, *args: str) -> None:
+    env = {
+        **os.environ,
+        "GIT_AUTHOR_NAME": "t",
+        "GIT_AUTHOR_EMAIL": "t@example.invalid",
+        "GIT_COMMITTER_NAME": "t",
+        "GIT_COMMITTER_EMAIL": "t@example.invalid",
+        "GIT_CONFIG_GLOBAL": os.devnull,
+        "GIT_CONFIG_NOSYSTEM": "1",
+    }
+    subprocess.run(["git", *args], cwd=workdir, check=True, capture_output=True, env=env)
+
+
+def test_dirty_tree_warns_once_and_require_clean_refuses(built, tmp_path):
+    workdir = tmp_path / "repo"
+    shutil.copytree(built, workdir)
+    (workdir / ".gitignore").write_text("results/\n.snakemake/\n")
+    _git(workdir, "init", "-q", "-b", "main")
+    _git(workdir, "add", "-A")
+    _git(workdir, "commit", "-q", "-m", "experiment")
+    clean = run_snakemake(workdir, "-n")
+    assert "uncommitted changes" not in clean.stderr
+    edit_config(workdir, lambda c: c["analysis"].update(n_resamples=700))
+    dirty = run_snakemake(workdir)
+    assert dirty.stderr.count("Warning: the repository has uncommitted changes") == 1
+    stamp = provenance.read_stamp(workdir / RESULTS / "analysis" / "summary.json")
+    assert stamp["git"]["dirty"] is True and len(stamp["git"]["diff_sha256"]) == 64
+    before = digest(workdir / "results")
+    edit_config(workdir, lambda c: c["provenance"].update(require_clean=True))
+    refused = run_snakemake(workdir, check=False)
+    assert refused.returncode != 0
+    assert "provenance.require_clean is true and the repository has uncommitted changes" in (
+        refused.stderr
+    )
+    assert digest(workdir / "results") == before
+
+
+def test_development_states_are_built_alone_and_disjoint(built, tmp_path):
+    workdir = tmp_path / "dev"
+    shutil.copytree(built, workdir)
+    run_snakemake(workdir, "dev")
+    dev = read_states(workdir / RESULTS / "development" / "states.parquet")
+    evaluation = read_states(workdir / RESULTS / "states.parquet")
+    assert len(dev) == len(evaluation) == 12
+    assert not {(s.dx, s.dy, s.yaw, s.mass) for s in dev} & {
+        (s.dx, s.dy, s.yaw, s.mass) for s in evaluation
+    }
+    assert (
+        provenance.read_stamp(workdir / RESULTS / "development" / "states.parquet")["rule"]
+        == "states:development"
+    )

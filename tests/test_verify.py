@@ -1,0 +1,459 @@
+"""`mjtrial verify`: every output's stamp checked against the files, config, model and code.
+
+End to end on a copy of the small built experiment (one mutation per copy), plus unit tests of
+the stale / tampered / missing logic on hand-made stamps.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from conftest import REPO_ROOT, edit_config, run_snakemake
+
+from mjtrial import cli, provenance
+from mjtrial.pipeline import STAGE_MODULES, config_slice
+from mjtrial.verify import (
+    Current,
+    Status,
+    VerifyReport,
+    check_stamps,
+    parse_rule,
+    verify_results,
+)
+
+RESULTS = "results/research_mode"
+ROLLOUTS = [
+    f"{RESULTS}/rollouts/{c}.{ext}"
+    for c in ("fast", "slow")
+    for ext in ("parquet", "nominal.json", "rrd")
+]
+STATES = f"{RESULTS}/states.parquet"
+SUMMARY = f"{RESULTS}/analysis/summary.json"
+MANIFEST = f"{RESULTS}/manifest.json"
+FAILURES = f"{RESULTS}/replay/failures.rrd"
+REPORT = f"{RESULTS}/report.md"
+MODEL = "models/gantry_gripper/scene.xml"
+
+
+def verify(workdir: Path) -> VerifyReport:
+    return verify_results(
+        workdir / RESULTS, config_path=workdir / "config" / "config.yaml", repo_root=workdir
+    )
+
+
+@pytest.fixture
+def work(built, tmp_path) -> Path:
+    """A private copy of the built experiment, to mutate."""
+    workdir = tmp_path / "experiment"
+    shutil.copytree(built, workdir, symlinks=True)
+    return workdir
+
+
+def report_outputs(report: VerifyReport) -> list[str]:
+    return [o.path for o in report.outputs if o.path.startswith(f"{RESULTS}/figures/")] + [REPORT]
+
+
+def reasons(report: VerifyReport, path: str) -> str:
+    return "; ".join(report[path].reasons)
+
+
+def assert_ok(report: VerifyReport, paths) -> None:
+    bad = {p: report[p].line() for p in paths if report[p].status is not Status.OK}
+    assert not bad, bad
+
+
+# --------------------------------------------------------------------------------------------
+# End to end on the built experiment
+# --------------------------------------------------------------------------------------------
+
+
+def test_fresh_build_verifies(built, monkeypatch, capsys):
+    report = verify(built)
+    stamped = sorted(
+        p.relative_to(built).as_posix()
+        for p in (built / RESULTS).rglob("*")
+        if p.suffix in (".parquet", ".json", ".md", ".png", ".svg", ".rrd")
+    )
+    assert sorted(o.path for o in report.outputs) == stamped
+    assert {STATES, SUMMARY, MANIFEST, FAILURES, REPORT, *ROLLOUTS} <= set(stamped)
+    assert report.ok and report.exit_code == 0, report.format()
+    assert report.warnings == () and report.skipped == ()
+
+    # The command, with its defaults: results/<experiment> of config/config.yaml in the cwd.
+    monkeypatch.chdir(built)
+    assert cli.main(["verify"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[:-1] == [f"ok  {o.path}" for o in report.outputs]
+    assert lines[0] == f"ok  {STATES}"
+    assert lines[-1].startswith("verified: results/research_mode: ")
+    assert f"{len(stamped)} ok, 0 stale, 0 tampered, 0 missing" in lines[-1]
+
+
+def test_config_change_makes_analysis_and_downstream_stale_then_rebuild_verifies(work, capsys):
+    edit_config(work, lambda c: c["analysis"].update(n_resamples=700))
+    report = verify(work)
+    assert report[SUMMARY].status is Status.STALE
+    assert "config slice changed: analysis (analysis.n_resamples: 500 -> 700)" in reasons(
+        report, SUMMARY
+    )
+    for path in [MANIFEST, *report_outputs(report)]:
+        assert report[path].status is Status.STALE, path
+        assert "input stale: analysis/summary.json" in reasons(report, path)
+    assert "config slice changed: manifest" in reasons(report, MANIFEST)
+    assert_ok(report, [STATES, *ROLLOUTS, FAILURES])
+    assert not report.ok and report.exit_code == 1
+
+    args = [str(work / RESULTS), "--config", str(work / "config/config.yaml")]
+    assert cli.main(["verify", *args, "--repo-root", str(work)]) == 1
+    out = capsys.readouterr().out
+    assert f"stale  {SUMMARY}: config slice changed: analysis" in out
+    assert f"ok  {STATES}\n" in out
+    assert out.splitlines()[-1].startswith("NOT verified: ")
+
+    run_snakemake(work)
+    rebuilt = verify(work)
+    assert rebuilt.ok, rebuilt.format()
+
+
+def test_model_change_makes_rollouts_stale_not_states(work):
+    model = work / MODEL
+    model.write_text(model.read_text() + "<!-- an edit -->\n")
+    report = verify(work)
+    for path in ROLLOUTS:
+        assert report[path].status is Status.STALE, path
+        assert reasons(report, path) == f"model changed: {MODEL}"
+    assert report[STATES].status is Status.OK
+    assert report[SUMMARY].status is Status.STALE
+    assert "input stale: rollouts/" in reasons(report, SUMMARY)
+    assert f"model changed: {MODEL}" in reasons(report, MANIFEST)  # its record of the model
+    assert f"model changed: {MODEL}" in reasons(report, REPORT)
+
+
+def test_code_change_makes_its_stage_stale(work, tmp_path):
+    # A copy of the package with one module edited, imported first through PYTHONPATH.  Its
+    # REPO_ROOT is the copy's root, so the config schema is copied beside it.
+    code = tmp_path / "code"
+    shutil.copytree(
+        REPO_ROOT / "src" / "mjtrial",
+        code / "src" / "mjtrial",
+        ignore=shutil.ignore_patterns("__pycache__"),
+    )
+    shutil.copytree(REPO_ROOT / "workflow" / "schemas", code / "workflow" / "schemas")
+    module = code / "src" / "mjtrial" / "analysis.py"
+    module.write_text(module.read_text() + "\n# an edit that changes the code hash\n")
+    env = {**os.environ, "PYTHONPATH": str(code / "src"), "PYTHONDONTWRITEBYTECODE": "1"}
+
+    def python(*args):
+        return subprocess.run(
+            [sys.executable, *args], cwd=work, env=env, capture_output=True, text=True, timeout=120
+        )
+
+    imported = python("-c", "import mjtrial; print(mjtrial.__file__)").stdout.strip()
+    assert Path(imported) == code / "src" / "mjtrial" / "__init__.py"
+
+    proc = python("-m", "mjtrial.cli", "verify", "--repo-root", str(work))
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    lines = {line.split()[1].rstrip(":"): line for line in proc.stdout.splitlines()[:-1]}
+    assert lines[SUMMARY].startswith(f"stale  {SUMMARY}: code changed: stage analysis (")
+    assert "mjtrial.analysis" in lines[SUMMARY]
+    assert lines[MANIFEST] == f"stale  {MANIFEST}: input stale: analysis/summary.json"
+    for path in [STATES, *ROLLOUTS, FAILURES]:
+        assert lines[path] == f"ok  {path}"
+    assert "code changed" not in lines[REPORT]
+
+
+def test_states_row_changed_under_its_old_stamp_is_tampered(work):
+    path = work / STATES
+    stamp = provenance.read_stamp(path)
+    table = pq.read_table(path)
+    mass = table.column("mass").to_pylist()
+    mass[3] += 0.01
+    table = table.set_column(table.schema.get_field_index("mass"), "mass", pa.array(mass))
+    provenance.write_parquet(table.replace_schema_metadata(None), path, stamp)
+    assert provenance.read_stamp(path) == stamp
+
+    report = verify(work)
+    assert report[STATES].status is Status.TAMPERED
+    why = reasons(report, STATES)
+    assert why.startswith("sha256 recorded by rollouts/fast.nominal.json, rollouts/fast.parquet")
+    assert "does not match the file" in why
+    for rollout in ROLLOUTS:
+        assert report[rollout].status is Status.STALE
+        assert reasons(report, rollout) == "input tampered: states.parquet"
+    assert report[SUMMARY].status is Status.STALE
+    assert report.with_status(Status.TAMPERED) == [STATES]
+
+
+def test_edited_summary_is_tampered(work):
+    path = work / SUMMARY
+    summary = json.loads(path.read_text())
+    assert "provenance" in summary
+    summary["conditions"]["fast"]["successes"] += 1
+    path.write_text(json.dumps(summary, indent=2))
+    assert provenance.read_stamp(path) == summary["provenance"]
+
+    report = verify(work)
+    assert report[SUMMARY].status is Status.TAMPERED
+    assert reasons(report, SUMMARY).startswith("sha256 recorded by manifest.json, figures/")
+    assert report[MANIFEST].status is Status.STALE
+    assert reasons(report, MANIFEST) == "input tampered: analysis/summary.json"
+    assert_ok(report, [STATES, *ROLLOUTS, FAILURES])
+    assert report.with_status(Status.TAMPERED) == [SUMMARY]
+
+
+def test_deleted_rollout_is_missing(work, capsys):
+    (work / RESULTS / "rollouts" / "slow.parquet").unlink()
+    report = verify(work)
+    slow = f"{RESULTS}/rollouts/slow.parquet"
+    assert report[slow].status is Status.MISSING
+    assert report[slow].line() == f"missing  {slow}"
+    assert "input missing: rollouts/slow.parquet" in reasons(report, SUMMARY)
+    assert "input missing: rollouts/slow.parquet" in reasons(report, MANIFEST)
+    assert_ok(report, [STATES, *[p for p in ROLLOUTS if p != slow], FAILURES])
+    assert report.counts()[Status.MISSING] == 1
+
+
+def test_deleted_manifest_is_missing(work):
+    (work / MANIFEST).unlink()
+    report = verify(work)
+    assert report[MANIFEST].status is Status.MISSING
+    assert_ok(report, [STATES, *ROLLOUTS, FAILURES, SUMMARY])
+    assert all(report[p].status is Status.STALE for p in report_outputs(report))
+
+
+@pytest.mark.parametrize("rel", ["rollouts/fast.rrd", "figures/cube_height.png", "report.md"])
+def test_garbled_output_has_no_readable_stamp(work, rel):
+    path = work / RESULTS / rel
+    data = bytearray(path.read_bytes())
+    data[: len(data) // 2] = bytes(len(data) // 2)
+    path.write_bytes(bytes(data))
+    report = verify(work)
+    assert report[f"{RESULTS}/{rel}"].status is Status.TAMPERED
+    assert reasons(report, f"{RESULTS}/{rel}").startswith("no readable stamp (")
+    if rel == "rollouts/fast.rrd":
+        assert "sha256 recorded by replay/failures.rrd" in reasons(report, f"{RESULTS}/{rel}")
+        assert reasons(report, FAILURES) == "input tampered: rollouts/fast.rrd"
+    assert report.counts()[Status.TAMPERED] == 1
+
+
+def test_replay_recording_is_skipped_not_failed(work, capsys):
+    stamp = provenance.read_stamp(work / STATES) | {"rule": "replay"}
+    provenance.write_json({"episode": 1}, work / RESULTS / "replay" / "extra.json", stamp)
+    report = verify(work)
+    assert report.ok
+    assert [s.path for s in report.skipped] == [f"{RESULTS}/replay/extra.json"]
+    assert cli.main(["verify", "--repo-root", str(work)]) == 0
+    out = capsys.readouterr().out
+    assert f"skipped  {RESULTS}/replay/extra.json: rule 'replay' is not part of the pipeline" in out
+
+
+def test_bad_config_is_a_usage_error(work, capsys):
+    edit_config(work, lambda c: c["states"].update(n=0))
+    assert cli.main(["verify", "--repo-root", str(work)]) == 2
+    assert "states.n" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# Unit tests on hand-made stamps
+# --------------------------------------------------------------------------------------------
+
+PREFIX = "results/x/"
+CONFIG = {
+    "model": "m.xml",
+    "states": {"seed": 1, "n": 3},
+    "conditions": {"fast": {"lift_time": 0.1}},
+    "failure_taxonomy": {"lifted_height": 0.03},
+    "recording": {"rate_hz": 100},
+    "design": {"falsifier": {"treatment": "fast"}, "sample_size": {"target_halfwidth": 0.1}},
+    "analysis": {"seed": 2},
+}
+VERSIONS = {"python": "3.11.7", "mujoco": "3.14.0"}
+PLATFORM = {"cpu_model": "CPU A", "cpu_flags_fp": ["avx", "sse"]}
+CURRENT = Current(
+    config=CONFIG,
+    code_hashes={stage: f"code-{stage}" for stage in STAGE_MODULES},
+    versions=VERSIONS,
+    platform=PLATFORM,
+)
+
+
+def stamp(rule: str, time: str, inputs=None, **changes):
+    stage, _, condition = rule.partition(":")
+    slice_ = config_slice(stage, CONFIG, condition=condition or None)
+    out = {
+        "mjtrial_stamp": 1,
+        "rule": rule,
+        "created_utc": f"2026-01-01T00:00:{time}Z",
+        "git": {"available": True, "commit": "c1", "dirty": False, "diff_sha256": None},
+        "versions": dict(VERSIONS),
+        "config_slice": slice_,
+        "config_slice_sha256": provenance.config_hash(slice_),
+        "inputs": {k: {"path": p, "sha256": h} for k, (p, h) in (inputs or {}).items()},
+        "platform": dict(PLATFORM),
+        "extra": {"code_sha256": f"code-{stage}"},
+    }
+    out.update(changes)
+    return out
+
+
+def chain():
+    """states -> rollout:fast -> analysis, each recording its input's current hash."""
+    shas = {"m.xml": "M", f"{PREFIX}s.parquet": "S", f"{PREFIX}r.parquet": "R"}
+    stamps = {
+        f"{PREFIX}s.parquet": stamp("states", "01"),
+        f"{PREFIX}r.parquet": stamp(
+            "rollout:fast", "02", {"states": (f"{PREFIX}s.parquet", "S"), "model": ("m.xml", "M")}
+        ),
+        f"{PREFIX}a.json": stamp("analysis", "03", {"rollout:fast": (f"{PREFIX}r.parquet", "R")}),
+    }
+    return stamps, shas
+
+
+def check(stamps, shas, current=CURRENT, **kwargs):
+    return check_stamps(
+        stamps, current=current, current_sha256=shas.get, outputs_prefix=PREFIX, **kwargs
+    )
+
+
+def test_parse_rule():
+    assert parse_rule("states") == ("states", None)
+    assert parse_rule("states:development") == ("states", "development")
+    assert parse_rule("rollout:fast") == ("rollout", "fast")
+    assert parse_rule("analysis") == ("analysis", None)
+    for rule in ("rollout", "replay", "states:", None, 3):
+        assert parse_rule(rule) is None
+
+
+def test_consistent_chain_is_ok():
+    stamps, shas = chain()
+    report = check(stamps, shas)
+    assert report.ok and report.warnings == ()
+    assert [o.path for o in report.outputs] == [
+        f"{PREFIX}s.parquet",
+        f"{PREFIX}r.parquet",
+        f"{PREFIX}a.json",
+    ]
+
+
+def test_changed_input_with_older_stamp_is_tampered_and_downstream_stale():
+    stamps, shas = chain()
+    shas[f"{PREFIX}s.parquet"] = "S2"
+    report = check(stamps, shas)
+    assert report.status_of(f"{PREFIX}s.parquet") is Status.TAMPERED
+    assert reasons(report, f"{PREFIX}s.parquet").startswith("sha256 recorded by r.parquet ")
+    assert reasons(report, f"{PREFIX}r.parquet") == "input tampered: s.parquet"
+    assert reasons(report, f"{PREFIX}a.json") == "input stale: r.parquet"
+
+
+def test_same_second_counts_as_not_rebuilt():
+    stamps, shas = chain()
+    stamps[f"{PREFIX}s.parquet"]["created_utc"] = stamps[f"{PREFIX}r.parquet"]["created_utc"]
+    shas[f"{PREFIX}s.parquet"] = "S2"
+    assert check(stamps, shas).status_of(f"{PREFIX}s.parquet") is Status.TAMPERED
+
+
+def test_input_rebuilt_after_its_consumer_makes_the_consumer_stale():
+    stamps, shas = chain()
+    shas[f"{PREFIX}s.parquet"] = "S2"
+    stamps[f"{PREFIX}s.parquet"]["created_utc"] = "2026-01-01T00:00:09Z"
+    report = check(stamps, shas)
+    assert report.status_of(f"{PREFIX}s.parquet") is Status.OK
+    assert reasons(report, f"{PREFIX}r.parquet") == "input rebuilt after it: s.parquet"
+    assert reasons(report, f"{PREFIX}a.json") == "input stale: r.parquet"
+
+
+def test_model_config_code_and_versions_make_stale():
+    stamps, shas = chain()
+    report = check(stamps, {**shas, "m.xml": "M2"})
+    assert reasons(report, f"{PREFIX}r.parquet") == "model changed: m.xml"
+    assert report.status_of(f"{PREFIX}s.parquet") is Status.OK
+
+    config = copy.deepcopy(CONFIG)
+    config["conditions"]["fast"]["lift_time"] = 0.2
+    report = check(stamps, shas, Current(config, CURRENT.code_hashes, VERSIONS, PLATFORM))
+    assert reasons(report, f"{PREFIX}r.parquet") == (
+        "config slice changed: rollout:fast (lift_time: 0.1 -> 0.2)"
+    )
+    assert reasons(report, f"{PREFIX}a.json").startswith(
+        "config slice changed: analysis (conditions.fast.lift_time: 0.1 -> 0.2); input stale"
+    )
+    del config["conditions"]["fast"]
+    report = check(stamps, shas, Current(config, CURRENT.code_hashes, VERSIONS, PLATFORM))
+    assert "condition 'fast' is not in the config" in reasons(report, f"{PREFIX}r.parquet")
+
+    hashes = {**CURRENT.code_hashes, "analysis": "code-new"}
+    report = check(stamps, shas, Current(CONFIG, hashes, VERSIONS, PLATFORM))
+    assert reasons(report, f"{PREFIX}a.json").startswith("code changed: stage analysis (")
+    assert report.with_status(Status.STALE) == [f"{PREFIX}a.json"]
+
+    versions = {**VERSIONS, "mujoco": "3.15.0"}
+    report = check(stamps, shas, Current(CONFIG, CURRENT.code_hashes, versions, PLATFORM))
+    assert reasons(report, f"{PREFIX}s.parquet") == "versions changed: mujoco 3.14.0 -> 3.15.0"
+
+
+def test_edited_stamp_slice_is_tampered():
+    stamps, shas = chain()
+    stamps[f"{PREFIX}s.parquet"]["config_slice"] = {"seed": 9, "n": 3}
+    report = check(stamps, shas)
+    assert report.status_of(f"{PREFIX}s.parquet") is Status.TAMPERED
+    assert "config_slice_sha256 does not match" in reasons(report, f"{PREFIX}s.parquet")
+
+
+def test_disagreeing_stamps_and_other_platform_warn_only():
+    stamps, shas = chain()
+    stamps[f"{PREFIX}a.json"]["git"] = {"available": True, "commit": "c2", "diff_sha256": "d"}
+    stamps[f"{PREFIX}r.parquet"]["versions"] = {**VERSIONS, "mujoco": "3.13.0"}
+    report = check(stamps, shas)
+    assert any(w.startswith("stamps disagree on the git state: ") for w in report.warnings)
+    assert any(w.startswith("stamps disagree on mujoco: 3.14.0 (2:") for w in report.warnings)
+    assert reasons(report, f"{PREFIX}r.parquet") == "versions changed: mujoco 3.13.0 -> 3.14.0"
+    assert report.status_of(f"{PREFIX}a.json") is Status.STALE  # through r.parquet only
+
+    stamps, shas = chain()
+    here = {"cpu_model": "CPU B", "cpu_flags_fp": ["avx", "avx2", "sse"]}
+    report = check(stamps, shas, Current(CONFIG, CURRENT.code_hashes, VERSIONS, here))
+    assert report.ok
+    (warning,) = report.warnings
+    assert warning.startswith("platform differs from this machine: cpu_model 'CPU A' (here")
+    assert "+avx2" in warning
+    assert "warning  platform differs" in report.format()
+
+
+def test_missing_from_manifest_and_from_references():
+    stamps, shas = chain()
+    del stamps[f"{PREFIX}s.parquet"], shas[f"{PREFIX}s.parquet"]
+    manifest = {"stamps": {f"{PREFIX}s.parquet": {}, f"{PREFIX}gone.json": {}}}
+    report = check(stamps, shas, manifest=manifest, manifest_path=f"{PREFIX}manifest.json")
+    assert set(report.with_status(Status.MISSING)) == {
+        f"{PREFIX}s.parquet",
+        f"{PREFIX}gone.json",
+        f"{PREFIX}manifest.json",
+    }
+    assert reasons(report, f"{PREFIX}r.parquet") == "input missing: s.parquet"
+
+    report = check(stamps, shas)  # no manifest: what the stamps reference
+    assert report.with_status(Status.MISSING) == [f"{PREFIX}s.parquet"]
+
+
+def test_unreadable_and_restamped_outputs_are_tampered():
+    stamps, shas = chain()
+    del stamps[f"{PREFIX}s.parquet"]
+    report = check(stamps, shas, unreadable={f"{PREFIX}s.parquet": "no stamp"})
+    assert reasons(report, f"{PREFIX}s.parquet") == "no readable stamp (no stamp)"
+    assert reasons(report, f"{PREFIX}r.parquet") == "input tampered: s.parquet"
+
+    stamps, shas = chain()
+    stamps[f"{PREFIX}s.parquet"]["rule"] = "replay"
+    stamps[f"{PREFIX}other.rrd"] = {**stamp("states", "01"), "rule": "replay"}
+    report = check(stamps, shas)
+    assert report.status_of(f"{PREFIX}s.parquet") is Status.TAMPERED
+    assert [s.path for s in report.skipped] == [f"{PREFIX}other.rrd"]
