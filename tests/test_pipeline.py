@@ -1,20 +1,18 @@
 """End to end: a small copy of the experiment run by Snakemake itself.
 
 Checks that a second run has nothing to do, that changing one config value reruns exactly the
-stages that depend on it (by Snakemake's own dry run), that bad config stops before any work
-with one line and leaves the results alone, and that every output is stamped.
+stages that depend on it (by Snakemake's own dry run), and that every output is stamped.
+Bad input is covered in test_trust.py.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
 import shutil
 from pathlib import Path
 
 import pyarrow.parquet as pq
-import pytest
 import yaml
 from conftest import edit_config
 from conftest import run_snakemake as run
@@ -36,14 +34,6 @@ def planned_jobs(workdir: Path) -> dict[str, int]:
         elif jobs and not line.strip():
             break
     return jobs
-
-
-def digest(folder: Path) -> dict[str, str]:
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and "logs" not in p.parts
-    }
 
 
 def test_builds_everything_and_second_run_has_nothing_to_do(built):
@@ -134,47 +124,6 @@ def test_snakemake_html_report_holds_figures_and_summary(built, tmp_path):
     assert out.stat().st_size > 100_000
     for name in ("success_by_condition.png", "cube_height.png", "summary.json", "report.md"):
         assert name in html
-
-
-BAD_CONFIGS = [
-    ("unknown key", lambda c: c["states"].update(seeed=1), "states.seeed: unknown key"),
-    ("wrong type", lambda c: c["states"].update(n="many"), "states.n: expected integer"),
-    (
-        "out of range",
-        lambda c: c["analysis"].update(confidence=1.2),
-        "analysis.confidence: expected < 1",
-    ),
-    (
-        "missing lift time",
-        lambda c: c["conditions"]["fast"].pop("lift_time"),
-        "conditions.fast.lift_time: missing",
-    ),
-    (
-        "missing model",
-        lambda c: c.update(model="models/nowhere/scene.xml"),
-        "model: expected an existing model file",
-    ),
-]
-
-
-@pytest.mark.parametrize(("case", "edit", "message"), BAD_CONFIGS, ids=[c[0] for c in BAD_CONFIGS])
-def test_bad_config_stops_with_one_line_and_touches_nothing(built, tmp_path, case, edit, message):
-    workdir = tmp_path / "copy"
-    shutil.copytree(built, workdir, symlinks=True)
-    before = digest(workdir / "results")
-    edit_config(workdir, edit)
-    proc = run(workdir, check=False)
-    assert proc.returncode != 0
-    # Snakemake's own notice about the profile aside, the error is a single line.
-    errors = [
-        line
-        for line in proc.stderr.splitlines()
-        if line.strip() and not line.startswith("Using workflow specific profile")
-    ]
-    assert len(errors) == 1, proc.stderr
-    assert errors[0].startswith("Config error: config/config.yaml: ")
-    assert message in errors[0]
-    assert digest(workdir / "results") == before
 
 
 def test_evaluation_states_come_from_the_evaluation_seed(built):

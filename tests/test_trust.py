@@ -247,18 +247,22 @@ def _data(folder: Path) -> dict[str, object]:
     return out
 
 
-def test_two_clean_builds_give_identical_data(built, tmp_path):
-    workdir = tmp_path / "again"
-    shutil.copytree(built, workdir)
-    shutil.rmtree(workdir / "results")
-    run_snakemake(workdir)
-    first, second = _data(built / RESULTS), _data(workdir / RESULTS)
+def assert_same_data(first_dir: Path, second_dir: Path) -> None:
+    first, second = _data(first_dir), _data(second_dir)
     assert first.keys() == second.keys()
     for name, value in first.items():
         if isinstance(value, pa.Table):
             assert value.equals(second[name]), name
         else:
             assert value == second[name], name
+
+
+def test_two_clean_builds_give_identical_data(built, tmp_path):
+    workdir = tmp_path / "again"
+    shutil.copytree(built, workdir)
+    shutil.rmtree(workdir / "results")
+    run_snakemake(workdir)
+    assert_same_data(built / RESULTS, workdir / RESULTS)
 
 
 def test_killed_run_recovers_to_the_uninterrupted_results(built, tmp_path):
@@ -288,13 +292,7 @@ def test_killed_run_recovers_to_the_uninterrupted_results(built, tmp_path):
     # The README's recovery command: release the dead run's lock, redo what it left incomplete.
     run_snakemake(workdir, "--unlock")
     run_snakemake(workdir, "--rerun-incomplete")
-    first, second = _data(built / RESULTS), _data(workdir / RESULTS)
-    assert first.keys() == second.keys()
-    for name, value in first.items():
-        if isinstance(value, pa.Table):
-            assert value.equals(second[name]), name
-        else:
-            assert value == second[name], name
+    assert_same_data(built / RESULTS, workdir / RESULTS)
 
 
 def _git(workdir: Path, *args: str) -> None:
