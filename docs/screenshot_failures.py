@@ -1,0 +1,77 @@
+"""Screenshot of `replay/failures.rrd` in Rerun's web viewer, for the README (docs/ only).
+
+Needs what the project itself does not: Debian's chromium and the `playwright` package
+(`pip install playwright`; it drives /usr/bin/chromium, no browser download):
+
+    python docs/screenshot_failures.py \
+        results/research_mode/replay/failures.rrd docs/failures_viewer.png
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from playwright.sync_api import sync_playwright
+
+WEB_PORT, GRPC_PORT = 9090, 9876
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+]
+
+
+def main(rrd: str, out: str, wait: float = 25.0) -> None:
+    home = tempfile.mkdtemp()  # rerun and chromium write settings under HOME
+    env = {
+        **os.environ,
+        "HOME": home,
+        "XDG_CONFIG_HOME": f"{home}/.config",
+        "XDG_DATA_HOME": f"{home}/.local/share",
+        "CI": "1",
+    }
+    rerun = Path(sys.executable).parent / "rerun"
+    server = subprocess.Popen(
+        [
+            str(rerun),
+            "--serve-web",
+            "--web-viewer-port",
+            str(WEB_PORT),
+            "--port",
+            str(GRPC_PORT),
+            rrd,
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        time.sleep(5)
+        url = (
+            f"http://127.0.0.1:{WEB_PORT}?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{GRPC_PORT}"
+            "%2Fproxy&renderer=webgl"
+        )
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1600, "height": 1000})
+            page.goto(url)
+            time.sleep(wait)
+            page.screenshot(path=out)
+            browser.close()
+    finally:
+        server.terminate()
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:3])
