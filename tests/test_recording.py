@@ -228,6 +228,24 @@ def test_body_poses_match_mj_kinematics_for_all_joint_types() -> None:
     np.testing.assert_allclose(xquat, ref_quat, rtol=0, atol=1e-12)
 
 
+def test_pose_in_parent_composes_back_to_the_world_pose() -> None:
+    # child bodies are logged in their parent's frame: parent pose * relative pose = world pose
+    model = mujoco.MjModel.from_xml_string(ARTICULATED)
+    qpos = np.random.default_rng(2).normal(size=(5, model.nq))
+    xpos, xquat = body_poses(model, qpos)
+    for body in range(1, model.nbody):
+        parent = model.body_parentid[body]
+        pos, quat = rec_mod._in_parent(
+            xpos[:, body], xquat[:, body], xpos[:, parent], xquat[:, parent]
+        )
+        for row in range(len(qpos)):
+            world_pos, world_quat = np.zeros(3), np.zeros(4)
+            mujoco.mju_rotVecQuat(world_pos, pos[row], xquat[row, parent])
+            mujoco.mju_mulQuat(world_quat, xquat[row, parent], quat[row])
+            np.testing.assert_allclose(world_pos + xpos[row, parent], xpos[row, body], atol=1e-12)
+            np.testing.assert_allclose(world_quat, xquat[row, body], atol=1e-12)
+
+
 def test_body_poses_rejects_wrong_width(model: mujoco.MjModel) -> None:
     with pytest.raises(ValueError, match="qpos"):
         body_poses(model, np.zeros((2, model.nq + 1)))
@@ -335,33 +353,117 @@ def _store(path: Path, recording_id: str):
     return reader.store(store=entry)
 
 
+def _static_batches(path: Path, recording_id: str) -> dict[str, object]:
+    """{entity: record batch} of a recording's static chunks (one chunk per entity here)."""
+    out = {}
+    for chunk in _store(path, recording_id).stream():
+        if chunk.is_static:
+            assert chunk.entity_path not in out
+            out[chunk.entity_path] = chunk.to_record_batch()
+    return out
+
+
+def _column(batch, name: str) -> list:
+    return batch.column(batch.schema.names.index(name)).to_pylist()
+
+
+def _rgba32(model: mujoco.MjModel, geom: str) -> int:
+    rgba = np.rint(model.geom_rgba[model.geom(geom).id] * 255).astype(np.uint8)
+    return int.from_bytes(bytes(rgba), "big")
+
+
 def test_geometry_and_blueprint_are_in_every_recording(
     condition_rrd: Path, model: mujoco.MjModel
 ) -> None:
     reader = rr.chunk.RrdReader(condition_rrd)
     assert len(reader.blueprints()) == 1
+    # one static chunk per body with geoms, on the body's entity: no entity per geom
     expected = {
         "/world",
-        "/world/world/floor",
-        "/world/carriage/carriage_block",
-        "/world/left_finger/left_link",
-        "/world/left_finger/left_pad",
-        "/world/right_finger/right_link",
-        "/world/right_finger/right_pad",
-        "/world/cube/cube",
+        "/world/carriage",
+        "/world/carriage/left_finger",
+        "/world/carriage/right_finger",
+        "/world/cube",
     }
     for entry in reader.recordings():
-        static = {}
-        for chunk in reader.store(store=entry).stream().filter(content="/world/**"):
-            if chunk.is_static:
-                static[chunk.entity_path] = chunk.to_record_batch()
-        assert set(static) == expected
-        cube = static["/world/cube/cube"]
-        half = cube.column(cube.schema.names.index("Boxes3D:half_sizes"))
-        np.testing.assert_allclose(half.flatten().flatten().to_numpy(), [0.02] * 3, rtol=1e-7)
-        colors = cube.column(cube.schema.names.index("Boxes3D:colors")).flatten().to_numpy()
-        rgba = np.rint(model.geom_rgba[model.geom("cube").id] * 255).astype(np.uint32)
-        assert colors[0] == int.from_bytes(bytes(rgba.astype(np.uint8)), "big")
+        static = _static_batches(condition_rrd, entry.recording_id)
+        assert {e for e in static if e.startswith("/world")} == expected
+        cube = static["/world/cube"]
+        assert _column(cube, "Boxes3D:half_sizes") == [[pytest.approx([0.02] * 3, rel=1e-6)]]
+        assert _column(cube, "Boxes3D:colors") == [[_rgba32(model, "cube")]]
+        assert "Boxes3D:centers" not in cube.schema.names  # the cube's geom sits at its origin
+        # the left finger's two boxes: instances posed in the finger's frame
+        finger = static["/world/carriage/left_finger"]
+        geoms = ["left_link", "left_pad"]
+        [centers] = _column(finger, "Boxes3D:centers")
+        np.testing.assert_allclose(centers, [model.geom(g).pos for g in geoms], rtol=1e-6)
+        assert _column(finger, "Boxes3D:colors") == [[_rgba32(model, g) for g in geoms]]
+        world = static["/world"]
+        assert "ViewCoordinates:xyz" in world.schema.names
+        assert _column(world, "Boxes3D:colors") == [[_rgba32(model, "floor")]]
+
+
+def test_blueprint_draws_shapes_solid_and_plots_the_signals(condition_rrd: Path) -> None:
+    reader = rr.chunk.RrdReader(condition_rrd)
+    [blueprint] = reader.blueprints()
+    names, queries = set(), set()
+    for chunk in reader.store(store=blueprint).stream():
+        batch = chunk.to_record_batch()
+        names.update(batch.schema.names)
+        if "ViewContents:query" in batch.schema.names:
+            queries.update(frozenset(q) for q in _column(batch, "ViewContents:query"))
+    assert "Boxes3D:fill_mode" in names  # a default of the 3D view, not logged per shape
+    assert {"+ /world/cube", "+ /world/carriage"} in queries  # cube height, opening, ctrl
+    assert {"+ /world/carriage/left_finger", "+ /world/carriage/right_finger"} in queries
+
+
+def test_signals_share_their_bodys_entity(condition_rrd: Path) -> None:
+    static = _static_batches(condition_rrd, f"{CONDITION}-state-000000")
+    names = {
+        e: _column(b, "SeriesLines:names")[0]
+        for e, b in static.items()
+        if "SeriesLines:names" in b.schema.names
+    }
+    assert names == {
+        "/world/cube": ["cube_height"],
+        "/world/carriage": ["finger_opening", "ctrl_x", "ctrl_y", "ctrl_z", "ctrl_gripper"],
+        "/world/carriage/left_finger": ["left_normal_force"],
+        "/world/carriage/right_finger": ["right_normal_force"],
+    }
+    temporal = {
+        chunk.entity_path: chunk.to_record_batch().schema.names
+        for chunk in _store(condition_rrd, f"{CONDITION}-state-000000").stream()
+        if not chunk.is_static
+    }
+    # one time-series chunk per moving body: its pose and its signals share row ids and times
+    assert set(temporal) == set(names)
+    for columns in temporal.values():
+        assert {"Transform3D:translation", "Scalars:scalars", "sim_time"} <= set(columns)
+
+
+def test_child_bodies_carry_their_pose_in_the_parent(
+    condition_rrd: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
+) -> None:
+    ep = episodes[0]
+    steps = logged_steps(len(ctrl), 5)
+    xpos, _ = body_poses(model, ep.physics[steps, 1 : 1 + model.nq])
+    poses = {}
+    for chunk in _store(condition_rrd, f"{CONDITION}-state-000000").stream():
+        if not chunk.is_static:
+            batch = chunk.to_record_batch()
+            if "Transform3D:translation" in batch.schema.names:
+                poses[chunk.entity_path] = np.concatenate(_column(batch, "Transform3D:translation"))
+    assert set(poses) == {
+        "/world/carriage",
+        "/world/carriage/left_finger",
+        "/world/carriage/right_finger",
+        "/world/cube",
+    }
+    carriage, left = model.body("carriage").id, model.body("left_finger").id
+    np.testing.assert_allclose(poses["/world/carriage"], xpos[:, carriage], atol=1e-7)
+    relative = poses["/world/carriage/left_finger"]
+    np.testing.assert_allclose(relative, xpos[:, left] - xpos[:, carriage], atol=1e-7)
+    assert np.all(relative[:, [0, 2]] == 0.0)  # the finger slides along y only
 
 
 def test_log_every_sets_the_number_of_rows(
@@ -505,6 +607,82 @@ def test_duplicate_and_misshapen_episodes_raise(
     assert not (tmp_path / "c.rrd").exists()
 
 
+@pytest.mark.parametrize("group", [1, 2, 3])
+def test_every_episode_is_written_whatever_the_group_size(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    model: mujoco.MjModel,
+    ctrl: np.ndarray,
+    episodes: list[EpisodeRecord],
+    group: int,
+) -> None:
+    monkeypatch.setattr(rec_mod, "_GROUP", group)  # 3 episodes: full groups, and a remainder
+    path = tmp_path / "c.rrd"
+    n = write_condition_recordings(
+        path, model=model, condition="c", episodes=episodes, ctrl=ctrl, stamp=STAMP, log_every=5
+    )
+    assert n == 3
+    assert [r["state_id"] for r in list_recordings(path)] == [0, 1, 2]
+    for ep in episodes:
+        got = read_episode(path, condition="c", state_id=ep.state.state_id)
+        np.testing.assert_array_equal(
+            got["cube_height"], ep.physics[logged_steps(len(ctrl), 5), CUBE_Z]
+        )
+
+
+def test_writing_without_a_path_to_the_pipe_goes_through_a_scratch_file(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    model: mujoco.MjModel,
+    ctrl: np.ndarray,
+    episodes: list[EpisodeRecord],
+) -> None:
+    monkeypatch.setattr(rec_mod, "_fd_path", lambda fd: None)  # as on Windows
+    path = tmp_path / "c.rrd"
+    write_condition_recordings(
+        path, model=model, condition="c", episodes=episodes, ctrl=ctrl, stamp=STAMP, log_every=5
+    )
+    result = _verify(path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert len(list_recordings(path)) == 3
+    assert _leftovers(tmp_path) == []
+
+
+def test_shared_chunks_get_a_fresh_id_in_every_recording(condition_rrd: Path) -> None:
+    ids = [
+        chunk.id
+        for entry in rr.chunk.RrdReader(condition_rrd).recordings()
+        for chunk in _store(condition_rrd, entry.recording_id).stream()
+    ]
+    assert len(ids) == len(set(ids))
+
+
+def test_a_failing_route_raises_and_leaves_nothing(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    model: mujoco.MjModel,
+    ctrl: np.ndarray,
+    episodes: list[EpisodeRecord],
+) -> None:
+    fake = tmp_path / "fake-rerun"
+    fake.write_text("#!/bin/sh\necho 'route: out of disk' >&2\nexit 3\n")
+    fake.chmod(0o755)
+    monkeypatch.setattr(rec_mod, "_rerun_cli", lambda: str(fake))
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(RuntimeError, match="route"):
+        write_condition_recordings(
+            out / "c.rrd",
+            model=model,
+            condition="c",
+            episodes=episodes,
+            ctrl=ctrl,
+            stamp=STAMP,
+            log_every=5,
+        )
+    assert list(out.iterdir()) == []
+
+
 def test_writing_leaves_the_home_folder_alone(
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
@@ -547,10 +725,12 @@ def test_live_logging_writes_the_same_layout(
     ep = episodes[0]
     log_episode(rec, model, physics=ep.physics, sensordata=ep.sensordata, ctrl=ctrl, log_every=5)
     rec.disconnect()
-    summary = _store(path, "live").summary()
-    assert "/world/cube rows=285 static=False" in summary
-    assert "/plots/ctrl rows=285 static=False" in summary
-    assert "/world/cube/cube rows=1 static=True" in summary
+    lines = _store(path, "live").summary().splitlines()
+    for entity in ("/world/cube", "/world/carriage/left_finger"):
+        [series] = [line for line in lines if line.startswith(f"{entity} rows=285 static=False")]
+        assert "Scalars:scalars" in series and "Transform3D:translation" in series
+    static = [line for line in lines if line.startswith("/world/cube rows=1 static=True")]
+    assert len(static) == 2  # its geometry (log_model_geometry), its series names (log_episode)
 
 
 PRIMITIVES = """
@@ -564,11 +744,14 @@ PRIMITIVES = """
     <body name="b">
       <freejoint/>
       <geom name="ball" type="sphere" size="0.1" material="red" rgba="0 1 0 1"/>
-      <geom type="capsule" size="0.05 0.2" pos="0 0 1" euler="1 0 0"/>
+      <geom name="capsule" type="capsule" size="0.05 0.2" pos="0 0 1" euler="60 0 0"/>
       <geom type="cylinder" size="0.05 0.2"/>
       <geom type="ellipsoid" size="0.1 0.2 0.3"/>
-      <geom type="mesh" mesh="tet"/>
+      <geom name="tetrahedron" type="mesh" mesh="tet" pos="0 0 2" euler="0 30 0"/>
       <geom name="hidden" type="box" size="1 1 1" group="3"/>
+    </body>
+    <body name="post" pos="1 2 0" euler="0 0 0.5">
+      <geom type="box" size="0.1 0.1 0.5" pos="0 0 0.5"/>
     </body>
   </worldbody>
 </mujoco>
@@ -582,22 +765,44 @@ def test_every_primitive_type_is_drawn(tmp_path: Path) -> None:
     rec.save(path)
     log_model_geometry(rec, model)
     rec.disconnect()
-    summary = _store(path, "shapes").summary()
-    lines = {line.split()[0]: line for line in summary.splitlines()}
-    assert "Boxes3D:half_sizes" in lines["/world/world/ground"]  # plane: a flat box
-    assert "Ellipsoids3D:half_sizes" in lines["/world/b/ball"]
-    assert "Capsules3D:lengths" in lines["/world/b/geom_2"]
-    assert "Cylinders3D:lengths" in lines["/world/b/geom_3"]
-    assert "Ellipsoids3D:half_sizes" in lines["/world/b/geom_4"]
-    assert "Mesh3D:triangle_indices" in lines["/world/b/geom_5"]
-    assert "/world/b/hidden" not in lines  # group 3 is not drawn
+    static = _static_batches(path, "shapes")
+    assert set(static) == {"/world", "/world/b", "/world/post"}
+    world, b, post = static["/world"], static["/world/b"], static["/world/post"]
+    # the world body's plane: a flat box on ``world``, in the material's colour
+    assert _column(world, "Boxes3D:colors") == [[0xFF0000FF]]
+    assert _column(world, "Boxes3D:half_sizes") == [[pytest.approx([5.0, 5.0, 5e-4])]]
+    # one archetype per geom type on the body, each geom an instance; group 3 is not drawn
+    assert not any(name.startswith("Boxes3D:") for name in b.schema.names)
+    assert _column(b, "Ellipsoids3D:half_sizes") == [
+        [pytest.approx([0.1] * 3), pytest.approx([0.1, 0.2, 0.3])]
+    ]
+    assert _column(b, "Ellipsoids3D:colors")[0][0] == 0x00FF00FF  # the geom's own rgba wins
+    assert _column(b, "Cylinders3D:lengths") == [[pytest.approx(0.4)]]
+    # a capsule runs from its start, MuJoCo's centre minus its half-length along its axis
+    capsule = model.geom("capsule")
+    axis = np.zeros(3)
+    mujoco.mju_rotVecQuat(axis, np.array([0.0, 0.0, 1.0]), capsule.quat)
+    [[start]] = _column(b, "Capsules3D:translations")
+    np.testing.assert_allclose(start, capsule.pos - 0.2 * axis, atol=1e-6)
+    [[quat]] = _column(b, "Capsules3D:quaternions")
+    np.testing.assert_allclose(quat, mujoco_to_rerun_quat(capsule.quat), atol=1e-6)
+    # meshes: vertices moved into the body frame
+    [vertices] = _column(b, "Mesh3D:vertex_positions")
+    mesh = model.geom("tetrahedron")
+    v0, nv = model.mesh_vertadr[0], model.mesh_vertnum[0]
+    expected = np.array([mesh.pos + _rotate(mesh.quat, v) for v in model.mesh_vert[v0 : v0 + nv]])
+    np.testing.assert_allclose(vertices, expected, atol=1e-6)
+    assert len(_column(b, "Mesh3D:triangle_indices")[0]) == model.mesh_facenum[0]
+    # a body without joints gets its pose in the parent once, static
+    [[translation]] = _column(post, "Transform3D:translation")
+    np.testing.assert_allclose(translation, model.body("post").pos, atol=1e-6)
+    [[rotation]] = _column(post, "Transform3D:quaternion")
+    np.testing.assert_allclose(rotation, mujoco_to_rerun_quat(model.body("post").quat), atol=1e-6)
+    [[center]] = _column(post, "Boxes3D:centers")
+    np.testing.assert_allclose(center, [0.0, 0.0, 0.5], atol=1e-6)
 
-    reader = rr.chunk.RrdReader(path)
-    store = reader.store(store=reader.recordings()[0])
-    colors = {}
-    for chunk in store.stream().filter(content=["/world/world/ground", "/world/b/ball"]):
-        batch = chunk.to_record_batch()
-        name = next(n for n in batch.schema.names if n.endswith(":colors"))
-        colors[chunk.entity_path] = batch.column(batch.schema.names.index(name)).flatten()[0]
-    assert colors["/world/world/ground"].as_py() == 0xFF0000FF  # the material's colour
-    assert colors["/world/b/ball"].as_py() == 0x00FF00FF  # the geom's own rgba wins
+
+def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
+    out = np.zeros(3)
+    mujoco.mju_rotVecQuat(out, np.asarray(v, dtype=np.float64), quat)
+    return out

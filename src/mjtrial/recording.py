@@ -6,35 +6,53 @@ and the failed episodes of all conditions are gathered into ``failures.rrd``.
 
 Layout of a recording (entity paths are built only here, by the constants and functions below):
 
-* ``world``: view coordinates (z up).
-* ``world/<body>``: the body's world pose per logged step (``Transform3D``). Bodies are siblings:
-  each carries its *world* pose, not its pose relative to its MuJoCo parent.
-* ``world/<body>/<geom>``: the geom's shape and colour, and its pose in the body (static).
-* ``plots/cube_height``, ``plots/finger_opening``: one series each; ``plots/ctrl`` (x, y, z,
-  gripper) and ``plots/contact_force`` (left, right normal force): one entity holding several
-  named series, because every entity costs ~7 kB per episode in row ids and timestamps.
-* recording properties ``episode`` (condition, state, outcome, ``log_every``, ``n_steps``) and
-  ``provenance`` (the stamp as JSON, see :mod:`mjtrial.provenance`).
+* ``world``: view coordinates (z up) and the geoms of MuJoCo's world body (the floor), static.
+* ``world/<body>``, nested as MuJoCo's body tree (``world/carriage/left_finger``): the body's
+  pose *in its parent body* per logged step (``Transform3D``; a body without joints gets it
+  once, static) and, static, its visible geoms: one archetype per geom type (``Boxes3D`` for
+  boxes and planes, ``Ellipsoids3D`` for spheres and ellipsoids, ``Capsules3D``,
+  ``Cylinders3D``, one ``Mesh3D`` for all its meshes) whose instances are the geoms, each posed
+  in the body frame and drawn in MuJoCo's colour.
+* the signals (``Scalars``), on the entity of the body they belong to, named by a static
+  ``SeriesLines``: ``cube_height`` on the cube; ``finger_opening`` and the control targets
+  ``ctrl_x``, ``ctrl_y``, ``ctrl_z``, ``ctrl_gripper`` on the fingers' parent (the carriage);
+  ``left_normal_force`` and ``right_normal_force`` on the bodies of the pads (the fingers).
+* recording properties ``episode`` (one struct: condition, state id and parameters, success,
+  final height, failure category or null, ``log_every``, ``n_steps``) and ``provenance`` (the
+  stamp as JSON, see :mod:`mjtrial.provenance`).
 
 Time series use one timeline, ``sim_time``: simulated seconds, stored by rerun as integer
-nanoseconds.
+nanoseconds. Each file also holds `default_blueprint`: the scene beside plots of the cube
+height and of the contact forces.
 
-Writing many recordings into one file: each recording's chunks are built with
-``rr.chunk.Chunk.from_columns`` (the twin of ``send_columns``) and encoded on their own with
-``LazyChunkStream.write_rrd``; the encoded recordings are piped one after another into
+Why this shape: size, and the time it takes to write. In a file, every entity costs each
+recording a chunk of its own (~1-2 kB of schema even for one box), and every time-series chunk
+16 bytes of row id and 8 of timestamp per row; every (entity, component) pair costs each
+recording ~0.5 kB of index in the file's footer, which ``rerun rrd route`` decodes and encodes
+again for every recording, the largest single cost of writing. So geoms are instances of one
+archetype on their body's entity, not entities of their own; the signals share their body's
+time-series chunk; the episode's fields are one struct; solid shapes are a default of the 3D
+view rather than a component of each shape; and a child body's pose in its parent keeps its
+constant components constant (the fingers only slide along y), which compresses well.
+
+Writing many recordings into one file: the recordings of `_GROUP` episodes are built at once,
+straight from Arrow columns (``Chunk.from_record_batch``, with the columns' layouts prepared
+once per file, and the chunks every recording shares built once), each into a ``ChunkStore``.
+A writer thread encodes them one by one with ``ChunkStore.write_rrd`` into the stdin of
 ``rerun rrd route`` (the CLI in the rerun-sdk wheel), which writes them as one stream with one
 valid footer. Plain concatenation is not enough: rerun 0.41's reader and ``rerun rrd verify``
-reject concatenated files. (A ``RecordingStream`` per recording works too but costs ~3 ms more
-per episode, and a blueprint sent into a recording's stream can make ``route`` panic, so the
-blueprint travels as a stream of its own.) This process holds one episode at a time; ``route``
-keeps ~0.3 MB of index per recording until it writes the footer. The CLI runs with ``CI`` set,
-the only environment switch of rerun 0.41 that stops it from writing analytics files under the
-home folder. (rerun 0.41's ``route`` panics when given its own output as input: combine these
-files with ``rerun rrd merge`` instead.)
+reject concatenated files, and files without a footer. (A blueprint sent into a recording's
+stream can make ``route`` panic, so the blueprint travels as a stream of its own.) The writer
+and ``route`` need next to no GIL and run at a lower CPU priority than the simulation, so they
+mostly use the time the rollouts leave idle. The CLI runs with ``CI`` set, the only environment
+switch of rerun 0.41 that stops it from writing analytics files under the home folder. (rerun
+0.41's ``route`` panics when given its own output as input: combine these files with
+``rerun rrd merge`` instead.)
 """
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
 import os
@@ -45,7 +63,7 @@ import sys
 import tempfile
 import threading
 import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,7 +75,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import rerun as rr
 import rerun.blueprint as rrb
-from rerun.chunk import Chunk, LazyChunkStream, RrdReader, StoreEntry
+from rerun.chunk import Chunk, ChunkStore, RrdReader, StoreEntry
 from rerun.error_utils import catch_and_log_exceptions
 
 from mjtrial.atomic import atomic_path
@@ -73,7 +91,6 @@ __all__ = [
     "default_blueprint",
     "episode_recording_id",
     "episode_recording_name",
-    "geom_entity",
     "list_recordings",
     "log_episode",
     "log_model_geometry",
@@ -93,13 +110,16 @@ __all__ = [
 APPLICATION_ID = "mjtrial"
 TIMELINE = "sim_time"
 WORLD = "world"
-CUBE_HEIGHT = "plots/cube_height"
-FINGER_OPENING = "plots/finger_opening"
-CTRL = "plots/ctrl"
-CTRL_SERIES = ("x", "y", "z", "gripper")
+# Signals, logged on the entity of the body they belong to, so they share its time-series chunk
+# (an entity of their own would cost every recording a chunk of row ids and timestamps): the
+# cube's height on the cube; the mean finger opening and the control targets on the fingers'
+# parent (the carriage); each pad's normal force on the pad's body (the fingers).
+CUBE_SERIES = ("cube_height",)
+CTRL_SERIES = ("ctrl_x", "ctrl_y", "ctrl_z", "ctrl_gripper")
 _CTRL_COLUMNS = (CTRL_X, CTRL_Y, CTRL_Z, CTRL_GRIPPER)
-CONTACT_FORCE = "plots/contact_force"
-CONTACT_SERIES = ("left", "right")
+GRIPPER_SERIES = ("finger_opening", *CTRL_SERIES)
+CONTACT_SERIES = ("left_normal_force", "right_normal_force")
+SIGNALS = (*CUBE_SERIES, *GRIPPER_SERIES, *CONTACT_SERIES)  # columns of `_Chunker._signals`
 FAILURES_SUMMARY = "failures"  # recording id and entity of failures.rrd's summary
 
 EPISODE_PROPERTY = "episode"
@@ -133,14 +153,15 @@ def _body_name(model: mujoco.MjModel, body_id: int) -> str:
 
 
 def body_entity(model: mujoco.MjModel, body_id: int) -> str:
-    """Entity path of a body: ``world/<body name or body_<i>>``."""
-    return f"{WORLD}/{_part(_body_name(model, body_id))}"
+    """Entity path of a body: its parent's path, then its name (or ``body_<i>``).
 
-
-def geom_entity(model: mujoco.MjModel, geom_id: int) -> str:
-    """Entity path of a geom: ``world/<body>/<geom name or geom_<i>>``."""
-    name = model.geom(geom_id).name or f"geom_{geom_id}"
-    return f"{body_entity(model, int(model.geom_bodyid[geom_id]))}/{_part(name)}"
+    MuJoCo's world body is ``world``, so the gantry's fingers are ``world/carriage/left_finger``.
+    """
+    parts = []
+    while body_id != 0:
+        parts.append(_part(_body_name(model, body_id)))
+        body_id = int(model.body_parentid[body_id])
+    return "/".join([WORLD, *reversed(parts)])
 
 
 def episode_recording_id(condition: str, state_id: int) -> str:
@@ -153,15 +174,49 @@ def episode_recording_name(condition: str, state_id: int) -> str:
     return f"{condition} / state {int(state_id)}"
 
 
-def default_blueprint() -> rrb.Blueprint:
-    """Viewer layout: the scene on the left, cube height and contact forces on the right."""
+# Shapes drawn solid, as in MuJoCo's viewer. Set as defaults of the 3D view rather than logged
+# with the shapes: a component logged costs every recording ~0.5 kB in the file's footer.
+SOLID_SHAPES = (rr.Boxes3D, rr.Ellipsoids3D, rr.Capsules3D, rr.Cylinders3D)
+
+# (entity, series) of the gantry gripper's signals, for a blueprint made without the model.
+GANTRY_SIGNALS = (
+    ("world/cube", CUBE_SERIES),
+    ("world/carriage", GRIPPER_SERIES),
+    ("world/carriage/left_finger", CONTACT_SERIES[:1]),
+    ("world/carriage/right_finger", CONTACT_SERIES[1:]),
+)
+
+
+def default_blueprint(
+    signals: Sequence[tuple[str, Sequence[str]]] = GANTRY_SIGNALS,
+) -> rrb.Blueprint:
+    """Viewer layout: the scene on the left, cube height and contact forces on the right.
+
+    Args:
+      signals: (entity, series names) of the logged signals. The upper plot shows the entities
+        of the cube's height, the finger opening and the control targets (m); the lower one
+        those of the pads' normal forces (N). The scene's view draws shapes solid (rerun's
+        default for boxes is a wireframe).
+    """
+    force = [e for e, names in signals if set(names) & set(CONTACT_SERIES)]
+    lift = [e for e, names in signals if e not in force]
+    solid = [shape.from_fields(fill_mode=rr.components.FillMode.Solid) for shape in SOLID_SHAPES]
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin=WORLD),
+            rrb.Spatial3DView(origin=WORLD, name="scene", defaults=solid),
             rrb.Vertical(
-                rrb.TimeSeriesView(origin=CUBE_HEIGHT),
-                rrb.TimeSeriesView(origin=CONTACT_FORCE),
+                rrb.TimeSeriesView(
+                    origin=WORLD,
+                    contents=[f"+ /{e.strip('/')}" for e in lift],
+                    name="cube height, finger opening, ctrl (m)",
+                ),
+                rrb.TimeSeriesView(
+                    origin=WORLD,
+                    contents=[f"+ /{e.strip('/')}" for e in force],
+                    name="pad-cube normal force (N)",
+                ),
             ),
+            column_shares=[3, 2],
         )
     )
 
@@ -220,6 +275,9 @@ def _normalize(q: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])  # w-x-y-z
+_CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
+
 _FREE, _BALL, _SLIDE, _HINGE = (
     int(mujoco.mjtJoint.mjJNT_FREE),
     int(mujoco.mjtJoint.mjJNT_BALL),
@@ -271,6 +329,25 @@ def _body_frames(
         pos.append(p)
         quat.append(_normalize(q))
     return pos, quat
+
+
+def _in_parent(
+    pos: np.ndarray,
+    quat: np.ndarray,
+    parent_pos: np.ndarray,
+    parent_quat: np.ndarray,
+    *,
+    turns: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of a body in its parent's frame, from both world poses (w-x-y-z unit quaternions).
+
+    With `turns` False the parent's orientation is the identity: only the positions subtract.
+    """
+    pos = pos - parent_pos
+    if not turns:
+        return pos, quat
+    inverse = parent_quat * _CONJUGATE
+    return _quat_rotate(inverse, pos), _quat_mul(inverse, quat)
 
 
 def body_poses(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -326,78 +403,140 @@ def _geom_rgba(model: mujoco.MjModel, g: int) -> np.ndarray:
     return _rgba8(rgba)
 
 
-def _geom_shape(model: mujoco.MjModel, g: int) -> Any | None:
-    """The rerun archetype drawing geom g in its own frame, or None for unsupported types."""
-    gtype = mujoco.mjtGeom(int(model.geom_type[g]))
-    size = model.geom_size[g]
-    color = [_geom_rgba(model, g)]
-    solid = rr.components.FillMode.Solid
-    if gtype == mujoco.mjtGeom.mjGEOM_BOX:
-        return rr.Boxes3D(half_sizes=[size], colors=color, fill_mode=solid)
-    if gtype == mujoco.mjtGeom.mjGEOM_SPHERE:
-        return rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=color, fill_mode=solid)
-    if gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-        return rr.Ellipsoids3D(half_sizes=[size], colors=color, fill_mode=solid)
-    if gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
-        # MuJoCo: centred on the origin along local z, half-length size[1];
-        # rerun: from the origin along +z.
-        return rr.Capsules3D(
-            lengths=[2 * size[1]],
-            radii=[size[0]],
-            translations=[[0.0, 0.0, -size[1]]],
-            colors=color,
-            fill_mode=solid,
-        )
-    if gtype == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        return rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=color, fill_mode=solid)
-    if gtype == mujoco.mjtGeom.mjGEOM_PLANE:
-        half = [s if s > 0 else INFINITE_PLANE_HALF_SIZE for s in size[:2]]
-        return rr.Boxes3D(
-            half_sizes=[[half[0], half[1], PLANE_THICKNESS / 2]],
-            centers=[[0.0, 0.0, -PLANE_THICKNESS / 2]],
-            colors=color,
-            fill_mode=solid,
-        )
-    if gtype == mujoco.mjtGeom.mjGEOM_MESH:
-        mesh = int(model.geom_dataid[g])
-        v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
-        f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
-        return rr.Mesh3D(
-            vertex_positions=model.mesh_vert[v0 : v0 + nv],
-            triangle_indices=model.mesh_face[f0 : f0 + nf],
-            albedo_factor=color[0],
-        )
-    return None
+_G = mujoco.mjtGeom
+_BOX, _PLANE, _SPHERE, _ELLIPSOID, _CAPSULE, _CYLINDER, _MESH = (
+    int(t)
+    for t in (
+        _G.mjGEOM_BOX,
+        _G.mjGEOM_PLANE,
+        _G.mjGEOM_SPHERE,
+        _G.mjGEOM_ELLIPSOID,
+        _G.mjGEOM_CAPSULE,
+        _G.mjGEOM_CYLINDER,
+        _G.mjGEOM_MESH,
+    )
+)
 
 
-def _geometry_items(model: mujoco.MjModel) -> list[tuple[str, tuple[Any, ...]]]:
-    """(entity, archetypes) to log statically: view coordinates and every visible geom."""
-    items: list[tuple[str, tuple[Any, ...]]] = [
-        (WORLD, (rr.ViewCoordinates(xyz=rr.ViewCoordinates.RIGHT_HAND_Z_UP),))
-    ]
+class _Instances:
+    """Geoms of one archetype on one body: per-instance pose (in the body), colour and sizes."""
+
+    def __init__(self) -> None:
+        self.positions: list[np.ndarray] = []
+        self.quats: list[np.ndarray] = []  # w-x-y-z
+        self.colors: list[np.ndarray] = []
+        self.sizes: dict[str, list[Any]] = {}
+
+    def add(self, pos: np.ndarray, quat: np.ndarray, rgba: np.ndarray, **sizes: Any) -> None:
+        self.positions.append(np.asarray(pos, dtype=np.float64))
+        self.quats.append(np.asarray(quat, dtype=np.float64))
+        self.colors.append(rgba)
+        for key, value in sizes.items():
+            self.sizes.setdefault(key, []).append(value)
+
+    def pose(self, position_field: str) -> dict[str, np.ndarray]:
+        """Pose components, leaving out the ones that are identity for every instance."""
+        out: dict[str, np.ndarray] = {}
+        positions, quats = np.array(self.positions), np.array(self.quats)
+        if np.any(positions != 0.0):
+            out[position_field] = positions
+        if np.any(quats != _IDENTITY):
+            out["quaternions"] = mujoco_to_rerun_quat(quats)
+        return out
+
+
+def _body_geometry(model: mujoco.MjModel, body: int) -> list[Any]:
+    """Archetypes drawing the visible geoms of `body` in the body frame (one per geom type)."""
+    boxes, ellipsoids, capsules, cylinders = _Instances(), _Instances(), _Instances(), _Instances()
+    mesh_vertices: list[np.ndarray] = []
+    mesh_triangles: list[np.ndarray] = []
+    mesh_colors: list[np.ndarray] = []
+    n_vertices = 0
+    for g in np.flatnonzero(model.geom_bodyid == body):
+        g = int(g)
+        if int(model.geom_group[g]) not in VISIBLE_GEOM_GROUPS:
+            continue
+        gtype = int(model.geom_type[g])
+        size, pos, quat = model.geom_size[g], model.geom_pos[g], model.geom_quat[g]
+        rgba = _geom_rgba(model, g)
+        if gtype == _BOX:
+            boxes.add(pos, quat, rgba, half_sizes=size.copy())
+        elif gtype == _PLANE:
+            half = [s if s > 0 else INFINITE_PLANE_HALF_SIZE for s in size[:2]]
+            top = pos + _quat_rotate(quat, np.array([0.0, 0.0, -PLANE_THICKNESS / 2]))
+            boxes.add(top, quat, rgba, half_sizes=[half[0], half[1], PLANE_THICKNESS / 2])
+        elif gtype == _SPHERE:
+            ellipsoids.add(pos, quat, rgba, half_sizes=[size[0]] * 3)
+        elif gtype == _ELLIPSOID:
+            ellipsoids.add(pos, quat, rgba, half_sizes=size.copy())
+        elif gtype == _CAPSULE:
+            # MuJoCo: centred on the geom origin along local z, half-length size[1];
+            # rerun: from the instance origin along +z.
+            start = pos + _quat_rotate(quat, np.array([0.0, 0.0, -size[1]]))
+            capsules.add(start, quat, rgba, lengths=2 * size[1], radii=size[0])
+        elif gtype == _CYLINDER:  # both centred on the origin along local z
+            cylinders.add(pos, quat, rgba, lengths=2 * size[1], radii=size[0])
+        elif gtype == _MESH:  # one Mesh3D for all meshes: vertices moved into the body frame
+            mesh = int(model.geom_dataid[g])
+            v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+            f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
+            vertices = model.mesh_vert[v0 : v0 + nv].astype(np.float64)
+            mesh_vertices.append(pos + _quat_rotate(np.broadcast_to(quat, (nv, 4)), vertices))
+            mesh_triangles.append(model.mesh_face[f0 : f0 + nf] + n_vertices)
+            mesh_colors.append(np.broadcast_to(rgba, (nv, 4)))
+            n_vertices += nv
+        else:
+            name = mujoco.mjtGeom(gtype).name
+            warnings.warn(f"geom {g} ({name}): no rerun equivalent, not drawn", stacklevel=3)
+
+    out: list[Any] = []
     with _strict():
-        for g in range(model.ngeom):
-            if int(model.geom_group[g]) not in VISIBLE_GEOM_GROUPS:
-                continue
-            shape = _geom_shape(model, g)
-            if shape is None:
-                gtype = mujoco.mjtGeom(int(model.geom_type[g])).name
-                warnings.warn(f"geom {g} ({gtype}): no rerun equivalent, not drawn", stacklevel=3)
-                continue
-            pose = rr.Transform3D(
-                translation=model.geom_pos[g],
-                quaternion=rr.Quaternion(xyzw=mujoco_to_rerun_quat(model.geom_quat[g])),
+        if boxes.colors:
+            out.append(
+                rr.Boxes3D(
+                    half_sizes=boxes.sizes["half_sizes"],
+                    colors=boxes.colors,
+                    **boxes.pose("centers"),
+                )
             )
-            items.append((geom_entity(model, g), (pose, shape)))
-    return items
-
-
-def _plot_style_items() -> list[tuple[str, tuple[Any, ...]]]:
-    """(entity, archetypes) naming the series of the multi-series plots."""
-    return [
-        (CTRL, (rr.SeriesLines(names=list(CTRL_SERIES)),)),
-        (CONTACT_FORCE, (rr.SeriesLines(names=list(CONTACT_SERIES)),)),
-    ]
+        if ellipsoids.colors:
+            out.append(
+                rr.Ellipsoids3D(
+                    half_sizes=ellipsoids.sizes["half_sizes"],
+                    colors=ellipsoids.colors,
+                    **ellipsoids.pose("centers"),
+                )
+            )
+        if capsules.colors:
+            out.append(
+                rr.Capsules3D(
+                    lengths=capsules.sizes["lengths"],
+                    radii=capsules.sizes["radii"],
+                    colors=capsules.colors,
+                    **capsules.pose("translations"),
+                )
+            )
+        if cylinders.colors:
+            out.append(
+                rr.Cylinders3D(
+                    lengths=cylinders.sizes["lengths"],
+                    radii=cylinders.sizes["radii"],
+                    colors=cylinders.colors,
+                    **cylinders.pose("centers"),
+                )
+            )
+        if mesh_vertices:
+            colors = np.concatenate(mesh_colors)
+            single = bool(np.all(colors == colors[0]))
+            out.append(
+                rr.Mesh3D(
+                    vertex_positions=np.concatenate(mesh_vertices),
+                    triangle_indices=np.concatenate(mesh_triangles),
+                    albedo_factor=colors[0] if single else None,
+                    vertex_colors=None if single else colors,
+                )
+            )
+    return out
 
 
 def logged_steps(nstep: int, log_every: int) -> np.ndarray:
@@ -415,13 +554,26 @@ def logged_steps(nstep: int, log_every: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class _Moving:
+    """A body whose pose in its parent changes: what its time series hold."""
+
+    body: int
+    entity: str
+    parent: int
+    rotates: bool  # its orientation in the parent changes (hinge, ball or free joint)
+    parent_turns: bool  # its parent's world orientation can differ from the identity
+
+
+@dataclass(frozen=True)
 class _Layout:
     """Where the logged quantities sit in the model's state and sensor vectors."""
 
     nstate: int
     nsensordata: int
     nu: int
-    bodies: tuple[tuple[int, str], ...]  # (body id, entity path); the world body never moves
+    moving: tuple[_Moving, ...]  # bodies with joints, in body order (the others: static poses)
+    # (entity, series names, their columns in SIGNALS) per entity holding signals
+    signals: tuple[tuple[str, tuple[str, ...], tuple[int, ...]], ...]
     cube_z: int  # index in the physics state
     fingers: tuple[int, ...]  # indices in the physics state
     contact_normals: tuple[int, ...]  # indices in sensordata
@@ -440,23 +592,229 @@ class _Layout:
             STATE_QPOS + int(model.jnt_qposadr[named(mujoco.mjtObj.mjOBJ_JOINT, j)])
             for j in FINGER_JOINTS
         )
-        normals = []
+        normals, pads = [], []
         for s in CONTACT_SENSORS:
             sid = named(mujoco.mjtObj.mjOBJ_SENSOR, s)
             if model.sensor_dim[sid] != 4:
                 raise ValueError(
                     f"sensor {s!r}: expected 4 values (found, force), got {model.sensor_dim[sid]}"
                 )
+            if model.sensor_objtype[sid] != mujoco.mjtObj.mjOBJ_GEOM:
+                raise ValueError(f"sensor {s!r}: expected a contact sensor of a geom (the pad)")
             normals.append(int(model.sensor_adr[sid]) + 1 + CONTACT_NORMAL_AXIS)
+            pads.append(int(model.geom_bodyid[model.sensor_objid[sid]]))
+        finger_bodies = [
+            int(model.jnt_bodyid[named(mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in FINGER_JOINTS
+        ]
+        parents = {int(model.body_parentid[b]) for b in finger_bodies}
+        if len(parents) != 1:
+            raise ValueError(f"joints {FINGER_JOINTS}: expected fingers with one common parent")
+        owners = [cube] * len(CUBE_SERIES) + [parents.pop()] * len(GRIPPER_SERIES) + pads
+        signals: dict[str, list[int]] = {}  # entity: columns in SIGNALS, in the model's order
+        for column, body in sorted(enumerate(owners), key=lambda c: c[1]):
+            signals.setdefault(body_entity(model, body), []).append(column)
+        # _body_frames keeps an orientation that does not depend on qpos unbroadcast, (4,)
+        _, quat = _body_frames(model, model.qpos0[None, :])
+        moving = []
+        for b in range(1, model.nbody):
+            jnt0, njnt = int(model.body_jntadr[b]), int(model.body_jntnum[b])
+            if njnt == 0:
+                continue  # its pose in the parent is logged once, static (_geometry_items)
+            parent = int(model.body_parentid[b])
+            turns = quat[parent].ndim == 2 or bool(np.any(quat[parent] != _IDENTITY))
+            slides = all(int(model.jnt_type[j]) == _SLIDE for j in range(jnt0, jnt0 + njnt))
+            rotates = not slides or bool(np.any(model.body_quat[b] != _IDENTITY))
+            moving.append(_Moving(b, body_entity(model, b), parent, rotates, turns))
         return cls(
             nstate=mujoco.mj_stateSize(model, FULLPHYSICS),
             nsensordata=model.nsensordata,
             nu=model.nu,
-            bodies=tuple((b, body_entity(model, b)) for b in range(1, model.nbody)),
+            moving=tuple(moving),
+            signals=tuple(
+                (e, tuple(SIGNALS[c] for c in columns), tuple(columns))
+                for e, columns in signals.items()
+            ),
             cube_z=STATE_QPOS + cube_adr + 2,
             fingers=fingers,
             contact_normals=tuple(normals),
         )
+
+
+def _geometry_items(model: mujoco.MjModel) -> list[tuple[str, list[Any]]]:
+    """(entity, archetypes) logged statically: view coordinates, geoms, poses that never change."""
+    items: list[tuple[str, list[Any]]] = [
+        (WORLD, [rr.ViewCoordinates(xyz=rr.ViewCoordinates.RIGHT_HAND_Z_UP)])
+    ]
+    items[0][1].extend(_body_geometry(model, 0))
+    for b in range(1, model.nbody):
+        archetypes = _body_geometry(model, b)
+        if model.body_jntnum[b] == 0:  # its pose in the parent never changes
+            with _strict():
+                pose = rr.Transform3D(
+                    translation=model.body_pos[b],
+                    quaternion=mujoco_to_rerun_quat(model.body_quat[b]),
+                )
+            archetypes.insert(0, pose)
+        if archetypes:
+            items.append((body_entity(model, b), archetypes))
+    return items
+
+
+def _signal_style_items(layout: _Layout) -> list[tuple[str, list[Any]]]:
+    """(entity, archetypes) naming the signals' series."""
+    with _strict():
+        return [(e, [rr.SeriesLines(names=list(names))]) for e, names, _ in layout.signals]
+
+
+# Arrow columns tagged with their entity path (rerun:entity_path), so that one record batch can
+# describe several entities: `Chunk.from_record_batch` makes one chunk per entity of it.
+_Column = tuple[pa.Field, pa.Array]
+_ENTITY_KEY = b"rerun:entity_path"
+
+
+def _tag(field: pa.Field, entity: str) -> pa.Field:
+    entity = "/" + entity.lstrip("/")
+    metadata = {**(field.metadata or {}), _ENTITY_KEY: entity.encode()}
+    return pa.field(f"{entity}:{field.name}", field.type, metadata=metadata)
+
+
+def _archetype_columns(entity: str, archetypes: Iterable[Any]) -> list[_Column]:
+    """One static row holding all components of `archetypes`, as `rec.log(static=True)` would."""
+    columns = []
+    with _strict():
+        for archetype in archetypes:
+            for batch in archetype.as_component_batches():
+                columns.append(batch.partition([len(batch.as_arrow_array())]))
+        chunk = Chunk.from_columns(entity, [], columns)
+    record = chunk.to_record_batch()
+    return [
+        (_tag(field, entity), column)
+        for field, column in zip(record.schema, record.columns, strict=True)
+        if (field.metadata or {}).get(b"rerun:kind") == b"data"
+    ]
+
+
+def _batch(columns: Sequence[_Column]) -> pa.RecordBatch:
+    fields, arrays = zip(*columns, strict=True)
+    return pa.RecordBatch.from_arrays(list(arrays), schema=pa.schema(list(fields)))
+
+
+def _chunks(columns: Sequence[_Column] | pa.RecordBatch, *, temporal: bool = False) -> list[Chunk]:
+    """Chunks (fresh ids, one per entity) of columns; temporal ones are indexed by `TIMELINE`."""
+    batch = columns if isinstance(columns, pa.RecordBatch) else _batch(columns)
+    return Chunk.from_record_batch(batch, index=TIMELINE if temporal else None)
+
+
+@functools.cache
+def _series_fields() -> dict[str, pa.Field]:
+    """Arrow field (type and rerun metadata) of each time-series component, as rerun builds it."""
+    times = [rr.TimeColumn(TIMELINE, duration=np.zeros(1, dtype="timedelta64[ns]"))]
+    with _strict():
+        columns = [
+            *rr.Transform3D.columns(translation=np.zeros((1, 3)), quaternion=[[0, 0, 0, 1.0]]),
+            *rr.Scalars.columns(scalars=np.zeros(1)),
+        ]
+        record = Chunk.from_columns("template", times, columns).to_record_batch()
+    return {field.name: field for field in record.schema}
+
+
+_TRANSLATION, _QUATERNION, _SCALARS = (
+    "Transform3D:translation",
+    "Transform3D:quaternion",
+    "Scalars:scalars",
+)
+
+
+class _Chunker:
+    """A model's recordings as Arrow columns, built fast: the column layouts are prepared once.
+
+    `geometry` and `styles` are the static columns every recording shares (geoms, static poses,
+    series names); `series` builds the time series of many episodes at once.
+    """
+
+    def __init__(self, model: mujoco.MjModel, layout: _Layout) -> None:
+        self.model = model
+        self.layout = layout
+        self.geometry = [
+            c for entity, a in _geometry_items(model) for c in _archetype_columns(entity, a)
+        ]
+        self.styles = [
+            c for entity, a in _signal_style_items(layout) for c in _archetype_columns(entity, a)
+        ]
+        fields = _series_fields()
+        self._time_field = pa.field(TIMELINE, pa.duration("ns"))
+        self._pose_fields = [
+            (
+                _tag(fields[_TRANSLATION], m.entity),
+                _tag(fields[_QUATERNION], m.entity) if m.rotates else None,
+            )
+            for m in layout.moving
+        ]
+        self._signal_fields = [_tag(fields[_SCALARS], e) for e, _, _ in layout.signals]
+        self._offsets: dict[tuple[int, int], pa.Array] = {}
+
+    def _list_offsets(self, n: int, width: int) -> pa.Array:
+        key = (n, width)
+        if key not in self._offsets:
+            self._offsets[key] = pa.array(np.arange(0, n * width + 1, width, dtype=np.int32))
+        return self._offsets[key]
+
+    def _list(self, field: pa.Field, values: np.ndarray) -> pa.Array:
+        """(n, width) values as a list column of `field`'s type: one row of `width` per step."""
+        n, width = values.shape
+        item = field.type.value_type
+        if pa.types.is_fixed_size_list(item):
+            dtype = item.value_type.to_pandas_dtype()
+            flat = pa.array(np.ascontiguousarray(values, dtype=dtype).ravel())
+            inner = pa.FixedSizeListArray.from_arrays(flat, type=item)
+            return pa.ListArray.from_arrays(self._list_offsets(n, 1), inner, type=field.type)
+        flat = pa.array(np.ascontiguousarray(values, dtype=np.float64).ravel())
+        return pa.ListArray.from_arrays(self._list_offsets(n, width), flat, type=field.type)
+
+    def series(
+        self, episodes: Sequence[tuple[np.ndarray, np.ndarray]], ctrl: np.ndarray
+    ) -> pa.RecordBatch:
+        """Time series of episodes, from each one's logged rows of physics and sensors.
+
+        Args:
+          episodes: (rows, sensors) per episode: (n, nstate) physics and (n, nsensordata)
+            sensors at the n logged steps, the same n for all.
+          ctrl: (n, nu) the ctrl at the logged steps.
+
+        Returns:
+          the columns of all episodes, one after another: episode i's are rows i*n to (i+1)*n
+          (zero-copy slices). Everything runs once over all episodes' rows: numpy's and
+          pyarrow's cost per call, not per row, dominates at a few hundred rows.
+        """
+        layout = self.layout
+        n, k = ctrl.shape[0], len(episodes)
+        rows = np.concatenate([r for r, _ in episodes])
+        sensors = np.concatenate([s for _, s in episodes])
+        time_ns = np.rint(rows[:, STATE_TIME] * 1e9).astype(np.int64).astype("timedelta64[ns]")
+        values: list[tuple[pa.Field, np.ndarray]] = []
+        positions, orientations = _body_frames(
+            self.model, rows[:, STATE_QPOS : STATE_QPOS + self.model.nq]
+        )
+        for m, (t_field, q_field) in zip(layout.moving, self._pose_fields, strict=True):
+            # the pose in the parent body, whose entity holds the parent's pose
+            pos, quat = positions[m.body], orientations[m.body]
+            if m.parent != 0:
+                pos, quat = _in_parent(
+                    pos, quat, positions[m.parent], orientations[m.parent], turns=m.parent_turns
+                )
+            values.append((t_field, np.broadcast_to(pos, (n * k, 3))))
+            if q_field is not None:
+                values.append((q_field, mujoco_to_rerun_quat(np.broadcast_to(quat, (n * k, 4)))))
+        signals = np.empty((n * k, len(SIGNALS)))  # columns: SIGNALS
+        signals[:, 0] = rows[:, layout.cube_z]
+        signals[:, 1] = rows[:, list(layout.fingers)].mean(axis=1)
+        signals[:, 2:6] = np.tile(ctrl[:, list(_CTRL_COLUMNS)], (k, 1))
+        signals[:, 6:] = np.abs(sensors[:, list(layout.contact_normals)])
+        for field, (_, _, columns) in zip(self._signal_fields, layout.signals, strict=True):
+            values.append((field, signals[:, list(columns)]))
+        columns = [(self._time_field, pa.array(time_ns))]
+        columns += [(field, self._list(field, v)) for field, v in values]
+        return _batch(columns)
 
 
 def _as_trajectory(
@@ -477,64 +835,18 @@ def _as_trajectory(
     return physics, sensordata, ctrl
 
 
-def _multi_series(values: np.ndarray) -> Any:
-    """Scalars columns with one row per time and several series per row."""
-    n, width = values.shape
-    return rr.Scalars.columns(scalars=np.ascontiguousarray(values).ravel()).partition(
-        np.full(n, width)
-    )
-
-
-def _episode_columns(
-    model: mujoco.MjModel,
-    layout: _Layout,
-    *,
-    physics: Any,
-    sensordata: Any,
-    ctrl: Any,
-    log_every: int,
-) -> list[tuple[str, list[rr.TimeColumn], Any]]:
-    """(entity, indexes, columns) of an episode's time series, ready for send_columns."""
-    physics, sensordata, ctrl = _as_trajectory(layout, physics, sensordata, ctrl)
-    steps = logged_steps(ctrl.shape[0], log_every)
-    rows = physics[steps]
-    # rerun's own float path truncates (0.006 s -> 5999999 ns); round to the nanosecond here.
-    time_ns = np.rint(rows[:, STATE_TIME] * 1e9).astype(np.int64)
-    indexes = [rr.TimeColumn(TIMELINE, duration=time_ns.astype("timedelta64[ns]"))]
-    n = len(steps)
-    out: list[tuple[str, list[rr.TimeColumn], Any]] = []
-    positions, orientations = _body_frames(model, rows[:, STATE_QPOS : STATE_QPOS + model.nq])
-    for body, entity in layout.bodies:
-        translation = np.broadcast_to(positions[body], (n, 3))
-        quat = orientations[body]
-        if quat.ndim == 1 and np.allclose(quat, (1.0, 0.0, 0.0, 0.0), rtol=0.0, atol=1e-12):
-            # never rotates (the gantry): translation only; no rotation is the default
-            columns = rr.Transform3D.columns(translation=translation)
-        else:
-            xyzw = mujoco_to_rerun_quat(np.broadcast_to(quat, (n, 4)))
-            columns = rr.Transform3D.columns(translation=translation, quaternion=xyzw)
-        out.append((entity, indexes, columns))
-    fingers = rows[:, list(layout.fingers)].mean(axis=1)
-    normals = np.abs(sensordata[steps][:, list(layout.contact_normals)])
-    out += [
-        (CUBE_HEIGHT, indexes, rr.Scalars.columns(scalars=rows[:, layout.cube_z].copy())),
-        (FINGER_OPENING, indexes, rr.Scalars.columns(scalars=fingers)),
-        (CTRL, indexes, _multi_series(ctrl[steps][:, list(_CTRL_COLUMNS)])),
-        (CONTACT_FORCE, indexes, _multi_series(normals)),
-    ]
-    return out
-
-
 def log_model_geometry(rec: rr.RecordingStream, model: mujoco.MjModel) -> None:
-    """Log every visible geom (groups 0-2) statically, under its body.
+    """Log every visible geom (groups 0-2) statically, on its body's entity.
 
-    Each geom entity carries its shape, MuJoCo colour (the material's unless the geom sets its
-    own rgba) and its pose in the body; the body entity above it gets the per-step pose
-    (`log_episode`), so the scene moves as MuJoCo's does. Planes are drawn as flat boxes.
+    Each body's geoms become instances of one archetype per geom type, with their pose in the
+    body and their MuJoCo colour (the material's unless the geom sets its own rgba); the body
+    entity gets the per-step pose (`log_episode`), so the scene moves as MuJoCo's does. Planes
+    are drawn as flat boxes; the world body's geoms go on ``world``; a body whose pose cannot
+    change gets that pose here.
     """
+    columns = [c for entity, a in _geometry_items(model) for c in _archetype_columns(entity, a)]
     with _strict():
-        for entity, archetypes in _geometry_items(model):
-            rec.log(entity, *archetypes, static=True, strict=True)
+        rec.send_chunks(_chunks(columns))
 
 
 def log_episode(
@@ -548,8 +860,9 @@ def log_episode(
 ) -> None:
     """Log one episode's motion and signals: every `log_every`-th step, and the last.
 
-    Body poses come from qpos (`body_poses`); each entity's series goes out in one
-    `send_columns` call on the `sim_time` timeline (= physics[t, 0]).
+    Body poses come from qpos (`body_poses`), each in its parent body's frame; a body's pose and
+    its signals are one chunk on the `sim_time` timeline (= physics[t, 0]); the signals' series
+    names are logged statically.
 
     Args:
       rec: the episode's recording.
@@ -560,14 +873,12 @@ def log_episode(
       log_every: log every `log_every`-th step (>= 1); the last step is always logged.
     """
     layout = _Layout.of(model)
-    series = _episode_columns(
-        model, layout, physics=physics, sensordata=sensordata, ctrl=ctrl, log_every=log_every
-    )
+    physics, sensordata, ctrl = _as_trajectory(layout, physics, sensordata, ctrl)
+    steps = logged_steps(ctrl.shape[0], log_every)
+    chunker = _Chunker(model, layout)
+    columns = chunker.series([(physics[steps], sensordata[steps])], ctrl[steps])
     with _strict():
-        for entity, archetypes in _plot_style_items():
-            rec.log(entity, *archetypes, static=True, strict=True)
-        for entity, indexes, columns in series:
-            rec.send_columns(entity, indexes=indexes, columns=columns, strict=True)
+        rec.send_chunks([*_chunks(chunker.styles), *_chunks(columns, temporal=True)])
 
 
 # --------------------------------------------------------------------------------------------
@@ -589,12 +900,7 @@ class EpisodeRecord:
 
 def _static_chunk(entity: str, archetypes: Iterable[Any]) -> Chunk:
     """One static row holding all components of `archetypes`, as `rec.log(static=True)` would."""
-    columns = []
-    with _strict():
-        for archetype in archetypes:
-            for batch in archetype.as_component_batches():
-                columns.append(batch.partition([len(batch.as_arrow_array())]))
-        return Chunk.from_columns(entity, [], columns)
+    return _chunks(_archetype_columns(entity, archetypes))[0]
 
 
 def _property_chunk(name: str, fields: Mapping[str, Any]) -> Chunk:
@@ -606,6 +912,67 @@ def _property_chunk(name: str, fields: Mapping[str, Any]) -> Chunk:
 
 def _name_chunk(name: str) -> Chunk:
     return _static_chunk(_PROPERTIES, [rr.archetypes.RecordingInfo(name=name)])
+
+
+def _property_columns(name: str, fields: Mapping[str, Any]) -> list[_Column]:
+    """The columns `_property_chunk` would hold (what `rr.send_property` logs), built directly."""
+    entity = f"{_PROPERTIES}/{_part(name)}"
+    out = []
+    for key, value in fields.items():
+        if isinstance(value, (bool, np.bool_)):
+            arrow_type: pa.DataType = pa.bool_()
+        elif isinstance(value, (int, np.integer)):
+            arrow_type = pa.int64()
+        elif isinstance(value, (float, np.floating)):
+            arrow_type = pa.float64()
+        elif isinstance(value, str):
+            arrow_type = pa.string()
+        else:
+            raise TypeError(f"property {name}.{key}: unsupported value {value!r}")
+        metadata = {b"rerun:kind": b"data", b"rerun:component": key.encode()}
+        field = pa.field(key, pa.list_(arrow_type), metadata=metadata)
+        out.append((_tag(field, entity), pa.array([[value]], type=field.type)))
+    return out
+
+
+# The `episode` property is one component holding a struct, not one component per field: every
+# component costs each recording ~0.5 kB of index in the file's footer. The struct keeps the
+# names and types (failure_category is null when the episode did not fail).
+EPISODE_COMPONENT = "fields"
+_EPISODE_TYPE = pa.struct(
+    [
+        pa.field("condition", pa.string(), nullable=False),
+        pa.field("state_id", pa.int64(), nullable=False),
+        pa.field("dx", pa.float64(), nullable=False),
+        pa.field("dy", pa.float64(), nullable=False),
+        pa.field("yaw", pa.float64(), nullable=False),
+        pa.field("mass", pa.float64(), nullable=False),
+        pa.field("success", pa.bool_(), nullable=False),
+        pa.field("final_height", pa.float64(), nullable=False),
+        pa.field("failure_category", pa.string()),
+        pa.field("log_every", pa.int64(), nullable=False),
+        pa.field("n_steps", pa.int64(), nullable=False),
+    ]
+)
+
+
+@functools.cache
+def _episode_field() -> pa.Field:
+    metadata = {b"rerun:kind": b"data", b"rerun:component": EPISODE_COMPONENT.encode()}
+    field = pa.field(EPISODE_COMPONENT, pa.list_(_EPISODE_TYPE), metadata=metadata)
+    return _tag(field, f"{_PROPERTIES}/{EPISODE_PROPERTY}")
+
+
+def _episode_property(fields: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields of a recording's `episode` property, read back (`_raw_properties`)."""
+    inner = fields.get(EPISODE_COMPONENT)
+    return {"failure_category": None, **(inner if isinstance(inner, Mapping) else fields)}
+
+
+@functools.cache
+def _name_field() -> pa.Field:
+    (field, _), *_ = _archetype_columns(_PROPERTIES, [rr.archetypes.RecordingInfo(name="")])
+    return field
 
 
 def _stamp_json(stamp: Mapping[str, Any]) -> str:
@@ -635,18 +1002,43 @@ def _cli_env() -> dict[str, str]:
     return {**os.environ, "CI": os.environ.get("CI", "1")}
 
 
+# Niceness added to `rerun rrd route` and to the writer thread: at a lower priority than the
+# simulation they mostly run in the gaps the rollouts leave (between batches, the caller's thread
+# runs Python alone and the other core idles). Neither needs the GIL for long: route is a process
+# of its own, and the writer encodes `ChunkStore`s, which rerun does without the GIL.
+_ROUTE_NICENESS = 10
+_WORKER_NICENESS = 10
+
+
+def _lower_priority(pid: int, niceness: int) -> None:
+    """Best effort: raise the niceness of a process, or on Linux of one thread (its native id)."""
+    if niceness <= 0:
+        return
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, os.getpriority(os.PRIO_PROCESS, pid) + niceness)
+    except (AttributeError, OSError):  # no setpriority (Windows), or not permitted: run as is
+        pass
+
+
+def _fd_path(fd: int) -> str | None:
+    """A path that opens file descriptor `fd` again (Linux, macOS, BSDs), or None."""
+    for directory in ("/proc/self/fd", "/dev/fd"):
+        if os.path.isdir(directory):
+            return f"{directory}/{fd}"
+    return None
+
+
 class _RrdFileWriter:
-    """Writes encoded rerun streams, one after another, as one valid .rrd file.
+    """Writes rerun streams, one after another, as one valid .rrd file.
 
     Feeds them to ``rerun rrd route -o <path>``, which re-frames them as a single stream with one
-    footer, without decoding the payloads. A feeder thread does the writing, so the caller
-    builds the next recording while route works on the last ones; the queue holds at most
-    `_QUEUE` encoded recordings, which bounds memory.
+    footer. Each stream is written by a rerun writer given a path (`write_rrd`, a blueprint's
+    `save`): the path of route's stdin where the OS has one, so the stream goes straight into the
+    pipe, else a scratch file whose bytes are then copied. Writing blocks while route catches up
+    (its stdout goes to /dev/null and its stderr to a file, so route never waits for us).
     """
 
-    _QUEUE = 4
-
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, scratch: Path) -> None:
         self._stderr: IO[bytes] = tempfile.TemporaryFile()
         self._proc = subprocess.Popen(
             [_rerun_cli(), "rrd", "route", "-o", str(path)],
@@ -655,47 +1047,48 @@ class _RrdFileWriter:
             stderr=self._stderr,
             env=_cli_env(),
         )
-        self._queue: queue.Queue[bytes | None] = queue.Queue(maxsize=self._QUEUE)
-        self._failed = False
-        self._feeder = threading.Thread(target=self._feed, name="mjtrial-rrd-route", daemon=True)
-        self._feeder.start()
-
-    def _feed(self) -> None:
+        _lower_priority(self._proc.pid, _ROUTE_NICENESS)
         assert self._proc.stdin is not None
-        while (encoded := self._queue.get()) is not None:
-            if self._failed:
-                continue  # keep draining, so the producer never blocks on a full queue
-            try:
-                self._proc.stdin.write(encoded)
-            except OSError:  # route exited early (BrokenPipeError) or the pipe broke
-                self._failed = True
-        try:
-            self._proc.stdin.close()
-        except OSError:
-            self._failed = True
+        self._stdin = self._proc.stdin
+        self._direct = _fd_path(self._stdin.fileno())
+        self._part = scratch / "stream.rrd"
 
-    def write(self, encoded: bytes) -> None:
-        if self._failed:
-            self._proc.wait()
-            raise RuntimeError(f"rerun rrd route stopped early: {self._error_text()}")
-        self._queue.put(encoded)
+    def write(self, writer: Callable[[str], None]) -> None:
+        """Append the stream that `writer(path)` writes to `path`."""
+        try:
+            if self._direct is not None:
+                writer(self._direct)
+            else:
+                writer(str(self._part))
+                try:
+                    self._stdin.write(self._part.read_bytes())
+                finally:
+                    self._part.unlink()
+        except Exception as exc:
+            if self._proc.poll() is None:
+                raise
+            # route exited early: the broken pipe is only the symptom
+            raise RuntimeError(f"rerun rrd route stopped early: {self._error_text()}") from exc
 
     def close(self) -> None:
-        self._queue.put(None)
-        self._feeder.join()
-        code = self._proc.wait()
         try:
-            if code != 0 or self._failed:
+            try:
+                self._stdin.close()
+            except OSError:
+                pass  # route's exit code and stderr say why
+            code = self._proc.wait()
+            if code != 0:
                 raise RuntimeError(f"rerun rrd route failed (exit {code}): {self._error_text()}")
         finally:
             self._stderr.close()
 
     def abort(self) -> None:
-        self._failed = True
         self._proc.kill()
         self._proc.wait()
-        self._queue.put(None)  # the feeder drains what is left and exits
-        self._feeder.join()
+        try:
+            self._stdin.close()
+        except OSError:
+            pass
         self._stderr.close()
 
     def _error_text(self) -> str:
@@ -705,46 +1098,117 @@ class _RrdFileWriter:
 
 
 @contextmanager
-def _rrd_output(path: Path) -> Iterator[tuple[_RrdFileWriter, Path]]:
-    """(writer of the final stream, scratch directory next to `path`)."""
+def _rrd_output(
+    path: Path, application_id: str, blueprint: rrb.Blueprint
+) -> Iterator[_RrdFileWriter]:
+    """The writer of `path`'s stream, which starts with `blueprint`."""
     with tempfile.TemporaryDirectory(dir=path.parent, prefix=f".{path.name}.parts-") as scratch:
-        writer = _RrdFileWriter(path)
+        writer = _RrdFileWriter(path, Path(scratch))
         try:
-            yield writer, Path(scratch)
+            writer.write(functools.partial(_save_blueprint, blueprint, application_id))
+            yield writer
         except BaseException:
             writer.abort()
             raise
         writer.close()
 
 
-def _encode(
-    chunks: Iterable[Chunk], *, application_id: str, recording_id: str, scratch: Path
-) -> bytes:
-    """One recording as an encoded rerun stream (what a .rrd file of it would hold)."""
-    part = scratch / "recording.rrd"
-    with _strict():
-        LazyChunkStream.from_iter(chunks).write_rrd(
-            part, application_id=application_id, recording_id=recording_id
-        )
+def _save_blueprint(blueprint: rrb.Blueprint, application_id: str, path: str) -> None:
+    """A blueprint as a stream of its own (an .rbl file), active and default."""
     try:
-        return part.read_bytes()
-    finally:
-        part.unlink()
-
-
-def _blueprint_bytes(application_id: str, scratch: Path) -> bytes:
-    """`default_blueprint` as a stream of its own (an .rbl file), active and default."""
-    part = scratch / "blueprint.rbl"
-    try:
-        default_blueprint().save(application_id, part)
+        blueprint.save(application_id, path)
     except RuntimeError as exc:  # e.g. "Blueprint stream has no store info"
         raise RuntimeError(
             f"rerun could not encode the blueprint ({exc}); is rerun disabled (RERUN=off)?"
         ) from exc
-    try:
-        return part.read_bytes()
-    finally:
-        part.unlink()
+
+
+def _write_store(
+    out: _RrdFileWriter, store: ChunkStore, *, application_id: str, recording_id: str
+) -> None:
+    """Append one recording, the chunks of `store`, to `out`.
+
+    Writing a `ChunkStore` needs no GIL, whereas a stream over Python objects takes it for every
+    chunk: in a worker thread it would wait for the caller's thread, which holds the GIL while it
+    prepares the next rollout.
+    """
+
+    def writer(path: str) -> None:
+        with _strict():
+            store.write_rrd(path, application_id=application_id, recording_id=recording_id)
+
+    out.write(writer)
+
+
+def _write_recording(
+    out: _RrdFileWriter, chunks: Iterable[Chunk], *, application_id: str, recording_id: str
+) -> None:
+    """Append one recording of `chunks` to `out`."""
+    with _strict():
+        store = ChunkStore.from_chunks(list(chunks))
+    _write_store(out, store, application_id=application_id, recording_id=recording_id)
+
+
+class _Worker:
+    """Runs `job(item)` on each put item, in order, in a thread of its own at a lower priority.
+
+    At most `maxsize` items wait. The first error stops the work and is raised in the caller's
+    thread by the next `put` or by `finish`.
+    """
+
+    _STOP = object()
+
+    def __init__(self, job: Callable[[Any], None], *, maxsize: int, name: str) -> None:
+        self._job = job
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=maxsize)
+        self._error: BaseException | None = None
+        self._cancelled = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        if sys.platform.startswith("linux"):  # niceness is per thread on Linux only
+            _lower_priority(threading.get_native_id(), _WORKER_NICENESS)
+        while (item := self._queue.get()) is not self._STOP:
+            if self._error is not None or self._cancelled:
+                continue  # keep draining, so the producer never blocks on a full queue
+            try:
+                self._job(item)
+            except BaseException as exc:  # raised in the caller's thread
+                self._error = exc
+
+    def put(self, item: Any) -> None:
+        self._raise()
+        self._queue.put(item)
+
+    def finish(self) -> None:
+        self._queue.put(self._STOP)
+        self._thread.join()
+        self._raise()
+
+    def cancel(self) -> None:
+        self._cancelled = True
+        self._queue.put(self._STOP)
+        self._thread.join()
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """An episode waiting for its recording to be built: its logged rows and properties."""
+
+    recording_id: str
+    name: str
+    fields: dict[str, Any]
+    rows: np.ndarray  # logged rows of the physics state
+    sensors: np.ndarray  # logged rows of sensordata
+
+
+_GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
+_QUEUE = 128  # recordings waiting for the writer thread, at most (~50 kB each by default)
 
 
 def write_condition_recordings(
@@ -760,8 +1224,10 @@ def write_condition_recordings(
 ) -> int:
     """Atomically write one .rrd holding one recording per episode of a condition.
 
-    Episodes are consumed one at a time, so `episodes` may be a generator over rollout batches
-    and memory stays bounded by one episode. Recording ids are deterministic
+    Episodes are consumed one at a time, so `episodes` may be a generator over rollout batches.
+    Their logged rows are kept until `_GROUP` episodes have come, whose recordings are then built
+    at once; a writer thread encodes them into the file (at most `_QUEUE` wait), while the caller
+    runs the next rollouts (see the module docstring). Recording ids are deterministic
     (`episode_recording_id`); each recording carries the properties `episode` and `provenance`,
     the model geometry and the episode's series (`log_episode`); the file carries
     `default_blueprint`.
@@ -775,41 +1241,78 @@ def write_condition_recordings(
     ctrl = np.asarray(ctrl, dtype=np.float64)
     if ctrl.ndim != 2 or ctrl.shape[1] != layout.nu:
         raise ValueError(f"ctrl: expected shape (n_steps, {layout.nu}), got {ctrl.shape}")
-    logged_steps(ctrl.shape[0], log_every)  # validate before any work
-    static = [_static_chunk(e, a) for e, a in _geometry_items(model) + _plot_style_items()]
+    steps = logged_steps(ctrl.shape[0], log_every)  # validate before any work
+    chunker = _Chunker(model, layout)
+    logged_ctrl = ctrl[steps]
+    name_field, episode_field = _name_field(), _episode_field()
+    with _strict():
+        # the same in every recording: geometry, static poses, series names and the stamp
+        constant = _chunks(
+            [
+                *chunker.geometry,
+                *chunker.styles,
+                *_property_columns(PROVENANCE_PROPERTY, {_JSON_FIELD: stamp_text}),
+            ]
+        )
+    blueprint = default_blueprint([(e, names) for e, names, _ in layout.signals])
     seen: set[int] = set()
-    with atomic_path(path) as tmp, _rrd_output(tmp) as (out, scratch):
-        out.write(_blueprint_bytes(application_id, scratch))
-        for ep in episodes:
-            sid = int(ep.state.state_id)
-            if sid in seen:
-                raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
-            series = _episode_columns(
-                model,
-                layout,
-                physics=ep.physics,
-                sensordata=ep.sensordata,
-                ctrl=ctrl,
-                log_every=log_every,
-            )
-            with _strict():
-                chunks = [
-                    _name_chunk(episode_recording_name(condition, sid)),
-                    _property_chunk(
-                        EPISODE_PROPERTY, _episode_fields(ep, condition, ctrl, log_every)
-                    ),
-                    _property_chunk(PROVENANCE_PROPERTY, {_JSON_FIELD: stamp_text}),
-                    # the same static chunks in every recording, each under a fresh chunk id
-                    *(c.with_entity_path(c.entity_path) for c in static),
-                    *(Chunk.from_columns(e, i, c) for e, i, c in series),
+    with atomic_path(path) as tmp, _rrd_output(tmp, application_id, blueprint) as out:
+
+        def build(group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
+            """(recording id, chunks) of each episode: the work that needs the GIL."""
+            n = len(steps)
+            series = chunker.series([(p.rows, p.sensors) for p in group], logged_ctrl)
+            properties = _batch(
+                [
+                    (name_field, pa.array([[p.name] for p in group], type=name_field.type)),
+                    (episode_field, pa.array([[p.fields] for p in group], type=episode_field.type)),
                 ]
-            rid = episode_recording_id(condition, sid)
-            out.write(
-                _encode(chunks, application_id=application_id, recording_id=rid, scratch=scratch)
             )
-            seen.add(sid)
-        if not seen:
-            raise ValueError(f"{condition}: no episodes to record")
+            for i, ep in enumerate(group):
+                with _strict():
+                    chunks = [
+                        *_chunks(properties.slice(i, 1)),
+                        # the same data in every recording, each time under a fresh chunk id
+                        *(c.with_entity_path(c.entity_path) for c in constant),
+                        *_chunks(series.slice(i * n, n), temporal=True),
+                    ]
+                    store = ChunkStore.from_chunks(chunks)
+                yield ep.recording_id, store
+
+        def write(recording: tuple[str, ChunkStore]) -> None:
+            recording_id, store = recording
+            _write_store(out, store, application_id=application_id, recording_id=recording_id)
+
+        worker = _Worker(write, maxsize=_QUEUE, name="mjtrial-rrd-writer")
+        group: list[_Pending] = []
+        try:
+            for ep in episodes:
+                sid = int(ep.state.state_id)
+                if sid in seen:
+                    raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
+                physics, sensordata, _ = _as_trajectory(layout, ep.physics, ep.sensordata, ctrl)
+                group.append(
+                    _Pending(
+                        recording_id=episode_recording_id(condition, sid),
+                        name=episode_recording_name(condition, sid),
+                        fields=_episode_fields(ep, condition, ctrl, log_every),
+                        rows=physics[steps],
+                        sensors=sensordata[steps],
+                    )
+                )
+                seen.add(sid)
+                if len(group) == _GROUP:
+                    for item in build(group):
+                        worker.put(item)
+                    group = []
+            if not seen:
+                raise ValueError(f"{condition}: no episodes to record")
+            for item in build(group) if group else ():
+                worker.put(item)
+        except BaseException:
+            worker.cancel()
+            raise
+        worker.finish()
     return len(seen)
 
 
@@ -826,11 +1329,10 @@ def _episode_fields(
         "mass": float(s.mass),
         "success": bool(ep.success),
         "final_height": float(ep.final_height),
+        "failure_category": None if ep.failure_category is None else str(ep.failure_category),
         "log_every": int(log_every),
         "n_steps": int(ctrl.shape[0]),
     }
-    if ep.failure_category is not None:  # absent means None: rerun has no typed null
-        fields["failure_category"] = str(ep.failure_category)
     return fields
 
 
@@ -867,8 +1369,13 @@ def write_failures_rrd(
     if duplicates:
         raise ValueError(f"the same episode appears in several sources: {duplicates[:5]}")
 
-    with atomic_path(path) as tmp, _rrd_output(tmp) as (out, scratch):
-        out.write(_blueprint_bytes(application_id, scratch))
+    signals: Sequence[tuple[str, Sequence[str]]] = GANTRY_SIGNALS
+    for source in map(Path, sources):  # the sources' signals, all recorded alike
+        if recordings := readers[source].recordings():
+            signals = list(_recorded_signals(readers[source], recordings[0]).items()) or signals
+            break
+    blueprint = default_blueprint(signals)
+    with atomic_path(path) as tmp, _rrd_output(tmp, application_id, blueprint) as out:
         names = [Path(s).name for s in sources]  # names only: no private paths in outputs
         summary = [
             _name_chunk(f"failures: {len(failures)} episode(s) from {len(names)} file(s)"),
@@ -878,14 +1385,7 @@ def write_failures_rrd(
             ),
             _static_chunk(FAILURES_SUMMARY, [_failures_table(failures)]),
         ]
-        out.write(
-            _encode(
-                summary,
-                application_id=application_id,
-                recording_id=FAILURES_SUMMARY,
-                scratch=scratch,
-            )
-        )
+        _write_recording(out, summary, application_id=application_id, recording_id=FAILURES_SUMMARY)
         replaced = [
             f"{_PROPERTIES}/{PROVENANCE_PROPERTY}",
             f"{_PROPERTIES}/{SOURCE_PROVENANCE_PROPERTY}",
@@ -898,9 +1398,7 @@ def write_failures_rrd(
                 fields = {_JSON_FIELD: json.dumps(original, allow_nan=False)}
                 chunks.append(_property_chunk(SOURCE_PROVENANCE_PROPERTY, fields))
             rid = _FAILURE_PREFIX + entry.recording_id
-            out.write(
-                _encode(chunks, application_id=application_id, recording_id=rid, scratch=scratch)
-            )
+            _write_recording(out, chunks, application_id=application_id, recording_id=rid)
     return len(failures)
 
 
@@ -978,7 +1476,7 @@ def _properties(reader: RrdReader, entry: StoreEntry) -> dict[str, Any]:
         "name": info.get(_NAME_COMPONENT),
     }
     if EPISODE_PROPERTY in raw:
-        out.update({"failure_category": None, **raw.pop(EPISODE_PROPERTY)})
+        out.update(_episode_property(raw.pop(EPISODE_PROPERTY)))
     if FAILURES_PROPERTY in raw:
         fields = dict(raw.pop(FAILURES_PROPERTY))
         if isinstance(fields.get("sources"), str):
@@ -1041,6 +1539,22 @@ def _column_values(column: pa.Array, instances: int, what: str) -> np.ndarray:
     return values.to_numpy(zero_copy_only=False).astype(np.float64).reshape(len(column), -1)
 
 
+_SERIES_NAMES = "SeriesLines:names"
+
+
+def _recorded_signals(reader: RrdReader, entry: StoreEntry) -> dict[str, list[str]]:
+    """{entity (no leading slash): series names} of a recording, from its static SeriesLines."""
+    out: dict[str, list[str]] = {}
+    stream = reader.store(store=entry).stream().filter(is_static=True, components=_SERIES_NAMES)
+    for chunk in stream:
+        batch = chunk.to_record_batch()
+        column = batch.column(batch.schema.names.index(_SERIES_NAMES))
+        names = column[len(column) - 1].as_py()  # static: the last row wins
+        if names:
+            out[chunk.entity_path.lstrip("/")] = names
+    return out
+
+
 def read_episode(
     path: str | os.PathLike[str], *, condition: str, state_id: int
 ) -> dict[str, np.ndarray]:
@@ -1058,14 +1572,16 @@ def read_episode(
     path = Path(path)
     reader = _open(path)
     entry = _find_episode(reader, path, condition, state_id)
-    cube = f"{WORLD}/{_part(CUBE_BODY)}"
+    cube = f"{WORLD}/{_part(CUBE_BODY)}"  # a free joint's body is a child of the world body
+    signals = _recorded_signals(reader, entry)
+    where = {name: (e, i) for e, names in signals.items() for i, name in enumerate(names)}
+    missing = [name for name in SIGNALS if name not in where]
+    if missing:
+        raise ValueError(f"{path}: recording {entry.recording_id!r} has no series {missing}")
     wanted: dict[str, list[tuple[str, int]]] = {
-        cube: [("Transform3D:translation", 1), ("Transform3D:quaternion", 1)],
-        CUBE_HEIGHT: [("Scalars:scalars", 1)],
-        FINGER_OPENING: [("Scalars:scalars", 1)],
-        CTRL: [("Scalars:scalars", len(CTRL_SERIES))],
-        CONTACT_FORCE: [("Scalars:scalars", len(CONTACT_SERIES))],
+        e: [(_SCALARS, len(names))] for e, names in signals.items() if set(names) & set(SIGNALS)
     }
+    wanted.setdefault(cube, []).extend([(_TRANSLATION, 1), (_QUATERNION, 1)])
     parts: dict[str, list[dict[str, np.ndarray]]] = {e: [] for e in wanted}
     store = reader.store(store=entry)
     stream = store.stream().filter(content=[f"/{e}" for e in wanted], has_timeline=TIMELINE)
@@ -1091,12 +1607,12 @@ def read_episode(
         merged = {k: np.concatenate([c[k] for c in chunks]) for k in keys}
         order = np.argsort(merged["time_ns"], kind="stable")  # ties keep the logged order
         series[entity] = {k: v[order] for k, v in merged.items()}
-    time_ns = series[CUBE_HEIGHT]["time_ns"]
+    time_ns = series[cube]["time_ns"]
     for entity, s in series.items():
         if not np.array_equal(s["time_ns"], time_ns):
-            raise ValueError(f"{path}: {entity} is not logged at the same times as {CUBE_HEIGHT}")
+            raise ValueError(f"{path}: {entity} is not logged at the same times as {cube}")
 
-    props = _raw_properties(reader, entry).get(EPISODE_PROPERTY, {})
+    props = _episode_property(_raw_properties(reader, entry).get(EPISODE_PROPERTY, {}))
     if "n_steps" not in props or "log_every" not in props:
         raise ValueError(f"{path}: recording {entry.recording_id!r} lacks n_steps / log_every")
     steps = logged_steps(int(props["n_steps"]), int(props["log_every"]))
@@ -1105,16 +1621,17 @@ def read_episode(
             f"{path}: {len(time_ns)} rows, but n_steps and log_every give {len(steps)}"
         )
 
-    def scalars(entity: str) -> np.ndarray:
-        return series[entity]["Scalars:scalars"]
+    def signal(name: str) -> np.ndarray:
+        entity, column = where[name]
+        return series[entity][_SCALARS][:, column]
 
     return {
         "time": time_ns / 1e9,
         "step": steps,
-        "cube_position": series[cube]["Transform3D:translation"],
-        "cube_quat_wxyz": rerun_to_mujoco_quat(series[cube]["Transform3D:quaternion"]),
-        "finger_opening": scalars(FINGER_OPENING)[:, 0],
-        "ctrl": scalars(CTRL),
-        "cube_height": scalars(CUBE_HEIGHT)[:, 0],
-        "contact_force": scalars(CONTACT_FORCE),
+        "cube_position": series[cube][_TRANSLATION],
+        "cube_quat_wxyz": rerun_to_mujoco_quat(series[cube][_QUATERNION]),
+        "finger_opening": signal("finger_opening"),
+        "ctrl": np.column_stack([signal(name) for name in CTRL_SERIES]),
+        "cube_height": signal("cube_height"),
+        "contact_force": np.column_stack([signal(name) for name in CONTACT_SERIES]),
     }
