@@ -4,7 +4,7 @@ Needs what the project itself does not: Debian's chromium and the `playwright` p
 (`pip install playwright`; it drives /usr/bin/chromium, no browser download):
 
     python docs/screenshot_failures.py \
-        results/research_mode/replay/failures.rrd docs/failures_viewer.png
+        results/research_mode/replay/failures.rrd docs/failures_viewer.png 1
 """
 
 from __future__ import annotations
@@ -32,7 +32,12 @@ CHROMIUM_ARGS = [
 ]
 
 
-def main(rrd: str, out: str, wait: float = 25.0) -> None:
+def main(rrd: str, out: str, row: str | None = None, wait: float = 25.0) -> None:
+    """Serve `rrd` to the web viewer, optionally pick the `row`-th recording listed, shoot.
+
+    The viewer draws on a canvas, so a recording is picked by scrolling its source list to
+    the top and clicking a row (0: the file's summary, 1: the first failed episode, ...).
+    """
     home = tempfile.mkdtemp()  # rerun and chromium write settings under HOME
     env = {
         **os.environ,
@@ -67,6 +72,12 @@ def main(rrd: str, out: str, wait: float = 25.0) -> None:
             page = browser.new_page(viewport={"width": 1600, "height": 1000})
             page.goto(url)
             time.sleep(wait)
+            if row is not None:
+                page.mouse.move(110, 110)
+                page.mouse.wheel(0, -20000)
+                time.sleep(2)
+                page.mouse.click(130, 146 + 24 * int(row))
+                time.sleep(5)
             page.screenshot(path=out)
             browser.close()
     finally:
@@ -74,4 +85,4 @@ def main(rrd: str, out: str, wait: float = 25.0) -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    main(*sys.argv[1:4])
