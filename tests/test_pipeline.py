@@ -143,3 +143,20 @@ def test_editing_the_included_model_file_reruns_both_rollouts(built, tmp_path):
     model.write_text(model.read_text().replace('forcerange="-18 18"', 'forcerange="-19 19"'))
     jobs = planned_jobs(workdir)
     assert jobs["rollout"] == 2 and "states" not in jobs
+
+
+def test_every_failed_episode_has_exactly_one_category(built):
+    from mjtrial.taxonomy import FailureCategory
+
+    results = built / "results" / "research_mode"
+    summary = json.loads((results / "analysis" / "summary.json").read_text())
+    names = {c.value for c in FailureCategory}
+    for condition in ("fast", "slow"):
+        rows = pq.read_table(results / "rollouts" / f"{condition}.parquet").to_pylist()
+        failed = [r for r in rows if not r["success"]]
+        assert all(r["failure_category"] in names for r in failed)
+        assert all(r["failure_category"] is None for r in rows if r["success"])
+        counts = summary["failures"][condition]
+        assert sum(counts.values()) == len(failed)
+        for name in names:
+            assert counts[name] == sum(r["failure_category"] == name for r in failed)
