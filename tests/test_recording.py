@@ -657,20 +657,29 @@ def test_shared_chunks_get_a_fresh_id_in_every_recording(condition_rrd: Path) ->
     assert len(ids) == len(set(ids))
 
 
+@pytest.mark.parametrize(
+    "route",
+    [
+        "echo 'route: out of disk' >&2; exit 3",  # dies at once
+        "head -c 100000 >/dev/null; echo 'route: out of disk' >&2; exit 3",  # midway
+        "cat >/dev/null; echo 'route: out of disk' >&2; exit 3",  # at the end
+    ],
+)
 def test_a_failing_route_raises_and_leaves_nothing(
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     model: mujoco.MjModel,
     ctrl: np.ndarray,
     episodes: list[EpisodeRecord],
+    route: str,
 ) -> None:
     fake = tmp_path / "fake-rerun"
-    fake.write_text("#!/bin/sh\necho 'route: out of disk' >&2\nexit 3\n")
+    fake.write_text(f"#!/bin/sh\n{route}\n")
     fake.chmod(0o755)
     monkeypatch.setattr(rec_mod, "_rerun_cli", lambda: str(fake))
     out = tmp_path / "out"
     out.mkdir()
-    with pytest.raises(RuntimeError, match="route"):
+    with pytest.raises(RuntimeError, match="route (stopped early|failed).*out of disk"):
         write_condition_recordings(
             out / "c.rrd",
             model=model,

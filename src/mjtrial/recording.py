@@ -37,7 +37,8 @@ constant components constant (the fingers only slide along y), which compresses 
 
 Writing many recordings into one file: the recordings of `_GROUP` episodes are built at once,
 straight from Arrow columns (``Chunk.from_record_batch``, with the columns' layouts prepared
-once per file, and the chunks every recording shares built once), each into a ``ChunkStore``.
+once per file, and the chunks every recording shares built once and given a fresh chunk id
+per recording), each into a ``ChunkStore``.
 A writer thread encodes them one by one with ``ChunkStore.write_rrd`` into the stdin of
 ``rerun rrd route`` (the CLI in the rerun-sdk wheel), which writes them as one stream with one
 valid footer. Plain concatenation is not enough: rerun 0.41's reader and ``rerun rrd verify``
@@ -119,7 +120,7 @@ CTRL_SERIES = ("ctrl_x", "ctrl_y", "ctrl_z", "ctrl_gripper")
 _CTRL_COLUMNS = (CTRL_X, CTRL_Y, CTRL_Z, CTRL_GRIPPER)
 GRIPPER_SERIES = ("finger_opening", *CTRL_SERIES)
 CONTACT_SERIES = ("left_normal_force", "right_normal_force")
-SIGNALS = (*CUBE_SERIES, *GRIPPER_SERIES, *CONTACT_SERIES)  # columns of `_Chunker._signals`
+SIGNALS = (*CUBE_SERIES, *GRIPPER_SERIES, *CONTACT_SERIES)  # in `_Chunker.series`'s order
 FAILURES_SUMMARY = "failures"  # recording id and entity of failures.rrd's summary
 
 EPISODE_PROPERTY = "episode"
@@ -1053,15 +1054,21 @@ class _RrdFileWriter:
         self._direct = _fd_path(self._stdin.fileno())
         self._part = scratch / "stream.rrd"
 
-    def write(self, writer: Callable[[str], None]) -> None:
-        """Append the stream that `writer(path)` writes to `path`."""
+    def write(self, writer: Callable[[str], None], *, direct: bool = True) -> None:
+        """Append the stream that `writer(path)` writes to `path`.
+
+        `direct` False goes through the scratch file even where route's stdin has a path: for
+        writers that do not return when the pipe breaks (a blueprint's `save` writes from a
+        thread of its own).
+        """
         try:
-            if self._direct is not None:
+            if direct and self._direct is not None:
                 writer(self._direct)
             else:
                 writer(str(self._part))
                 try:
                     self._stdin.write(self._part.read_bytes())
+                    self._stdin.flush()  # before any direct write
                 finally:
                     self._part.unlink()
         except Exception as exc:
@@ -1105,7 +1112,9 @@ def _rrd_output(
     with tempfile.TemporaryDirectory(dir=path.parent, prefix=f".{path.name}.parts-") as scratch:
         writer = _RrdFileWriter(path, Path(scratch))
         try:
-            writer.write(functools.partial(_save_blueprint, blueprint, application_id))
+            writer.write(
+                functools.partial(_save_blueprint, blueprint, application_id), direct=False
+            )
             yield writer
         except BaseException:
             writer.abort()
