@@ -80,20 +80,33 @@ def yaw_quaternion(yaw: float) -> np.ndarray:
     return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
 
 
-def episode_model(model: mujoco.MjModel, mass: float) -> mujoco.MjModel:
-    """A copy of `model` whose cube has `mass` kg (inertia as compiled), constants recomputed."""
+def episode_model(
+    model: mujoco.MjModel, mass: float, *, scratch: mujoco.MjData | None = None
+) -> mujoco.MjModel:
+    """A copy of `model` whose cube has `mass` kg (inertia as compiled), constants recomputed.
+
+    `scratch`, any MjData of a model of the same sizes, saves an allocation per episode:
+    `mj_setConst` only uses it as workspace.
+    """
     episode = copy.copy(model)
     cube = mujoco.mj_name2id(episode, mujoco.mjtObj.mjOBJ_BODY, CUBE_BODY)
     episode.body_mass[cube] = mass
-    mujoco.mj_setConst(episode, mujoco.MjData(episode))
+    mujoco.mj_setConst(episode, scratch if scratch is not None else mujoco.MjData(episode))
     return episode
 
 
 def initial_physics_state(
-    model: mujoco.MjModel, state: InitialState, *, protocol: Protocol = PROTOCOL
+    model: mujoco.MjModel,
+    state: InitialState,
+    *,
+    protocol: Protocol = PROTOCOL,
+    scratch: mujoco.MjData | None = None,
 ) -> np.ndarray:
-    """The mjSTATE_FULLPHYSICS vector an episode starts from, for its own `episode_model`."""
-    data = mujoco.MjData(model)
+    """The mjSTATE_FULLPHYSICS vector an episode starts from, for its own `episode_model`.
+
+    `scratch` (any MjData of a same-sized model) is reset here, so it may be reused.
+    """
+    data = scratch if scratch is not None else mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, 0)
     adr = cube_qpos_address(model)
     data.qpos[adr : adr + 3] = (protocol.home_x + state.dx, state.dy, protocol.cube_z)
@@ -136,13 +149,14 @@ def iter_episode_batches(
         raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
     ctrl, _ = control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
+    scratch = mujoco.MjData(model)
     with rollout.Rollout(nthread=nthread if nthread > 1 else 0) as runner:
         for start in range(0, len(states), batch_size):
             batch = states[start : start + batch_size]
-            models = [episode_model(model, s.mass) for s in batch]
+            models = [episode_model(model, s.mass, scratch=scratch) for s in batch]
             initial = np.stack(
                 [
-                    initial_physics_state(m, s, protocol=protocol)
+                    initial_physics_state(m, s, protocol=protocol, scratch=scratch)
                     for m, s in zip(models, batch, strict=True)
                 ]
             )
