@@ -44,21 +44,29 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
         "rollouts/slow.parquet",
         "analysis/summary.json",
         "manifest.json",
-        "rollouts/fast.rrd",
+        "rollouts/fast/fast-state-000000.rrd",
+        "rollouts/slow/blueprint.rbl",
         "replay/failures.rrd",
         "report.md",
         "figures/cube_height.svg",
     ):
         assert (results / rel).is_file(), rel
+    for condition in ("fast", "slow"):  # a folder of one .rrd per episode, and its blueprint
+        assert len(list((results / "rollouts" / condition).glob("*.rrd"))) == 12
     assert planned_jobs(built) == {}
 
 
 def test_every_output_is_stamped_with_commit_state_and_versions(built):
     results = built / "results" / "research_mode"
-    outputs = [p for p in results.rglob("*") if p.is_file() and "logs" not in p.parts]
-    # 10 data files, report.md, 5 figures as PNG and SVG
+    folders = [results / "rollouts" / c for c in ("fast", "slow")]  # one output each
+    outputs = [
+        p
+        for p in results.rglob("*")
+        if (p.is_file() and "logs" not in p.parts and p.parent not in folders) or p in folders
+    ]
+    # 8 data files, 2 folders of recordings, report.md, 5 figures as PNG and SVG
     assert len(outputs) == 21
-    for path in outputs:
+    for path in [*outputs, *(p for f in folders for p in f.glob("*.rrd"))]:
         stamp = provenance.read_stamp(path)
         assert stamp["versions"]["mujoco"] == "3.14.0"
         # The copy is not a git repository: the stamp says so instead of crashing.

@@ -26,6 +26,7 @@ from mjtrial.recording import (
     mujoco_to_rerun_quat,
     read_episode,
     read_rrd_stamp,
+    recording_files,
     rerun_to_mujoco_quat,
     write_condition_recordings,
     write_failures_rrd,
@@ -119,7 +120,7 @@ def condition_rrd(
     ctrl: np.ndarray,
     episodes: list[EpisodeRecord],
 ) -> Path:
-    path = tmp_path_factory.mktemp("rrd") / f"{CONDITION}.rrd"
+    path = tmp_path_factory.mktemp("rrd") / CONDITION  # a folder: one .rrd per episode
     mp = pytest.MonkeyPatch()  # module scope: the autouse fixture has not run yet
     for name, value in _fake_home(tmp_path_factory.getbasetemp()).items():
         mp.setenv(name, value)
@@ -268,8 +269,19 @@ def test_logged_steps() -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def test_condition_file_passes_rerun_verify(condition_rrd: Path) -> None:
-    result = _verify(condition_rrd)
+def test_condition_folder_holds_one_file_per_episode_and_passes_rerun_verify(
+    condition_rrd: Path,
+) -> None:
+    files = sorted(p.name for p in condition_rrd.iterdir())
+    assert files == sorted(
+        ["blueprint.rbl", *(f"{CONDITION}-state-{s.state_id:06d}.rrd" for s in STATES)]
+    )
+    assert recording_files(condition_rrd) == [
+        condition_rrd / f"{CONDITION}-state-{s.state_id:06d}.rrd" for s in STATES
+    ]
+    for path in recording_files(condition_rrd):
+        assert [e.recording_id for e in rr.chunk.RrdReader(path).recordings()] == [path.stem]
+    result = _verify(*condition_rrd.iterdir())
     assert result.returncode == 0, result.stderr[-2000:]
 
 
@@ -348,6 +360,8 @@ def test_missing_file_is_file_not_found(tmp_path: Path) -> None:
 
 
 def _store(path: Path, recording_id: str):
+    if path.is_dir():  # a condition's folder: the episode's own file
+        path = path / f"{recording_id}.rrd"
     reader = rr.chunk.RrdReader(path)
     entry = next(e for e in reader.recordings() if e.recording_id == recording_id)
     return reader.store(store=entry)
@@ -375,8 +389,6 @@ def _rgba32(model: mujoco.MjModel, geom: str) -> int:
 def test_geometry_and_blueprint_are_in_every_recording(
     condition_rrd: Path, model: mujoco.MjModel
 ) -> None:
-    reader = rr.chunk.RrdReader(condition_rrd)
-    assert len(reader.blueprints()) == 1
     # one static chunk per body with geoms, on the body's entity: no entity per geom
     expected = {
         "/world",
@@ -385,8 +397,8 @@ def test_geometry_and_blueprint_are_in_every_recording(
         "/world/carriage/right_finger",
         "/world/cube",
     }
-    for entry in reader.recordings():
-        static = _static_batches(condition_rrd, entry.recording_id)
+    for entry in list_recordings(condition_rrd):
+        static = _static_batches(condition_rrd, entry["recording_id"])
         assert {e for e in static if e.startswith("/world")} == expected
         cube = static["/world/cube"]
         assert _column(cube, "Boxes3D:half_sizes") == [[pytest.approx([0.02] * 3, rel=1e-6)]]
@@ -404,8 +416,9 @@ def test_geometry_and_blueprint_are_in_every_recording(
 
 
 def test_blueprint_draws_shapes_solid_and_plots_the_signals(condition_rrd: Path) -> None:
-    reader = rr.chunk.RrdReader(condition_rrd)
+    reader = rr.chunk.RrdReader(condition_rrd / "blueprint.rbl")
     [blueprint] = reader.blueprints()
+    assert blueprint.application_id == "mjtrial"  # so it applies to the episodes' recordings
     names, queries = set(), set()
     for chunk in reader.store(store=blueprint).stream():
         batch = chunk.to_record_batch()
@@ -470,7 +483,7 @@ def test_log_every_sets_the_number_of_rows(
     tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
 ) -> None:
     for log_every in (1, 10, 2000):
-        path = tmp_path / f"every{log_every}.rrd"
+        path = tmp_path / f"every{log_every}"
         write_condition_recordings(
             path,
             model=model,
@@ -519,7 +532,7 @@ def test_failures_file_gathers_failed_episodes(condition_rrd: Path, tmp_path: Pa
 def test_failures_file_without_failures_is_still_stamped(
     tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
 ) -> None:
-    source = tmp_path / "all_good.rrd"
+    source = tmp_path / "all_good"
     write_condition_recordings(
         source,
         model=model,
@@ -552,7 +565,7 @@ def test_failed_write_leaves_nothing(
         yield episodes[0]
         raise RuntimeError("rollout crashed")
 
-    path = tmp_path / "c.rrd"
+    path = tmp_path / "c"
     with pytest.raises(RuntimeError, match="rollout crashed"):
         write_condition_recordings(
             path, model=model, condition="c", episodes=broken(), ctrl=ctrl, stamp=STAMP, log_every=5
@@ -588,8 +601,8 @@ def test_invalid_arguments_raise(
         **kwargs,
     }
     with pytest.raises(ValueError, match=match):
-        write_condition_recordings(tmp_path / "c.rrd", **args)
-    assert not (tmp_path / "c.rrd").exists()
+        write_condition_recordings(tmp_path / "c", **args)
+    assert not (tmp_path / "c").exists()
     assert _leftovers(tmp_path) == []
 
 
@@ -598,13 +611,13 @@ def test_duplicate_and_misshapen_episodes_raise(
 ) -> None:
     common = {"model": model, "condition": "c", "ctrl": ctrl, "stamp": STAMP, "log_every": 5}
     with pytest.raises(ValueError, match="twice"):
-        write_condition_recordings(tmp_path / "c.rrd", episodes=[episodes[0]] * 2, **common)
+        write_condition_recordings(tmp_path / "c", episodes=[episodes[0]] * 2, **common)
     short = EpisodeRecord(
         STATES[0], episodes[0].physics[:-1], episodes[0].sensordata[:-1], True, 0.3
     )
     with pytest.raises(ValueError, match="physics"):
-        write_condition_recordings(tmp_path / "c.rrd", episodes=[short], **common)
-    assert not (tmp_path / "c.rrd").exists()
+        write_condition_recordings(tmp_path / "c", episodes=[short], **common)
+    assert not (tmp_path / "c").exists()
 
 
 @pytest.mark.parametrize("group", [1, 2, 3])
@@ -617,7 +630,7 @@ def test_every_episode_is_written_whatever_the_group_size(
     group: int,
 ) -> None:
     monkeypatch.setattr(rec_mod, "_GROUP", group)  # 3 episodes: full groups, and a remainder
-    path = tmp_path / "c.rrd"
+    path = tmp_path / "c"
     n = write_condition_recordings(
         path, model=model, condition="c", episodes=episodes, ctrl=ctrl, stamp=STAMP, log_every=5
     )
@@ -630,31 +643,45 @@ def test_every_episode_is_written_whatever_the_group_size(
         )
 
 
-def test_writing_without_a_path_to_the_pipe_goes_through_a_scratch_file(
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    model: mujoco.MjModel,
-    ctrl: np.ndarray,
-    episodes: list[EpisodeRecord],
+def test_failures_without_a_path_to_the_pipe_go_through_a_scratch_file(
+    condition_rrd: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(rec_mod, "_fd_path", lambda fd: None)  # as on Windows
-    path = tmp_path / "c.rrd"
-    write_condition_recordings(
-        path, model=model, condition="c", episodes=episodes, ctrl=ctrl, stamp=STAMP, log_every=5
-    )
+    path = tmp_path / "failures.rrd"
+    assert write_failures_rrd(path, [condition_rrd], stamp=STAMP) == 1
     result = _verify(path)
     assert result.returncode == 0, result.stderr[-2000:]
-    assert len(list_recordings(path)) == 3
+    assert len(list_recordings(path)) == 2
     assert _leftovers(tmp_path) == []
 
 
 def test_shared_chunks_get_a_fresh_id_in_every_recording(condition_rrd: Path) -> None:
     ids = [
         chunk.id
-        for entry in rr.chunk.RrdReader(condition_rrd).recordings()
-        for chunk in _store(condition_rrd, entry.recording_id).stream()
+        for entry in list_recordings(condition_rrd)
+        for chunk in _store(condition_rrd, entry["recording_id"]).stream()
     ]
     assert len(ids) == len(set(ids))
+
+
+def test_rewriting_a_folder_replaces_it_and_a_failed_rewrite_keeps_it(
+    tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
+) -> None:
+    path = tmp_path / "c"
+    common = {"model": model, "condition": "c", "ctrl": ctrl, "stamp": STAMP, "log_every": 50}
+    write_condition_recordings(path, episodes=episodes, **common)
+    write_condition_recordings(path, episodes=episodes[:1], **common)
+    assert sorted(p.name for p in path.iterdir()) == ["blueprint.rbl", "c-state-000000.rrd"]
+    before = {p.name: p.read_bytes() for p in path.iterdir()}
+
+    def broken():
+        yield from episodes
+        raise RuntimeError("rollout crashed")
+
+    with pytest.raises(RuntimeError, match="rollout crashed"):
+        write_condition_recordings(path, episodes=broken(), **common)
+    assert {p.name: p.read_bytes() for p in path.iterdir()} == before
+    assert _leftovers(tmp_path) == []
 
 
 @pytest.mark.parametrize(
@@ -666,12 +693,7 @@ def test_shared_chunks_get_a_fresh_id_in_every_recording(condition_rrd: Path) ->
     ],
 )
 def test_a_failing_route_raises_and_leaves_nothing(
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    model: mujoco.MjModel,
-    ctrl: np.ndarray,
-    episodes: list[EpisodeRecord],
-    route: str,
+    condition_rrd: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, route: str
 ) -> None:
     fake = tmp_path / "fake-rerun"
     fake.write_text(f"#!/bin/sh\n{route}\n")
@@ -680,15 +702,7 @@ def test_a_failing_route_raises_and_leaves_nothing(
     out = tmp_path / "out"
     out.mkdir()
     with pytest.raises(RuntimeError, match="route (stopped early|failed).*out of disk"):
-        write_condition_recordings(
-            out / "c.rrd",
-            model=model,
-            condition="c",
-            episodes=episodes,
-            ctrl=ctrl,
-            stamp=STAMP,
-            log_every=5,
-        )
+        write_failures_rrd(out / "failures.rrd", [condition_rrd], stamp=STAMP)
     assert list(out.iterdir()) == []
 
 
@@ -703,7 +717,7 @@ def test_writing_leaves_the_home_folder_alone(
     for name, value in home.items():
         monkeypatch.setenv(name, value)
     monkeypatch.delenv("CI", raising=False)  # the module must protect the home folder itself
-    path = tmp_path / "out" / "c.rrd"
+    path = tmp_path / "out" / "c"
     write_condition_recordings(
         path,
         model=model,

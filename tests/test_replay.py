@@ -21,7 +21,7 @@ def _rollouts(built, condition):
 def test_logged_trajectories_match_the_tables(built, condition):
     results = built / "results" / "research_mode"
     table = _rollouts(built, condition)
-    rrd = results / "rollouts" / f"{condition}.rrd"
+    rrd = results / "rollouts" / condition  # a folder: one .rrd per episode
     assert len(list_recordings(rrd)) == table.num_rows
     for row in table.to_pylist():
         episode = read_episode(rrd, condition=condition, state_id=row["state_id"])
@@ -95,10 +95,11 @@ def test_every_rrd_passes_rerun_verify(built):
     from pathlib import Path
 
     rerun = Path(sys.executable).parent / "rerun"
-    files = sorted((built / "results" / "research_mode").rglob("*.rrd"))
-    assert len(files) >= 3
+    results = built / "results" / "research_mode"
+    files = sorted(results.rglob("*.rrd"))
+    assert len(files) == 2 * 12 + 1  # every episode of both conditions, and failures.rrd
     env = {**os.environ, "CI": "1"}  # rerun's CLI writes no analytics files when CI is set
-    for path in files:
+    for path in [*files, *results.rglob("*.rbl")]:
         proc = subprocess.run(
             [str(rerun), "rrd", "verify", str(path)], capture_output=True, text=True, env=env
         )

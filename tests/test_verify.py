@@ -32,9 +32,9 @@ from mjtrial.verify import (
 
 RESULTS = "results/research_mode"
 ROLLOUTS = [
-    f"{RESULTS}/rollouts/{c}.{ext}"
+    f"{RESULTS}/rollouts/{c}{ext}"
     for c in ("fast", "slow")
-    for ext in ("parquet", "nominal.json", "rrd")
+    for ext in (".parquet", ".nominal.json", "")  # "": the folder of recordings, one output
 ]
 STATES = f"{RESULTS}/states.parquet"
 SUMMARY = f"{RESULTS}/analysis/summary.json"
@@ -78,10 +78,15 @@ def assert_ok(report: VerifyReport, paths) -> None:
 
 def test_fresh_build_verifies(built, monkeypatch, capsys):
     report = verify(built)
+    folders = {built / RESULTS / "rollouts" / c for c in ("fast", "slow")}
     stamped = sorted(
         p.relative_to(built).as_posix()
         for p in (built / RESULTS).rglob("*")
-        if p.suffix in (".parquet", ".json", ".md", ".png", ".svg", ".rrd")
+        if p in folders
+        or (
+            p.suffix in (".parquet", ".json", ".md", ".png", ".svg", ".rrd")
+            and p.parent not in folders
+        )
     )
     assert sorted(o.path for o in report.outputs) == stamped
     assert {STATES, SUMMARY, MANIFEST, FAILURES, REPORT, *ROLLOUTS} <= set(stamped)
@@ -184,7 +189,9 @@ def test_states_row_changed_under_its_old_stamp_is_tampered(work):
     report = verify(work)
     assert report[STATES].status is Status.TAMPERED
     why = reasons(report, STATES)
-    assert why.startswith("sha256 recorded by rollouts/fast.nominal.json, rollouts/fast.parquet")
+    assert why.startswith(
+        "sha256 recorded by rollouts/fast, rollouts/fast.nominal.json, rollouts/fast.parquet"
+    )
     assert "does not match the file" in why
     for rollout in ROLLOUTS:
         assert report[rollout].status is Status.STALE
@@ -230,19 +237,42 @@ def test_deleted_manifest_is_missing(work):
     assert all(report[p].status is Status.STALE for p in report_outputs(report))
 
 
-@pytest.mark.parametrize("rel", ["rollouts/fast.rrd", "figures/cube_height.png", "report.md"])
-def test_garbled_output_has_no_readable_stamp(work, rel):
+@pytest.mark.parametrize(
+    ("rel", "output"),
+    [
+        ("rollouts/fast/fast-state-000000.rrd", "rollouts/fast"),  # the file the stamp is read from
+        ("figures/cube_height.png", "figures/cube_height.png"),
+        ("report.md", "report.md"),
+    ],
+)
+def test_garbled_output_has_no_readable_stamp(work, rel, output):
     path = work / RESULTS / rel
     data = bytearray(path.read_bytes())
     data[: len(data) // 2] = bytes(len(data) // 2)
     path.write_bytes(bytes(data))
     report = verify(work)
-    assert report[f"{RESULTS}/{rel}"].status is Status.TAMPERED
-    assert reasons(report, f"{RESULTS}/{rel}").startswith("no readable stamp (")
-    if rel == "rollouts/fast.rrd":
-        assert "sha256 recorded by replay/failures.rrd" in reasons(report, f"{RESULTS}/{rel}")
-        assert reasons(report, FAILURES) == "input tampered: rollouts/fast.rrd"
+    assert report[f"{RESULTS}/{output}"].status is Status.TAMPERED
+    assert reasons(report, f"{RESULTS}/{output}").startswith("no readable stamp (")
+    if output == "rollouts/fast":
+        assert "sha256 recorded by replay/failures.rrd" in reasons(report, f"{RESULTS}/{output}")
+        assert reasons(report, FAILURES) == "input tampered: rollouts/fast"
     assert report.counts()[Status.TAMPERED] == 1
+
+
+@pytest.mark.parametrize("change", ["garble", "delete", "add"])
+def test_any_change_to_a_folder_of_recordings_is_tampering(work, change):
+    folder = work / RESULTS / "rollouts" / "slow"
+    last = sorted(folder.glob("*.rrd"))[-1]  # not the file the folder's stamp is read from
+    if change == "garble":
+        last.write_bytes(bytes(len(last.read_bytes())))
+    elif change == "delete":
+        last.unlink()
+    else:
+        shutil.copy(last, folder / "slow-state-999999.rrd")
+    report = verify(work)
+    assert report[f"{RESULTS}/rollouts/slow"].status is Status.TAMPERED
+    assert "sha256 recorded by" in reasons(report, f"{RESULTS}/rollouts/slow")
+    assert reasons(report, FAILURES) == "input tampered: rollouts/slow"
 
 
 def test_replay_recording_is_skipped_not_failed(work, capsys):

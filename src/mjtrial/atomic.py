@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "atomic_directory",
     "atomic_path",
     "temp_path_for",
     "write_bytes_atomic",
@@ -90,6 +91,37 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     except BaseException:
         _remove(tmp)
         raise
+    _fsync_dir(path.parent)
+
+
+@contextmanager
+def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield an empty temporary folder to fill; on success it becomes the folder ``path``.
+
+    For outputs made of many files (one .rrd per episode). The body writes (and fsyncs) its
+    files. On normal exit an existing ``path`` is moved aside, the new folder renamed onto it,
+    and the old one deleted: ``path`` is either the old complete folder, the new complete
+    folder, or (after a crash between the two renames) absent, never a mix. If the body
+    raises, the temporary folder is removed and ``path`` is left untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_path_for(path)
+    tmp.mkdir()
+    old: Path | None = None
+    try:
+        yield tmp
+        _fsync_dir(tmp)
+        if path.exists() or path.is_symlink():
+            old = temp_path_for(path)
+            os.replace(path, old)
+        os.replace(tmp, path)
+    except BaseException:
+        _remove(tmp)
+        raise
+    finally:
+        if old is not None:
+            _remove(old)
     _fsync_dir(path.parent)
 
 

@@ -104,7 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("provenance", help="print the provenance stamp of an output as JSON")
-    p.add_argument("file", help="any output: .parquet, .json, .md, .png or .rrd")
+    p.add_argument(
+        "file", help="any output: .parquet, .json, .md, .png, .svg, .rrd or a folder of recordings"
+    )
     p.set_defaults(run=_provenance)
     p = sub.add_parser("plan", help="episodes needed for an interval width or a paired effect")
     p.add_argument("--halfwidth", type=float, help="half-width of a success rate's interval")

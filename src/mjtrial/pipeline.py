@@ -240,8 +240,9 @@ def run_condition(
 ) -> dict[str, np.ndarray]:
     """Roll out every state under one condition.
 
-    Writes the per-episode table, the nominal state's episode, and (given `output_recording`)
-    every episode's trajectory as one Rerun recording per episode, streamed batch by batch.
+    Writes the per-episode table, the nominal state's episode, and (given `output_recording`,
+    a folder) every episode's trajectory as a Rerun recording, one .rrd per episode, written
+    batch by batch while the next batch runs.
     """
     from mjtrial import recording
 

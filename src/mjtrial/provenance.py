@@ -47,6 +47,7 @@ __all__ = [
     "code_hash",
     "config_hash",
     "file_sha256",
+    "is_recording_folder",
     "git_state",
     "library_versions",
     "make_stamp",
@@ -156,8 +157,29 @@ def config_hash(slice: Any) -> str:
     return hashlib.sha256(_canonical_json(slice)).hexdigest()
 
 
+# An output made of many files, one rerun recording each (`mjtrial.recording`), is a folder
+# holding this blueprint beside its .rrd files; it is hashed and stamped as one output.
+RECORDING_FOLDER_BLUEPRINT = "blueprint.rbl"
+
+
+def is_recording_folder(path: str | os.PathLike[str]) -> bool:
+    """Whether `path` is a folder of recordings written as one output."""
+    path = Path(path)
+    return path.is_dir() and (path / RECORDING_FOLDER_BLUEPRINT).is_file()
+
+
 def file_sha256(path: str | os.PathLike[str]) -> str:
-    """sha256 of a file's bytes, read in 1 MiB blocks."""
+    """sha256 of a file's bytes, read in 1 MiB blocks; of a folder, of its files' names and bytes.
+
+    A folder hashes like the model (`model_sha256`): each file, in name order, as its path
+    relative to the folder and its sha256, so a renamed, added or removed file changes it too.
+    """
+    if Path(path).is_dir():
+        folder = Path(path)
+        digest = hashlib.sha256()
+        for p in sorted(q for q in folder.rglob("*") if q.is_file()):
+            digest.update(f"{p.relative_to(folder).as_posix()}\0{file_sha256(p)}\n".encode())
+        return digest.hexdigest()
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         while block := fh.read(_BLOCK):
@@ -735,6 +757,8 @@ def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
     unsupported suffix or a corrupt file/stamp, ``FileNotFoundError`` when it does not exist.
     """
     path = Path(path)
+    if path.is_dir():  # a folder of recordings: each holds the same stamp
+        return _read_rrd_stamp(path)
     reader = _READERS.get(path.suffix.lower())
     if reader is None:
         raise ValueError(

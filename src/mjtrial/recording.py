@@ -90,6 +90,7 @@ __all__ = [
     "body_entity",
     "body_poses",
     "default_blueprint",
+    "episode_file_name",
     "episode_recording_id",
     "episode_recording_name",
     "list_recordings",
@@ -99,6 +100,7 @@ __all__ = [
     "mujoco_to_rerun_quat",
     "read_episode",
     "read_rrd_stamp",
+    "recording_files",
     "rerun_to_mujoco_quat",
     "write_condition_recordings",
     "write_failures_rrd",
@@ -1209,6 +1211,7 @@ class _Worker:
 class _Pending:
     """An episode waiting for its recording to be built: its logged rows and properties."""
 
+    file_name: str
     recording_id: str
     name: str
     fields: dict[str, Any]
@@ -1218,6 +1221,11 @@ class _Pending:
 
 _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
 _QUEUE = 128  # recordings waiting for the writer thread, at most (~50 kB each by default)
+
+
+def episode_file_name(condition: str, state_id: int) -> str:
+    """The file of an episode's recording in its condition's folder."""
+    return f"{episode_recording_id(condition, state_id)}.rrd"
 
 
 def write_condition_recordings(
@@ -1231,19 +1239,29 @@ def write_condition_recordings(
     log_every: int,
     application_id: str = APPLICATION_ID,
 ) -> int:
-    """Atomically write one .rrd holding one recording per episode of a condition.
+    """Atomically write the folder `path`: one .rrd per episode of a condition, and a blueprint.
 
-    Episodes are consumed one at a time, so `episodes` may be a generator over rollout batches.
-    Their logged rows are kept until `_GROUP` episodes have come, whose recordings are then built
-    at once; a writer thread encodes them into the file (at most `_QUEUE` wait), while the caller
-    runs the next rollouts (see the module docstring). Recording ids are deterministic
-    (`episode_recording_id`); each recording carries the properties `episode` and `provenance`,
-    the model geometry and the episode's series (`log_episode`); the file carries
-    `default_blueprint`.
+    Each episode's recording goes to `episode_file_name` (its recording id, e.g.
+    ``fast-state-000017.rrd``) and carries the properties `episode` and `provenance`, the
+    model geometry and the episode's series (`log_episode`); the folder's
+    ``blueprint.rbl`` is `default_blueprint`, so ``rerun <folder>/*`` opens them all in its
+    layout. Episodes are consumed one at a time, so `episodes` may be a generator over rollout
+    batches: their logged rows are kept until `_GROUP` episodes have come, whose recordings
+    are then built at once; a writer thread writes and fsyncs them (at most `_QUEUE` wait)
+    while the caller runs the next rollouts.
+
+    Why a file per episode (not one file per condition): rerun 0.41 can put many recordings in
+    one file only by streaming them through ``rerun rrd route``, which merges their indexes
+    after the last one, single-threaded (0.6 ms a recording, half the cost of logging), and
+    holds them in memory (~0.3 MB a recording). A file per episode costs one `write_rrd` call,
+    scales to any number of episodes, and opens or travels on its own.
 
     Returns:
       the number of recordings written (no episodes is an error).
     """
+    from mjtrial.atomic import atomic_directory
+    from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
+
     path = Path(path)
     stamp_text = _stamp_json(stamp)
     layout = _Layout.of(model)
@@ -1265,10 +1283,11 @@ def write_condition_recordings(
         )
     blueprint = default_blueprint([(e, names) for e, names, _ in layout.signals])
     seen: set[int] = set()
-    with atomic_path(path) as tmp, _rrd_output(tmp, application_id, blueprint) as out:
+    with atomic_directory(path) as folder:
+        _save_blueprint(blueprint, application_id, str(folder / RECORDING_FOLDER_BLUEPRINT))
 
-        def build(group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
-            """(recording id, chunks) of each episode: the work that needs the GIL."""
+        def build(group: list[_Pending]) -> Iterator[tuple[str, str, ChunkStore]]:
+            """(file name, recording id, chunks) of each episode: the work that needs the GIL."""
             n = len(steps)
             series = chunker.series([(p.rows, p.sensors) for p in group], logged_ctrl)
             properties = _batch(
@@ -1286,11 +1305,19 @@ def write_condition_recordings(
                         *_chunks(series.slice(i * n, n), temporal=True),
                     ]
                     store = ChunkStore.from_chunks(chunks)
-                yield ep.recording_id, store
+                yield ep.file_name, ep.recording_id, store
 
-        def write(recording: tuple[str, ChunkStore]) -> None:
-            recording_id, store = recording
-            _write_store(out, store, application_id=application_id, recording_id=recording_id)
+        def write(recording: tuple[str, str, ChunkStore]) -> None:
+            """Write and fsync one recording: no GIL needed, so it runs beside the rollouts."""
+            file_name, recording_id, store = recording
+            target = folder / file_name
+            with _strict():
+                store.write_rrd(target, application_id=application_id, recording_id=recording_id)
+            fd = os.open(target, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
 
         worker = _Worker(write, maxsize=_QUEUE, name="mjtrial-rrd-writer")
         group: list[_Pending] = []
@@ -1302,6 +1329,7 @@ def write_condition_recordings(
                 physics, sensordata, _ = _as_trajectory(layout, ep.physics, ep.sensordata, ctrl)
                 group.append(
                     _Pending(
+                        file_name=episode_file_name(condition, sid),
                         recording_id=episode_recording_id(condition, sid),
                         name=episode_recording_name(condition, sid),
                         fields=_episode_fields(ep, condition, ctrl, log_every),
@@ -1352,7 +1380,7 @@ def write_failures_rrd(
     stamp: Mapping[str, Any],
     application_id: str = APPLICATION_ID,
 ) -> int:
-    """Atomically gather the failed episodes (property success False) of condition .rrd files.
+    """Atomically gather the failed episodes (property success False) of .rrd files or folders.
 
     The file starts with a summary recording (id ``failures``: the count, the source file names
     and a table of the failures), so it carries its stamp even when nothing failed. Each failed
@@ -1367,22 +1395,24 @@ def write_failures_rrd(
     stamp_text = _stamp_json(stamp)
     readers: dict[Path, RrdReader] = {}
     failures: list[tuple[Path, StoreEntry, dict[str, Any]]] = []
-    for source in map(Path, sources):
-        reader = readers.setdefault(source, _open(source))
+    files = [f for source in sources for f in recording_files(source)]
+    for source in files:
+        reader = _open(source)
         for entry in reader.recordings():
             props = _properties(reader, entry)
             if props.get("success") is False:
                 failures.append((source, entry, props))
+                readers[source] = reader  # only files with failures stay open
     ids = [entry.recording_id for _, entry, _ in failures]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise ValueError(f"the same episode appears in several sources: {duplicates[:5]}")
 
     signals: Sequence[tuple[str, Sequence[str]]] = GANTRY_SIGNALS
-    for source in map(Path, sources):  # the sources' signals, all recorded alike
-        if recordings := readers[source].recordings():
-            signals = list(_recorded_signals(readers[source], recordings[0]).items()) or signals
-            break
+    for source in files[:1]:  # the sources' signals, all recorded alike
+        reader = readers.get(source) or _open(source)
+        if recordings := reader.recordings():
+            signals = list(_recorded_signals(reader, recordings[0]).items()) or signals
     blueprint = default_blueprint(signals)
     with atomic_path(path) as tmp, _rrd_output(tmp, application_id, blueprint) as out:
         names = [Path(s).name for s in sources]  # names only: no private paths in outputs
@@ -1429,6 +1459,16 @@ def _failures_table(failures: Sequence[tuple[Path, Any, Mapping[str, Any]]]) -> 
 # --------------------------------------------------------------------------------------------
 # Reading, with rerun's own reader
 # --------------------------------------------------------------------------------------------
+
+
+def recording_files(path: str | os.PathLike[str]) -> list[Path]:
+    """The .rrd files of `path`: itself, or the .rrd files of a folder, in name order."""
+    path = Path(path)
+    if path.is_dir():
+        return sorted(p for p in path.glob("*.rrd") if p.is_file())
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such .rrd file or folder of .rrd files")
+    return [path]
 
 
 def _open(path: str | os.PathLike[str]) -> RrdReader:
@@ -1500,23 +1540,30 @@ def _properties(reader: RrdReader, entry: StoreEntry) -> dict[str, Any]:
 
 
 def list_recordings(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """Properties of each recording in the file, in file order.
+    """Properties of each recording in the file (or the folder's files), in file order.
 
     Each dict has recording_id, application_id, name and provenance (the stamp, parsed).
     Episode recordings add condition, state_id, dx, dy, yaw, mass, success, final_height,
     failure_category (None if absent), log_every, n_steps; copies in failures.rrd add
     source_provenance; failures.rrd's summary adds n_failures and sources.
     """
-    reader = _open(path)
-    return [_properties(reader, entry) for entry in reader.recordings()]
+    out = []
+    for file in recording_files(path):
+        reader = _open(file)
+        out.extend(_properties(reader, entry) for entry in reader.recordings())
+    return out
 
 
 def read_rrd_stamp(path: str | os.PathLike[str]) -> dict[str, Any] | None:
     """The file's provenance stamp: the `provenance` property of its first recording.
 
-    None when the file holds no recording or its first recording has no stamp.
+    For a folder of recordings, its first file's (they all hold the folder's stamp). None when
+    there is no recording or the first recording has no stamp.
     """
-    reader = _open(path)
+    files = recording_files(path)
+    if not files:
+        return None
+    reader = _open(files[0])
     entries = reader.recordings()
     if not entries:
         return None
@@ -1575,10 +1622,19 @@ def read_episode(
     as float32); finger_opening (n,), cube_height (n,), ctrl (n, 4) and contact_force (n, 2)
     (left, right normal force) exactly as logged (float64).
 
+    `path` is a .rrd file or a condition's folder of recordings (`write_condition_recordings`).
+
     Raises:
       KeyError: the file has no recording of that condition and state.
     """
     path = Path(path)
+    if path.is_dir():
+        path = path / episode_file_name(condition, state_id)
+        if not path.is_file():
+            raise KeyError(
+                f"{path.parent}: no recording of condition {condition!r}, state {state_id} "
+                f"(no file {path.name})"
+            )
     reader = _open(path)
     entry = _find_episode(reader, path, condition, state_id)
     cube = f"{WORLD}/{_part(CUBE_BODY)}"  # a free joint's body is a child of the world body

@@ -626,15 +626,27 @@ def _relative(path: Path, root: Path) -> str:
 
 
 def _stamped_files(results_dir: Path) -> list[Path]:
-    """Files under ``results_dir`` that should carry a stamp (hidden temp files excluded)."""
+    """Outputs under ``results_dir`` that should carry a stamp (hidden temp files excluded).
+
+    A folder of recordings (`provenance.is_recording_folder`) is one output, not its files.
+    """
     if not results_dir.is_dir():
         return []
-    return sorted(
+    visible = [
         p
         for p in results_dir.rglob("*")
-        if p.is_file()
-        and p.suffix.lower() in STAMPED_SUFFIXES
-        and not any(part.startswith(".") for part in p.relative_to(results_dir).parts)
+        if not any(part.startswith(".") for part in p.relative_to(results_dir).parts)
+    ]
+    folders = {p for p in visible if provenance.is_recording_folder(p)}
+    return sorted(
+        p
+        for p in visible
+        if p in folders
+        or (
+            p.is_file()
+            and p.suffix.lower() in STAMPED_SUFFIXES
+            and not any(parent in folders for parent in p.parents)
+        )
     )
 
 
@@ -672,7 +684,7 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         except FileNotFoundError:
             continue  # removed while we looked: missing if anything expects it
         except Exception as err:  # noqa: BLE001 - any failure to read it is "no readable stamp"
-            if file.is_file():
+            if file.exists():
                 unreadable[rel] = _why_unreadable(err, file)
 
     manifest_file = results_dir / "manifest.json"
@@ -687,7 +699,7 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         p = Path(rel)
         p = p if p.is_absolute() else repo_root / p
         try:
-            return provenance.file_sha256(p) if p.is_file() else None
+            return provenance.file_sha256(p) if p.is_file() or p.is_dir() else None
         except OSError:
             return None
 

@@ -1,8 +1,6 @@
 rule failures:
     input:
-        recordings=expand(
-            RESULTS / "rollouts" / "{condition}.rrd", condition=CONDITIONS
-        ),
+        recordings=expand(RESULTS / "rollouts" / "{condition}", condition=CONDITIONS),
     output:
         failures=RESULTS / "replay" / "failures.rrd",
     log:

@@ -7,9 +7,7 @@ rule manifest:
         nominals=expand(
             RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS
         ),
-        recordings=expand(
-            RESULTS / "rollouts" / "{condition}.rrd", condition=CONDITIONS
-        ),
+        recordings=expand(RESULTS / "rollouts" / "{condition}", condition=CONDITIONS),
         failures=RESULTS / "replay" / "failures.rrd",
         summary=RESULTS / "analysis" / "summary.json",
         model=config["model"],

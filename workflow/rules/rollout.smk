@@ -9,7 +9,8 @@ rule rollout:
             category="Tables",
         ),
         nominal=RESULTS / "rollouts" / "{condition}.nominal.json",
-        recording=RESULTS / "rollouts" / "{condition}.rrd",
+        # one .rrd per episode and the folder's blueprint.rbl: `rerun <folder>/*` opens them
+        recording=directory(RESULTS / "rollouts" / "{condition}"),
     log:
         RESULTS / "logs" / "rollout_{condition}.log",
     wildcard_constraints:
