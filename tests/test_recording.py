@@ -29,6 +29,7 @@ from mjtrial.recording import (
     recording_files,
     rerun_to_mujoco_quat,
     write_condition_recordings,
+    write_episode_recording,
     write_failures_rrd,
 )
 from mjtrial.simulate import InitialState, iter_episode_batches, load_model
@@ -477,6 +478,32 @@ def test_child_bodies_carry_their_pose_in_the_parent(
     relative = poses["/world/carriage/left_finger"]
     np.testing.assert_allclose(relative, xpos[:, left] - xpos[:, carriage], atol=1e-7)
     assert np.all(relative[:, [0, 2]] == 0.0)  # the finger slides along y only
+
+
+def test_one_episode_file_holds_the_same_recording_and_the_blueprint(
+    condition_rrd: Path, tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes
+) -> None:
+    path = tmp_path / "ep.rrd"
+    write_episode_recording(
+        path,
+        model=model,
+        condition=CONDITION,
+        episode=episodes[2],
+        ctrl=ctrl,
+        stamp=STAMP,
+        log_every=5,
+    )
+    result = _verify(path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    reader = rr.chunk.RrdReader(path)
+    assert len(reader.blueprints()) == 1
+    [recording] = list_recordings(path)
+    assert recording == list_recordings(condition_rrd)[2]
+    got = read_episode(path, condition=CONDITION, state_id=2)
+    logged = read_episode(condition_rrd, condition=CONDITION, state_id=2)
+    for key, value in logged.items():
+        np.testing.assert_array_equal(got[key], value, err_msg=key)
+    assert _leftovers(tmp_path) == []
 
 
 def test_log_every_sets_the_number_of_rows(

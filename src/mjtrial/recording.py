@@ -1,8 +1,9 @@
 """Rerun recordings of episodes: the one module that talks to rerun.
 
 Why rerun: an episode's outcome is a handful of numbers, but *why* a grasp failed is only visible
-in its motion. Every condition gets one ``.rrd`` file holding one rerun recording per episode,
-and the failed episodes of all conditions are gathered into ``failures.rrd``.
+in its motion. Every condition gets a folder holding one ``.rrd`` per episode (one recording
+each) and a ``blueprint.rbl``; the failed episodes of all conditions are gathered into one
+``failures.rrd``.
 
 Layout of a recording (entity paths are built only here, by the constants and functions below):
 
@@ -22,30 +23,34 @@ Layout of a recording (entity paths are built only here, by the constants and fu
   stamp as JSON, see :mod:`mjtrial.provenance`).
 
 Time series use one timeline, ``sim_time``: simulated seconds, stored by rerun as integer
-nanoseconds. Each file also holds `default_blueprint`: the scene beside plots of the cube
-height and of the contact forces.
+nanoseconds. `default_blueprint` lays out the scene beside plots of the cube height and of the
+contact forces: a condition's folder holds it as ``blueprint.rbl``; ``failures.rrd`` and a
+replay's file hold it themselves.
 
 Why this shape: size, and the time it takes to write. In a file, every entity costs each
 recording a chunk of its own (~1-2 kB of schema even for one box), and every time-series chunk
 16 bytes of row id and 8 of timestamp per row; every (entity, component) pair costs each
-recording ~0.5 kB of index in the file's footer, which ``rerun rrd route`` decodes and encodes
-again for every recording, the largest single cost of writing. So geoms are instances of one
+recording ~0.5 kB of index in the file's footer, which ``ChunkStore.write_rrd`` builds (and
+``rerun rrd route`` decodes and encodes again) for every recording. So geoms are instances of one
 archetype on their body's entity, not entities of their own; the signals share their body's
 time-series chunk; the episode's fields are one struct; solid shapes are a default of the 3D
 view rather than a component of each shape; and a child body's pose in its parent keeps its
 constant components constant (the fingers only slide along y), which compresses well.
 
-Writing many recordings into one file: the recordings of `_GROUP` episodes are built at once,
+Writing a condition's folder (`write_condition_recordings`): the main thread only keeps each
+episode's logged rows; a writer thread builds the recordings of `_GROUP` episodes at once,
 straight from Arrow columns (``Chunk.from_record_batch``, with the columns' layouts prepared
-once per file, and the chunks every recording shares built once and given a fresh chunk id
-per recording), each into a ``ChunkStore``.
-A writer thread encodes them one by one with ``ChunkStore.write_rrd`` into the stdin of
-``rerun rrd route`` (the CLI in the rerun-sdk wheel), which writes them as one stream with one
-valid footer. Plain concatenation is not enough: rerun 0.41's reader and ``rerun rrd verify``
-reject concatenated files, and files without a footer. (A blueprint sent into a recording's
-stream can make ``route`` panic, so the blueprint travels as a stream of its own.) The writer
-and ``route`` need next to no GIL and run at a lower CPU priority than the simulation, so they
-mostly use the time the rollouts leave idle. The CLI runs with ``CI`` set, the only environment
+once, and the chunks every recording shares built once and given a fresh chunk id per
+recording), and writes each with ``ChunkStore.write_rrd``, while the main thread runs the next
+rollouts (``mujoco.rollout`` releases the GIL); a third thread fsyncs the files. Why a file per
+episode, see `write_condition_recordings`.
+
+Writing several recordings into one file (``failures.rrd``, a replay with its blueprint): each
+is encoded with ``ChunkStore.write_rrd`` into the stdin of ``rerun rrd route`` (the CLI in the
+rerun-sdk wheel), which writes them as one stream with one valid footer. Plain concatenation is
+not enough: rerun 0.41's reader and ``rerun rrd verify`` reject concatenated files, and files
+without a footer. (A blueprint sent into a recording's stream can make ``route`` panic, so the
+blueprint travels as a stream of its own.) The CLI runs with ``CI`` set, the only environment
 switch of rerun 0.41 that stops it from writing analytics files under the home folder. (rerun
 0.41's ``route`` panics when given its own output as input: combine these files with
 ``rerun rrd merge`` instead.)
@@ -103,6 +108,7 @@ __all__ = [
     "recording_files",
     "rerun_to_mujoco_quat",
     "write_condition_recordings",
+    "write_episode_recording",
     "write_failures_rrd",
 ]
 
@@ -1220,12 +1226,101 @@ class _Pending:
 
 
 _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
-_QUEUE = 128  # recordings waiting for the writer thread, at most (~50 kB each by default)
+_QUEUE = 128  # episodes waiting for the writer thread, at most
 
 
 def episode_file_name(condition: str, state_id: int) -> str:
     """The file of an episode's recording in its condition's folder."""
     return f"{episode_recording_id(condition, state_id)}.rrd"
+
+
+class _EpisodeStores:
+    """Builds each episode's recording (a `ChunkStore`) for a model, condition and stamp.
+
+    `groups(episodes)` consumes the episodes one at a time (a generator over rollout batches
+    will do) and keeps their logged rows until `_GROUP` have come; `build(group)` then builds
+    those recordings at once (numpy's and pyarrow's cost is per call).
+    """
+
+    def __init__(
+        self,
+        *,
+        model: mujoco.MjModel,
+        condition: str,
+        ctrl: np.ndarray,
+        stamp: Mapping[str, Any],
+        log_every: int,
+    ) -> None:
+        stamp_text = _stamp_json(stamp)
+        self.layout = layout = _Layout.of(model)
+        ctrl = np.asarray(ctrl, dtype=np.float64)
+        if ctrl.ndim != 2 or ctrl.shape[1] != layout.nu:
+            raise ValueError(f"ctrl: expected shape (n_steps, {layout.nu}), got {ctrl.shape}")
+        self.condition, self.ctrl, self.log_every = condition, ctrl, log_every
+        self.steps = logged_steps(ctrl.shape[0], log_every)  # validate before any work
+        self.chunker = _Chunker(model, layout)
+        with _strict():
+            # the same in every recording: geometry, static poses, series names and the stamp
+            self.constant = _chunks(
+                [
+                    *self.chunker.geometry,
+                    *self.chunker.styles,
+                    *_property_columns(PROVENANCE_PROPERTY, {_JSON_FIELD: stamp_text}),
+                ]
+            )
+        self.blueprint = default_blueprint([(e, names) for e, names, _ in layout.signals])
+
+    def build(self, group: list[_Pending]) -> Iterator[tuple[str, str, ChunkStore]]:
+        """(file name, recording id, store) of each episode of a group from `groups`."""
+        n = len(self.steps)
+        series = self.chunker.series([(p.rows, p.sensors) for p in group], self.ctrl[self.steps])
+        name_field, episode_field = _name_field(), _episode_field()
+        properties = _batch(
+            [
+                (name_field, pa.array([[p.name] for p in group], type=name_field.type)),
+                (episode_field, pa.array([[p.fields] for p in group], type=episode_field.type)),
+            ]
+        )
+        for i, ep in enumerate(group):
+            with _strict():
+                chunks = [
+                    *_chunks(properties.slice(i, 1)),
+                    # the same data in every recording, each time under a fresh chunk id
+                    *(c.with_entity_path(c.entity_path) for c in self.constant),
+                    *_chunks(series.slice(i * n, n), temporal=True),
+                ]
+                store = ChunkStore.from_chunks(chunks)
+            yield ep.file_name, ep.recording_id, store
+
+    def groups(self, episodes: Iterable[EpisodeRecord]) -> Iterator[list[_Pending]]:
+        """The episodes' logged rows and properties, `_GROUP` episodes at a time."""
+        condition, seen = self.condition, set()
+        group: list[_Pending] = []
+        for ep in episodes:
+            sid = int(ep.state.state_id)
+            if sid in seen:
+                raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
+            physics, sensordata, _ = _as_trajectory(
+                self.layout, ep.physics, ep.sensordata, self.ctrl
+            )
+            group.append(
+                _Pending(
+                    file_name=episode_file_name(condition, sid),
+                    recording_id=episode_recording_id(condition, sid),
+                    name=episode_recording_name(condition, sid),
+                    fields=_episode_fields(ep, condition, self.ctrl, self.log_every),
+                    rows=physics[self.steps],
+                    sensors=sensordata[self.steps],
+                )
+            )
+            seen.add(sid)
+            if len(group) == _GROUP:
+                yield group
+                group = []
+        if not seen:
+            raise ValueError(f"{condition}: no episodes to record")
+        if group:
+            yield group
 
 
 def write_condition_recordings(
@@ -1246,9 +1341,8 @@ def write_condition_recordings(
     model geometry and the episode's series (`log_episode`); the folder's
     ``blueprint.rbl`` is `default_blueprint`, so ``rerun <folder>/*`` opens them all in its
     layout. Episodes are consumed one at a time, so `episodes` may be a generator over rollout
-    batches: their logged rows are kept until `_GROUP` episodes have come, whose recordings
-    are then built at once; a writer thread writes and fsyncs them (at most `_QUEUE` wait)
-    while the caller runs the next rollouts.
+    batches (see `_EpisodeStores`); a writer thread writes and fsyncs the recordings (at most
+    `_QUEUE` wait) while the caller runs the next rollouts.
 
     Why a file per episode (not one file per condition): rerun 0.41 can put many recordings in
     one file only by streaming them through ``rerun rrd route``, which merges their indexes
@@ -1262,95 +1356,76 @@ def write_condition_recordings(
     from mjtrial.atomic import atomic_directory
     from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
 
-    path = Path(path)
-    stamp_text = _stamp_json(stamp)
-    layout = _Layout.of(model)
-    ctrl = np.asarray(ctrl, dtype=np.float64)
-    if ctrl.ndim != 2 or ctrl.shape[1] != layout.nu:
-        raise ValueError(f"ctrl: expected shape (n_steps, {layout.nu}), got {ctrl.shape}")
-    steps = logged_steps(ctrl.shape[0], log_every)  # validate before any work
-    chunker = _Chunker(model, layout)
-    logged_ctrl = ctrl[steps]
-    name_field, episode_field = _name_field(), _episode_field()
-    with _strict():
-        # the same in every recording: geometry, static poses, series names and the stamp
-        constant = _chunks(
-            [
-                *chunker.geometry,
-                *chunker.styles,
-                *_property_columns(PROVENANCE_PROPERTY, {_JSON_FIELD: stamp_text}),
-            ]
-        )
-    blueprint = default_blueprint([(e, names) for e, names, _ in layout.signals])
-    seen: set[int] = set()
-    with atomic_directory(path) as folder:
-        _save_blueprint(blueprint, application_id, str(folder / RECORDING_FOLDER_BLUEPRINT))
+    builder = _EpisodeStores(
+        model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
+    )
+    count = 0
+    with atomic_directory(Path(path)) as folder:
+        _save_blueprint(builder.blueprint, application_id, str(folder / RECORDING_FOLDER_BLUEPRINT))
 
-        def build(group: list[_Pending]) -> Iterator[tuple[str, str, ChunkStore]]:
-            """(file name, recording id, chunks) of each episode: the work that needs the GIL."""
-            n = len(steps)
-            series = chunker.series([(p.rows, p.sensors) for p in group], logged_ctrl)
-            properties = _batch(
-                [
-                    (name_field, pa.array([[p.name] for p in group], type=name_field.type)),
-                    (episode_field, pa.array([[p.fields] for p in group], type=episode_field.type)),
-                ]
-            )
-            for i, ep in enumerate(group):
+        # fsync in a thread of its own: the disk's writeback then overlaps the rollouts (an fsync
+        # after each write, or of every file at the end, cost the rollout stage more)
+        syncer = _Worker(_fsync, maxsize=0, name="mjtrial-rrd-syncer")
+
+        def write(group: list[_Pending]) -> None:
+            """Build and write a group's recordings, while the caller runs the next rollouts."""
+            for file_name, recording_id, store in builder.build(group):
                 with _strict():
-                    chunks = [
-                        *_chunks(properties.slice(i, 1)),
-                        # the same data in every recording, each time under a fresh chunk id
-                        *(c.with_entity_path(c.entity_path) for c in constant),
-                        *_chunks(series.slice(i * n, n), temporal=True),
-                    ]
-                    store = ChunkStore.from_chunks(chunks)
-                yield ep.file_name, ep.recording_id, store
-
-        def write(recording: tuple[str, str, ChunkStore]) -> None:
-            """Write and fsync one recording: no GIL needed, so it runs beside the rollouts."""
-            file_name, recording_id, store = recording
-            target = folder / file_name
-            with _strict():
-                store.write_rrd(target, application_id=application_id, recording_id=recording_id)
-            fd = os.open(target, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-
-        worker = _Worker(write, maxsize=_QUEUE, name="mjtrial-rrd-writer")
-        group: list[_Pending] = []
-        try:
-            for ep in episodes:
-                sid = int(ep.state.state_id)
-                if sid in seen:
-                    raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
-                physics, sensordata, _ = _as_trajectory(layout, ep.physics, ep.sensordata, ctrl)
-                group.append(
-                    _Pending(
-                        file_name=episode_file_name(condition, sid),
-                        recording_id=episode_recording_id(condition, sid),
-                        name=episode_recording_name(condition, sid),
-                        fields=_episode_fields(ep, condition, ctrl, log_every),
-                        rows=physics[steps],
-                        sensors=sensordata[steps],
+                    store.write_rrd(
+                        folder / file_name,
+                        application_id=application_id,
+                        recording_id=recording_id,
                     )
-                )
-                seen.add(sid)
-                if len(group) == _GROUP:
-                    for item in build(group):
-                        worker.put(item)
-                    group = []
-            if not seen:
-                raise ValueError(f"{condition}: no episodes to record")
-            for item in build(group) if group else ():
-                worker.put(item)
+                syncer.put(folder / file_name)
+
+        worker = _Worker(write, maxsize=max(1, _QUEUE // _GROUP), name="mjtrial-rrd-writer")
+        try:
+            for group in builder.groups(episodes):
+                worker.put(group)
+                count += len(group)
         except BaseException:
             worker.cancel()
+            syncer.cancel()
             raise
         worker.finish()
-    return len(seen)
+        syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
+        syncer.finish()
+    return count
+
+
+def _fsync(path: Path) -> None:
+    """Flush a file to disk, so that a power cut after the folder's rename loses none of it."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_episode_recording(
+    path: str | os.PathLike[str],
+    *,
+    model: mujoco.MjModel,
+    condition: str,
+    episode: EpisodeRecord,
+    ctrl: np.ndarray,
+    stamp: Mapping[str, Any],
+    log_every: int,
+    application_id: str = APPLICATION_ID,
+) -> None:
+    """Atomically write one episode's recording, and `default_blueprint`, to the file `path`.
+
+    The recording is the one `write_condition_recordings` makes; the blueprint travels in the
+    same file (through ``rerun rrd route``), so ``rerun <path>`` opens it in its layout.
+    """
+    builder = _EpisodeStores(
+        model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
+    )
+    path = Path(path)
+    [group] = builder.groups([episode])
+    [(_, recording_id, store)] = builder.build(group)
+    with atomic_path(path) as tmp, _rrd_output(tmp, application_id, builder.blueprint) as out:
+        _write_store(out, store, application_id=application_id, recording_id=recording_id)
 
 
 def _episode_fields(

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 from mjtrial import pipeline, provenance, taxonomy
 from mjtrial.config import load_config
 from mjtrial.protocol import control_sequence
-from mjtrial.recording import read_episode, write_condition_recordings
+from mjtrial.recording import read_episode, write_episode_recording
 from mjtrial.simulate import load_model
 
 __all__ = ["ReplayMismatch", "Replay", "read_episode", "replay_episode"]
@@ -110,11 +110,12 @@ def replay_episode(
         repo_dir=repo_root,
         extra={"replay_of": {"condition": condition, "state_id": state_id}},
     )
-    write_condition_recordings(
+    [episode] = pipeline.episode_records(batch, outcome)
+    write_episode_recording(
         output,
         model=model,
         condition=condition,
-        episodes=pipeline.episode_records(batch, outcome),
+        episode=episode,
         ctrl=control_sequence(lift_time, timestep=model.opt.timestep)[0],
         stamp=stamp,
         log_every=1,
