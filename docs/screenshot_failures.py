@@ -5,11 +5,15 @@ Needs what the project itself does not: Debian's chromium and the `playwright` p
 
     python docs/screenshot_failures.py \
         results/research_mode/replay/failures.rrd docs/failures_viewer.png 1
+
+The first argument may also be a condition's folder (`results/research_mode/rollouts/fast`):
+its blueprint and every episode's file are served, as `rerun <folder>/*` would open them.
 """
 
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -55,14 +59,20 @@ def main(rrd: str, out: str, row: str | None = None, wait: float = 25.0) -> None
             str(WEB_PORT),
             "--port",
             str(GRPC_PORT),
-            rrd,
+            *(sorted(str(f) for f in Path(rrd).glob("[!.]*")) if Path(rrd).is_dir() else [rrd]),
         ],
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
     try:
-        time.sleep(5)
+        deadline = time.monotonic() + 120  # many files take a while to load before it serves
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", WEB_PORT), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.5)
         url = (
             f"http://127.0.0.1:{WEB_PORT}?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{GRPC_PORT}"
             "%2Fproxy&renderer=webgl"

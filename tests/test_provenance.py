@@ -206,6 +206,24 @@ def test_file_sha256_streams_large_file(tmp_path: Path) -> None:
     assert file_sha256(str(empty)) == hashlib.sha256(b"").hexdigest()
 
 
+def test_folder_sha256_covers_names_and_bytes_of_its_visible_files(tmp_path: Path) -> None:
+    folder = tmp_path / "fast"
+    folder.mkdir()
+    (folder / "b.rrd").write_bytes(b"second")
+    (folder / "a.rrd").write_bytes(b"first")
+    (folder / ".snakemake_timestamp").write_bytes(b"")  # Snakemake's, not the output's
+    lines = "".join(
+        f"{name}\0{hashlib.sha256(data).hexdigest()}\n"
+        for name, data in [("a.rrd", b"first"), ("b.rrd", b"second")]
+    )
+    expected = hashlib.sha256(lines.encode()).hexdigest()
+    assert file_sha256(folder) == expected
+    (folder / ".snakemake_timestamp").write_bytes(b"touched")
+    assert file_sha256(folder) == expected
+    (folder / "b.rrd").rename(folder / "c.rrd")  # a rename changes it
+    assert file_sha256(folder) != expected
+
+
 # --------------------------------------------------------------------------------------------
 # Git
 # --------------------------------------------------------------------------------------------

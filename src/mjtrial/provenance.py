@@ -173,11 +173,14 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
 
     A folder hashes like the model (`model_sha256`): each file, in name order, as its path
     relative to the folder and its sha256, so a renamed, added or removed file changes it too.
+    Hidden files are not its content (Snakemake keeps a ``.snakemake_timestamp`` in folders).
     """
     if Path(path).is_dir():
         folder = Path(path)
         digest = hashlib.sha256()
-        for p in sorted(q for q in folder.rglob("*") if q.is_file()):
+        files = (q for q in folder.rglob("*") if q.is_file())
+        hidden = lambda q: any(part.startswith(".") for part in q.relative_to(folder).parts)  # noqa: E731
+        for p in sorted(q for q in files if not hidden(q)):
             digest.update(f"{p.relative_to(folder).as_posix()}\0{file_sha256(p)}\n".encode())
         return digest.hexdigest()
     h = hashlib.sha256()
