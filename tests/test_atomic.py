@@ -9,7 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from mjtrial.atomic import atomic_path, temp_path_for, write_json_atomic, write_text_atomic
+from mjtrial.atomic import (
+    atomic_directory,
+    atomic_path,
+    temp_path_for,
+    write_json_atomic,
+    write_text_atomic,
+)
 
 
 def _leftovers(directory: Path) -> list[str]:
@@ -103,3 +109,28 @@ def test_write_json_atomic_rejects_nan_without_touching_disk(tmp_path: Path) -> 
         write_json_atomic(target, {"x": math.nan})
     assert target.read_text() == '{"old": 1}\n'
     assert _leftovers(tmp_path) == []
+
+
+def test_directory_lands_replaces_the_old_one_whole_and_leaves_no_temp(tmp_path: Path) -> None:
+    target = tmp_path / "out" / "fast"
+    with atomic_directory(target) as tmp:
+        assert tmp.is_dir() and tmp.name.startswith(".fast.tmp-") and not target.exists()
+        (tmp / "a.rrd").write_text("old a")
+        (tmp / "b.rrd").write_text("old b")
+    with atomic_directory(target) as tmp:
+        (tmp / "a.rrd").write_text("new a")
+    assert sorted(p.name for p in target.iterdir()) == ["a.rrd"]  # b did not survive
+    assert (target / "a.rrd").read_text() == "new a"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["fast"]
+
+
+@pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
+def test_directory_failure_keeps_the_old_one_and_no_temp(tmp_path: Path, error) -> None:
+    target = tmp_path / "fast"
+    with atomic_directory(target) as tmp:
+        (tmp / "a.rrd").write_text("good")
+    with pytest.raises(error), atomic_directory(target) as tmp:
+        (tmp / "a.rrd").write_text("half")
+        raise error
+    assert [p.name for p in tmp_path.iterdir()] == ["fast"]
+    assert (target / "a.rrd").read_text() == "good"
