@@ -23,6 +23,7 @@ from typing import Any
 __all__ = [
     "atomic_directory",
     "atomic_path",
+    "fsync_file",
     "temp_path_for",
     "write_bytes_atomic",
     "write_json_atomic",
@@ -47,7 +48,8 @@ def _remove(p: Path) -> None:
         pass
 
 
-def _fsync_file(p: Path) -> None:
+def fsync_file(p: str | os.PathLike[str]) -> None:
+    """Flush a file's bytes to disk (so that a power cut after a rename loses none of them)."""
     fd = os.open(p, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -86,7 +88,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         yield tmp
         if not tmp.exists():
             raise FileNotFoundError(f"{path}: the writer did not create the temporary file {tmp}")
-        _fsync_file(tmp)
+        fsync_file(tmp)
         os.replace(tmp, path)
     except BaseException:
         _remove(tmp)

@@ -84,8 +84,9 @@ import rerun.blueprint as rrb
 from rerun.chunk import Chunk, ChunkStore, RrdReader, StoreEntry
 from rerun.error_utils import catch_and_log_exceptions
 
-from mjtrial.atomic import atomic_path
+from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
 from mjtrial.protocol import CTRL_GRIPPER, CTRL_X, CTRL_Y, CTRL_Z
+from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
 from mjtrial.simulate import CUBE_BODY, FULLPHYSICS, STATE_QPOS, STATE_TIME, InitialState
 
 __all__ = [
@@ -1353,9 +1354,6 @@ def write_condition_recordings(
     Returns:
       the number of recordings written (no episodes is an error).
     """
-    from mjtrial.atomic import atomic_directory
-    from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
-
     builder = _EpisodeStores(
         model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
     )
@@ -1365,7 +1363,7 @@ def write_condition_recordings(
 
         # fsync in a thread of its own: the disk's writeback then overlaps the rollouts (an fsync
         # after each write, or of every file at the end, cost the rollout stage more)
-        syncer = _Worker(_fsync, maxsize=0, name="mjtrial-rrd-syncer")
+        syncer = _Worker(fsync_file, maxsize=0, name="mjtrial-rrd-syncer")
 
         def write(group: list[_Pending]) -> None:
             """Build and write a group's recordings, while the caller runs the next rollouts."""
@@ -1391,15 +1389,6 @@ def write_condition_recordings(
         syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
         syncer.finish()
     return count
-
-
-def _fsync(path: Path) -> None:
-    """Flush a file to disk, so that a power cut after the folder's rename loses none of it."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def write_episode_recording(
