@@ -104,3 +104,30 @@ def test_every_rrd_passes_rerun_verify(built):
             [str(rerun), "rrd", "verify", str(path)], capture_output=True, text=True, env=env
         )
         assert proc.returncode == 0, f"{path}: {proc.stderr[-500:]}"
+
+
+def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built, tmp_path):
+    from mjtrial import pipeline
+
+    rollouts = built / "results" / "research_mode" / "rollouts"
+    folders = [rollouts / c for c in ("fast", "slow")]
+    tables = [rollouts / f"{c}.parquet" for c in ("fast", "slow")]
+    out = tmp_path / "failures.rrd"
+    failed = sum(not r["success"] for t in tables for r in pq.read_table(t).to_pylist())
+    assert pipeline.gather_failures(recordings=folders, tables=tables, output=out) == failed
+
+    # A table that calls a successful episode failed: the recordings disagree, nothing written.
+    table = pq.read_table(tables[1])
+    success = table.column("success").to_pylist()
+    first_success = success.index(True)
+    success[first_success] = False
+    edited = tmp_path / "slow.parquet"
+    table = table.set_column(table.schema.get_field_index("success"), "success", pa.array(success))
+    provenance.write_parquet(
+        table.replace_schema_metadata(None), edited, provenance.read_stamp(tables[1])
+    )
+    with pytest.raises(ValueError, match=f"slow-state-{first_success:06d}.*not a failed episode"):
+        pipeline.gather_failures(
+            recordings=folders, tables=[tables[0], edited], output=tmp_path / "bad.rrd"
+        )
+    assert not (tmp_path / "bad.rrd").exists()

@@ -361,13 +361,34 @@ def run_analysis(
 
 
 def gather_failures(
-    *, recordings: Sequence[Path], output: Path, repo_root: Path = REPO_ROOT
+    *,
+    recordings: Sequence[Path],
+    tables: Sequence[Path],
+    output: Path,
+    repo_root: Path = REPO_ROOT,
 ) -> int:
-    """Gather every failed episode of every condition into one `failures.rrd`."""
+    """Gather every failed episode of every condition into one `failures.rrd`.
+
+    `recordings` are the conditions' folders (`rollouts/<condition>/`), `tables` their rollout
+    tables, in the same order: the tables say which episodes failed, so only their files are
+    opened (at 100 000 states, opening every file would take minutes); a recording that does
+    not say it failed is an error (`recording.write_failures_rrd`'s `only_failures`).
+    """
     from mjtrial import recording
 
-    stamp = _stamp("failures", {}, {p.stem: p for p in recordings}, repo_root=repo_root)
-    count = recording.write_failures_rrd(output, recordings, stamp=stamp)
+    if len(recordings) != len(tables):
+        raise ValueError(f"{len(recordings)} recording folders but {len(tables)} tables")
+    files = []
+    for folder, table in zip(map(Path, recordings), map(Path, tables), strict=True):
+        rows = pq.read_table(table, columns=["state_id", "success"]).to_pylist()
+        files += [
+            folder / recording.episode_file_name(folder.name, row["state_id"])
+            for row in rows
+            if not row["success"]
+        ]
+    inputs = {p.stem: p for p in recordings} | {f"{p.stem}_table": p for p in tables}
+    stamp = _stamp("failures", {}, inputs, repo_root=repo_root)
+    count = recording.write_failures_rrd(output, files, stamp=stamp, only_failures=True)
     log.info("failures: %d failed episodes -> %s", count, output)
     return count
 

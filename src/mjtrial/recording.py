@@ -1442,9 +1442,13 @@ def write_failures_rrd(
     sources: Sequence[str | os.PathLike[str]],
     *,
     stamp: Mapping[str, Any],
+    only_failures: bool = False,
     application_id: str = APPLICATION_ID,
 ) -> int:
     """Atomically gather the failed episodes (property success False) of .rrd files or folders.
+
+    With `only_failures`, every recording of `sources` must be a failed episode (the caller
+    chose them from the rollout tables): one that is not is an error, raised before writing.
 
     The file starts with a summary recording (id ``failures``: the count, the source file names
     and a table of the failures), so it carries its stamp even when nothing failed. Each failed
@@ -1467,6 +1471,11 @@ def write_failures_rrd(
             if props.get("success") is False:
                 failures.append((source, entry, props))
                 readers[source] = reader  # only files with failures stay open
+            elif only_failures:
+                raise ValueError(
+                    f"{source}: recording {entry.recording_id!r} is not a failed episode "
+                    f"(success {props.get('success')!r})"
+                )
     ids = [entry.recording_id for _, entry, _ in failures]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:

@@ -9,6 +9,7 @@ snakemake = globals()["snakemake"]
 setup_logging(snakemake.log[0])
 gather_failures(
     recordings=[Path(p) for p in snakemake.input.recordings],
+    tables=[Path(p) for p in snakemake.input.tables],
     output=Path(snakemake.output.failures),
     repo_root=Path.cwd(),
 )
