@@ -1381,11 +1381,11 @@ def write_condition_recordings(
             for group in builder.groups(episodes):
                 worker.put(group)
                 count += len(group)
+            worker.finish()
         except BaseException:
             worker.cancel()
             syncer.cancel()
             raise
-        worker.finish()
         syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
         syncer.finish()
     return count
