@@ -2,7 +2,9 @@ rule failures:
     input:
         recordings=expand(RESULTS / "rollouts" / "{condition}", condition=CONDITIONS),
         # which episodes failed, so that only their recordings are opened
-        tables=expand(RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS),
+        tables=expand(
+            RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS
+        ),
     output:
         failures=RESULTS / "replay" / "failures.rrd",
     log:
