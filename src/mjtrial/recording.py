@@ -429,9 +429,14 @@ _BOX, _PLANE, _SPHERE, _ELLIPSOID, _CAPSULE, _CYLINDER, _MESH = (
 
 
 class _Instances:
-    """Geoms of one archetype on one body: per-instance pose (in the body), colour and sizes."""
+    """Geoms of one archetype on one body: per-instance pose (in the body), colour and sizes.
 
-    def __init__(self) -> None:
+    `archetype` is the rerun class, `position_field` its name for the instances' positions;
+    the sizes are added under the archetype's own argument names.
+    """
+
+    def __init__(self, archetype: type, position_field: str) -> None:
+        self.archetype, self.position_field = archetype, position_field
         self.positions: list[np.ndarray] = []
         self.quats: list[np.ndarray] = []  # w-x-y-z
         self.colors: list[np.ndarray] = []
@@ -444,20 +449,29 @@ class _Instances:
         for key, value in sizes.items():
             self.sizes.setdefault(key, []).append(value)
 
-    def pose(self, position_field: str) -> dict[str, np.ndarray]:
+    def pose(self) -> dict[str, np.ndarray]:
         """Pose components, leaving out the ones that are identity for every instance."""
         out: dict[str, np.ndarray] = {}
         positions, quats = np.array(self.positions), np.array(self.quats)
         if np.any(positions != 0.0):
-            out[position_field] = positions
+            out[self.position_field] = positions
         if np.any(quats != _IDENTITY):
             out["quaternions"] = mujoco_to_rerun_quat(quats)
         return out
 
+    def drawn(self) -> list[Any]:
+        """The archetype drawing these geoms, or nothing when there are none."""
+        if not self.colors:
+            return []
+        return [self.archetype(**self.sizes, colors=self.colors, **self.pose())]
+
 
 def _body_geometry(model: mujoco.MjModel, body: int) -> list[Any]:
     """Archetypes drawing the visible geoms of `body` in the body frame (one per geom type)."""
-    boxes, ellipsoids, capsules, cylinders = _Instances(), _Instances(), _Instances(), _Instances()
+    boxes = _Instances(rr.Boxes3D, "centers")
+    ellipsoids = _Instances(rr.Ellipsoids3D, "centers")
+    capsules = _Instances(rr.Capsules3D, "translations")
+    cylinders = _Instances(rr.Cylinders3D, "centers")
     mesh_vertices: list[np.ndarray] = []
     mesh_triangles: list[np.ndarray] = []
     mesh_colors: list[np.ndarray] = []
@@ -501,40 +515,8 @@ def _body_geometry(model: mujoco.MjModel, body: int) -> list[Any]:
 
     out: list[Any] = []
     with _strict():
-        if boxes.colors:
-            out.append(
-                rr.Boxes3D(
-                    half_sizes=boxes.sizes["half_sizes"],
-                    colors=boxes.colors,
-                    **boxes.pose("centers"),
-                )
-            )
-        if ellipsoids.colors:
-            out.append(
-                rr.Ellipsoids3D(
-                    half_sizes=ellipsoids.sizes["half_sizes"],
-                    colors=ellipsoids.colors,
-                    **ellipsoids.pose("centers"),
-                )
-            )
-        if capsules.colors:
-            out.append(
-                rr.Capsules3D(
-                    lengths=capsules.sizes["lengths"],
-                    radii=capsules.sizes["radii"],
-                    colors=capsules.colors,
-                    **capsules.pose("translations"),
-                )
-            )
-        if cylinders.colors:
-            out.append(
-                rr.Cylinders3D(
-                    lengths=cylinders.sizes["lengths"],
-                    radii=cylinders.sizes["radii"],
-                    colors=cylinders.colors,
-                    **cylinders.pose("centers"),
-                )
-            )
+        for shapes in (boxes, ellipsoids, capsules, cylinders):
+            out.extend(shapes.drawn())
         if mesh_vertices:
             colors = np.concatenate(mesh_colors)
             single = bool(np.all(colors == colors[0]))
@@ -1218,7 +1200,6 @@ class _Worker:
 class _Pending:
     """An episode waiting for its recording to be built: its logged rows and properties."""
 
-    file_name: str
     recording_id: str
     name: str
     fields: dict[str, Any]
@@ -1230,9 +1211,14 @@ _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per 
 _QUEUE = 128  # episodes waiting for the writer thread, at most
 
 
+def _file_name(recording_id: str) -> str:
+    """The file of a recording in its condition's folder: named by its recording id."""
+    return f"{recording_id}.rrd"
+
+
 def episode_file_name(condition: str, state_id: int) -> str:
     """The file of an episode's recording in its condition's folder."""
-    return f"{episode_recording_id(condition, state_id)}.rrd"
+    return _file_name(episode_recording_id(condition, state_id))
 
 
 class _EpisodeStores:
@@ -1271,8 +1257,8 @@ class _EpisodeStores:
             )
         self.blueprint = default_blueprint([(e, names) for e, names, _ in layout.signals])
 
-    def build(self, group: list[_Pending]) -> Iterator[tuple[str, str, ChunkStore]]:
-        """(file name, recording id, store) of each episode of a group from `groups`."""
+    def build(self, group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
+        """(recording id, store) of each episode of a group from `groups`."""
         n = len(self.steps)
         series = self.chunker.series([(p.rows, p.sensors) for p in group], self.ctrl[self.steps])
         name_field, episode_field = _name_field(), _episode_field()
@@ -1291,7 +1277,7 @@ class _EpisodeStores:
                     *_chunks(series.slice(i * n, n), temporal=True),
                 ]
                 store = ChunkStore.from_chunks(chunks)
-            yield ep.file_name, ep.recording_id, store
+            yield ep.recording_id, store
 
     def groups(self, episodes: Iterable[EpisodeRecord]) -> Iterator[list[_Pending]]:
         """The episodes' logged rows and properties, `_GROUP` episodes at a time."""
@@ -1306,7 +1292,6 @@ class _EpisodeStores:
             )
             group.append(
                 _Pending(
-                    file_name=episode_file_name(condition, sid),
                     recording_id=episode_recording_id(condition, sid),
                     name=episode_recording_name(condition, sid),
                     fields=_episode_fields(ep, condition, self.ctrl, self.log_every),
@@ -1367,14 +1352,15 @@ def write_condition_recordings(
 
         def write(group: list[_Pending]) -> None:
             """Build and write a group's recordings, while the caller runs the next rollouts."""
-            for file_name, recording_id, store in builder.build(group):
+            for recording_id, store in builder.build(group):
+                target = folder / _file_name(recording_id)
                 with _strict():
                     store.write_rrd(
-                        folder / file_name,
+                        target,
                         application_id=application_id,
                         recording_id=recording_id,
                     )
-                syncer.put(folder / file_name)
+                syncer.put(target)
 
         worker = _Worker(write, maxsize=max(1, _QUEUE // _GROUP), name="mjtrial-rrd-writer")
         try:
@@ -1412,7 +1398,7 @@ def write_episode_recording(
     )
     path = Path(path)
     [group] = builder.groups([episode])
-    [(_, recording_id, store)] = builder.build(group)
+    [(recording_id, store)] = builder.build(group)
     with atomic_path(path) as tmp, _rrd_output(tmp, application_id, builder.blueprint) as out:
         _write_store(out, store, application_id=application_id, recording_id=recording_id)
 
