@@ -44,9 +44,15 @@ def main() -> None:
     parser.add_argument("--n", type=int, help="states (default: the config's n)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=9, help="repeats of the stage timings")
+    parser.add_argument(
+        "--rate-hz", type=float, help="replay logging rate (default: the config's rate_hz)"
+    )
     args = parser.parse_args()
     os.environ.setdefault("CI", "1")  # rerun's CLI: no analytics files in the home folder
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    if args.rate_hz:
+        config["recording"]["rate_hz"] = args.rate_hz
+    print(f"replay logging at {config['recording']['rate_hz']:g} Hz")
     n = args.n or config["states"]["n"]
     s = config["states"]
     states = states_from_table(generate_initial_states(seed=s["seed"], n=n, ranges=s["ranges"]))
@@ -121,6 +127,9 @@ def main() -> None:
         # paired within a repeat: the three ran back to back, under the same machine load
         logging_cost = [r / s - 1 for r, s in zip(times["stage+rrd"], times["stage"], strict=True)]
         logging_cpu = [r / s - 1 for r, s in zip(cpu["stage+rrd"], cpu["stage"], strict=True)]
+        cpu_per_recording = [
+            (r - s) / episodes for r, s in zip(cpu["stage+rrd"], cpu["stage"], strict=True)
+        ]
         stage_share = [b / s for b, s in zip(times["bare"], times["stage"], strict=True)]
 
     for name in conditions:
@@ -136,9 +145,10 @@ def main() -> None:
         for name in ("Snakefile", "workflow", "config", "models", "profiles"):
             src = REPO_ROOT / name
             (shutil.copytree if src.is_dir() else shutil.copy)(src, work / name)
-        if args.n:
+        if args.n or args.rate_hz:
             cfg = yaml.safe_load((work / "config" / "config.yaml").read_text())
             cfg["states"]["n"] = n
+            cfg["recording"]["rate_hz"] = config["recording"]["rate_hz"]
             (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
         snakemake = str(Path(sys.executable).parent / "snakemake")
         t_smk, proc = timed(
@@ -209,7 +219,8 @@ def main() -> None:
     )
     print(
         f"  the same in CPU time (all threads):             {statistics.median(logging_cpu):+6.1%}"
-        f"  (range {min(logging_cpu):+.1%} to {max(logging_cpu):+.1%})"
+        f"  (range {min(logging_cpu):+.1%} to {max(logging_cpu):+.1%}),"
+        f" {1e3 * statistics.median(cpu_per_recording):.2f} ms of CPU per recording"
     )
     print(
         f"clean snakemake wall time / plain loop:           {t_smk / t_loop:6.3f}  (goal <= 1.00)"
