@@ -1,0 +1,146 @@
+"""Benchmark: the CPU a condition's replay logging costs per episode, in two layouts.
+
+* a recording per episode, as the rollout stage writes them: each recording holds its own
+  copy of the geometry, series names and properties (a chunk per entity, whatever its size)
+  and is a file of its own;
+* one recording for the whole condition, the episodes one after another on the timeline: a
+  prototype of the writing only (nothing reads it), to put a number on what that layout would
+  cost. It holds the same time series and the geometry once.
+
+Both build and write the same episodes, one thread, repeats in alternating order; the figures
+are medians of the repeats, per episode, and a ratio measured in this one run:
+
+    python benchmarks/bench_recording_layout.py                 # fast lift, 200 episodes
+    python benchmarks/bench_recording_layout.py --condition slow --rate-hz 25
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import yaml
+from rerun.chunk import ChunkStore
+
+from mjtrial import REPO_ROOT, pipeline, recording, taxonomy
+from mjtrial.atomic import fsync_file
+from mjtrial.protocol import control_sequence
+from mjtrial.simulate import load_model
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--condition", default="fast")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--rate-hz", type=float, help="default: the config's rate_hz")
+    args = parser.parse_args()
+    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    if args.rate_hz:
+        config["recording"]["rate_hz"] = args.rate_hz
+    cond = pipeline.config_slice("rollout", config, condition=args.condition)
+    model_file = REPO_ROOT / config["model"]
+    model = load_model(model_file)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        states_path = tmp / "states.parquet"
+        pipeline.build_states(
+            states_slice=config["states"], output=states_path, repo_root=REPO_ROOT
+        )
+        episodes = [
+            ep
+            for batch, outcome in pipeline.condition_outcomes(
+                model,
+                pipeline.read_states(states_path),
+                lift_time=cond["lift_time"],
+                thresholds=taxonomy.Thresholds.from_config(cond["failure_taxonomy"]),
+                nthread=2,
+            )
+            for ep in pipeline.episode_records(batch, outcome)
+        ]
+        stamp = pipeline._stamp(
+            f"rollout:{args.condition}",
+            dict(cond),
+            {"states": states_path, **pipeline.model_inputs(model_file)},
+            repo_root=REPO_ROOT,
+        )
+        builder = recording._EpisodeStores(
+            model=model,
+            condition=args.condition,
+            ctrl=control_sequence(cond["lift_time"], timestep=model.opt.timestep)[0],
+            stamp=stamp,
+            log_every=pipeline.log_every(cond["recording"]["rate_hz"], model.opt.timestep),
+        )
+        groups = list(builder.groups(iter(episodes)))
+        n_rows = len(builder.steps)
+        out = tmp / "out"
+        out.mkdir()
+
+        def per_episode() -> None:
+            for group in groups:
+                for recording_id, store in builder.build(group):
+                    target = out / f"{recording_id}.rrd"
+                    store.write_rrd(target, application_id="bench", recording_id=recording_id)
+                    fsync_file(target)
+
+        def per_condition() -> None:
+            pending = [p for group in groups for p in group]
+            series = builder.chunker.series(
+                [(p.rows, p.sensors) for p in pending], builder.ctrl[builder.steps]
+            )
+            # episode i starts at i * (its length + 1 s) on the condition's timeline
+            t = series.column(0).to_numpy().astype(np.int64)
+            period = int(t[n_rows - 1]) + 1_000_000_000
+            t = t + np.repeat(np.arange(len(pending), dtype=np.int64) * period, n_rows)
+            columns = [pa.array(t.astype("timedelta64[ns]")), *series.columns[1:]]
+            series = pa.RecordBatch.from_arrays(columns, schema=series.schema)
+            chunks = [c.with_entity_path(c.entity_path) for c in builder.constant]
+            chunks += recording._chunks(series, temporal=True)
+            target = out / f"{args.condition}.rrd"
+            ChunkStore.from_chunks(chunks).write_rrd(
+                target, application_id="bench", recording_id=args.condition
+            )
+            fsync_file(target)
+
+        layouts = {
+            "a recording per episode": per_episode,
+            "a recording per condition": per_condition,
+        }
+        cpu: dict[str, list[float]] = {k: [] for k in layouts}
+        wall: dict[str, list[float]] = {k: [] for k in layouts}
+        size: dict[str, int] = {}
+        for i in range(args.repeats):
+            for name in layouts if i % 2 == 0 else reversed(layouts):
+                c0, t0 = time.process_time(), time.perf_counter()
+                layouts[name]()
+                wall[name].append((time.perf_counter() - t0) / len(episodes))
+                cpu[name].append((time.process_time() - c0) / len(episodes))
+                files = list(out.iterdir())
+                size[name] = sum(f.stat().st_size for f in files)
+                for f in files:
+                    os.unlink(f)
+
+    print(
+        f"{len(episodes)} episodes of the {args.condition} lift, {n_rows} logged steps each"
+        f" ({config['recording']['rate_hz']:g} Hz), median of {args.repeats} repeats\n"
+    )
+    print(f"{'':<28} {'CPU ms/episode':>15} {'wall ms/episode':>16} {'MB':>7}")
+    for name in layouts:
+        print(
+            f"{name:<28} {1e3 * statistics.median(cpu[name]):15.2f}"
+            f" {1e3 * statistics.median(wall[name]):16.2f} {size[name] / 1e6:7.1f}"
+        )
+    ratio = statistics.median(cpu["a recording per condition"]) / statistics.median(
+        cpu["a recording per episode"]
+    )
+    print(f"\nCPU per episode, a recording per condition / a recording per episode: {ratio:.2f}")
+
+
+if __name__ == "__main__":
+    main()
