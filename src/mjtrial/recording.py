@@ -1153,10 +1153,8 @@ class _Worker:
     thread by the next `put` or by `finish`.
 
     The thread runs at the caller's priority, not below it: building a recording holds the GIL,
-    and a thread holding the GIL at a lower priority keeps the caller (which drives the
-    simulation) waiting for it while the simulation's threads fill both cores, a priority
-    inversion. Measured: the caller's time outside ``mujoco.rollout`` went from 0.27 s without
-    recordings to 0.54-0.70 s with a writer at niceness 10, and 0.47-0.54 s at the same priority.
+    and a thread that holds the GIL at a lower priority, while the simulation's threads fill the
+    cores, keeps the caller (which drives the simulation) waiting for it: a priority inversion.
     """
 
     _STOP = object()
