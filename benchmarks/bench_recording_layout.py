@@ -7,8 +7,9 @@
   prototype of the writing only (nothing reads it), to put a number on what that layout would
   cost. It holds the same time series and the geometry once.
 
-Both build and write the same episodes, one thread, repeats in alternating order; the figures
-are medians of the repeats, per episode, and a ratio measured in this one run:
+Both build and write the same episodes (the first with its writer thread, as the stage does;
+CPU time counts every thread), repeats in alternating order; the figures are medians of the
+repeats, per episode, and a ratio measured in this one run:
 
     python benchmarks/bench_recording_layout.py                 # fast lift, 200 episodes
     python benchmarks/bench_recording_layout.py --condition slow --rate-hz 25
@@ -17,7 +18,7 @@ are medians of the repeats, per episode, and a ratio measured in this one run:
 from __future__ import annotations
 
 import argparse
-import os
+import shutil
 import statistics
 import tempfile
 import time
@@ -77,20 +78,23 @@ def main() -> None:
             stamp=stamp,
             log_every=pipeline.log_every(cond["recording"]["rate_hz"], model.opt.timestep),
         )
-        groups = list(builder.groups(iter(episodes)))
         n_rows = len(builder.steps)
         out = tmp / "out"
         out.mkdir()
 
-        def per_episode() -> None:
-            for group in groups:
-                for recording_id, store in builder.build(group):
-                    target = out / f"{recording_id}.rrd"
-                    store.write_rrd(target, application_id="bench", recording_id=recording_id)
-                    fsync_file(target)
+        def per_episode() -> None:  # exactly what the rollout stage calls
+            recording.write_condition_recordings(
+                out / args.condition,
+                model=model,
+                condition=args.condition,
+                episodes=iter(episodes),
+                ctrl=builder.ctrl,
+                stamp=stamp,
+                log_every=builder.log_every,
+            )
 
         def per_condition() -> None:
-            pending = [p for group in groups for p in group]
+            pending = [p for group in builder.groups(iter(episodes)) for p in group]
             series = builder.chunker.series(
                 [(p.rows, p.sensors) for p in pending], builder.ctrl[builder.steps]
             )
@@ -121,10 +125,9 @@ def main() -> None:
                 layouts[name]()
                 wall[name].append((time.perf_counter() - t0) / len(episodes))
                 cpu[name].append((time.process_time() - c0) / len(episodes))
-                files = list(out.iterdir())
-                size[name] = sum(f.stat().st_size for f in files)
-                for f in files:
-                    os.unlink(f)
+                size[name] = sum(f.stat().st_size for f in out.rglob("*.rrd"))
+                shutil.rmtree(out)
+                out.mkdir()
 
     print(
         f"{len(episodes)} episodes of the {args.condition} lift, {n_rows} logged steps each"
