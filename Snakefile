@@ -10,9 +10,7 @@ from mjtrial.config import (
     preflight,
     read_config_file,
 )
-
-CONFIG_FILE = "config/config.yaml"
-
+from mjtrial.layout import CONFIG_FILE
 
 # The config file is read here rather than with `configfile:` so that a YAML error or a
 # duplicated key is one line too; --configfile and --config values still take precedence.
@@ -46,6 +44,6 @@ report: "workflow/report/workflow.rst"
 rule all:
     default_target: True
     input:
-        manifest=RESULTS / "manifest.json",
-        failures=RESULTS / "replay" / "failures.rrd",
-        report=RESULTS / "report.md",
+        manifest=LAYOUT.manifest,
+        failures=LAYOUT.failures,
+        report=LAYOUT.report,

@@ -26,10 +26,13 @@ import pyarrow.parquet as pq
 import yaml
 from mujoco import rollout
 
-from mjtrial import REPO_ROOT, pipeline, provenance
+from mjtrial import REPO_ROOT, provenance
 from mjtrial.protocol import control_sequence
 from mjtrial.replay import replay_episode
 from mjtrial.simulate import episode_model, initial_physics_state, load_model, reference_episode
+from mjtrial.stages.rollout import run_condition
+from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.states import build_states
 from mjtrial.states import generate_initial_states, states_from_table
 
 
@@ -93,12 +96,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         states_path = tmp / "states.parquet"
-        pipeline.build_states(states_slice={**s, "n": n}, output=states_path, repo_root=REPO_ROOT)
+        build_states(states_slice={**s, "n": n}, output=states_path, repo_root=REPO_ROOT)
 
         def stage(record: bool):
             return {
-                name: pipeline.run_condition(
-                    condition_slice=pipeline.config_slice("rollout", config, condition=name),
+                name: run_condition(
+                    condition_slice=config_slice("rollout", config, condition=name),
                     states_path=states_path,
                     model_file=model_file,
                     output_table=tmp / f"{name}.parquet",

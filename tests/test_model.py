@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mjtrial import MODELS_DIR, model_path
-from mjtrial.simulate import cube_qpos_address, load_model
+from mjtrial.model_spec import ModelError, ModelSpec
+from mjtrial.simulate import load_model
 
 MODELS = sorted(p.name for p in MODELS_DIR.iterdir() if (p / "scene.xml").is_file())
 
@@ -28,7 +29,7 @@ def test_gantry_layout_matches_design(gantry_model):
     joints = [m.joint(i).name for i in range(m.njnt)]
     assert joints == ["gantry_x", "gantry_y", "gantry_z", "left_finger", "right_finger", "cube"]
     assert [int(m.jnt_qposadr[i]) for i in range(m.njnt)] == [0, 1, 2, 3, 4, 5]
-    assert cube_qpos_address(m) == 5 and m.nq == 12
+    assert ModelSpec.of(m).cube_qpos == 5 and m.nq == 12
     assert [m.actuator(i).name for i in range(m.nu)] == ["x", "y", "z", "gripper"]
     # Controlled variables are explicit in the file.
     assert m.opt.timestep == 0.002
@@ -56,3 +57,35 @@ def test_home_pose_rests_cube_on_floor_and_z_target_reaches_it(gantry_model):
 def test_model_path_names_unknown_model():
     with pytest.raises(FileNotFoundError, match="no_such_model"):
         model_path("no_such_model")
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "missing"),
+    [
+        ('name="left_pad_cube"', 'name="renamed_sensor"', "sensor named 'left_pad_cube'"),
+        ('name="gantry_z"', 'name="lift"', "joint named 'gantry_z'"),
+        ('<geom name="right_pad"', '<geom name="other_pad"', "geom named 'right_pad'"),
+    ],
+)
+def test_model_spec_names_the_missing_element(tmp_path, old, new, missing):
+    """A model without an element the protocol reads fails at load, naming file and element."""
+    src = model_path("gantry_gripper").parent
+    for f in src.iterdir():
+        (tmp_path / f.name).write_bytes(f.read_bytes())
+    model = tmp_path / "gantry_gripper.xml"
+    text = model.read_text()
+    assert old in text
+    model.write_text(text.replace(old, new, 1).replace('geom1="right_pad"', 'geom1="other_pad"'))
+    with pytest.raises(ModelError, match=f"scene.xml: expected a {missing}"):
+        load_model(tmp_path / "scene.xml")
+
+
+def test_model_spec_indices_match_the_compiled_model(gantry_model):
+    m, spec = gantry_model, ModelSpec.of(gantry_model)
+    assert m.body(spec.cube_body).name == "cube"
+    assert [m.geom(g).name for g in spec.pad_geoms] == ["left_pad", "right_pad"]
+    assert [m.body(b).name for b in spec.pad_bodies] == ["left_finger", "right_finger"]
+    assert m.body(spec.carriage_body).name == "carriage"
+    assert [int(m.sensor_adr[m.sensor(s).id]) for s in ("left_pad_cube", "right_pad_cube")] == list(
+        spec.pad_sensors
+    )

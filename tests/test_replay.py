@@ -107,14 +107,14 @@ def test_every_rrd_passes_rerun_verify(built):
 
 
 def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built, tmp_path):
-    from mjtrial import pipeline
+    from mjtrial.stages.failures import gather_failures
 
     rollouts = built / "results" / "research_mode" / "rollouts"
     folders = [rollouts / c for c in ("fast", "slow")]
     tables = [rollouts / f"{c}.parquet" for c in ("fast", "slow")]
     out = tmp_path / "failures.rrd"
     failed = sum(not r["success"] for t in tables for r in pq.read_table(t).to_pylist())
-    assert pipeline.gather_failures(recordings=folders, tables=tables, output=out) == failed
+    assert gather_failures(recordings=folders, tables=tables, output=out) == failed
 
     # A table that calls a successful episode failed: the recordings disagree, nothing written.
     table = pq.read_table(tables[1])
@@ -127,7 +127,7 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
         table.replace_schema_metadata(None), edited, provenance.read_stamp(tables[1])
     )
     with pytest.raises(ValueError, match=f"slow-state-{first_success:06d}.*not a failed episode"):
-        pipeline.gather_failures(
+        gather_failures(
             recordings=folders, tables=[tables[0], edited], output=tmp_path / "bad.rrd"
         )
     assert not (tmp_path / "bad.rrd").exists()

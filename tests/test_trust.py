@@ -19,7 +19,7 @@ import pytest
 from conftest import SNAKEMAKE, edit_config, run_snakemake
 
 from mjtrial import provenance
-from mjtrial.pipeline import read_states
+from mjtrial.stages.rollout import read_states
 
 RESULTS = Path("results") / "research_mode"
 MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"

@@ -20,7 +20,8 @@ import pytest
 from conftest import REPO_ROOT, edit_config, run_snakemake
 
 from mjtrial import cli, provenance
-from mjtrial.pipeline import STAGE_MODULES, config_slice
+from mjtrial.layout import STAGES
+from mjtrial.stages.stamping import config_slice
 from mjtrial.verify import (
     Current,
     Status,
@@ -312,7 +313,7 @@ VERSIONS = {"python": "3.11.7", "mujoco": "3.14.0"}
 PLATFORM = {"cpu_model": "CPU A", "cpu_flags_fp": ["avx", "sse"]}
 CURRENT = Current(
     config=CONFIG,
-    code_hashes={stage: f"code-{stage}" for stage in STAGE_MODULES},
+    code={stage: {f"workflow/scripts/{stage}.py": "S", "mjtrial.stats": "T"} for stage in STAGES},
     versions=VERSIONS,
     platform=PLATFORM,
 )
@@ -331,7 +332,7 @@ def stamp(rule: str, time: str, inputs=None, **changes):
         "config_slice_sha256": provenance.config_hash(slice_),
         "inputs": {k: {"path": p, "sha256": h} for k, (p, h) in (inputs or {}).items()},
         "platform": dict(PLATFORM),
-        "extra": {"code_sha256": f"code-{stage}"},
+        "extra": {"code": {f"workflow/scripts/{stage}.py": "S", "mjtrial.stats": "T"}},
     }
     out.update(changes)
     return out
@@ -411,7 +412,7 @@ def test_model_config_code_and_versions_make_stale():
 
     config = copy.deepcopy(CONFIG)
     config["conditions"]["fast"]["lift_time"] = 0.2
-    report = check(stamps, shas, Current(config, CURRENT.code_hashes, VERSIONS, PLATFORM))
+    report = check(stamps, shas, Current(config, CURRENT.code, VERSIONS, PLATFORM))
     assert reasons(report, f"{PREFIX}r.parquet") == (
         "config slice changed: rollout:fast (lift_time: 0.1 -> 0.2)"
     )
@@ -419,16 +420,16 @@ def test_model_config_code_and_versions_make_stale():
         "config slice changed: analysis (conditions.fast.lift_time: 0.1 -> 0.2); input stale"
     )
     del config["conditions"]["fast"]
-    report = check(stamps, shas, Current(config, CURRENT.code_hashes, VERSIONS, PLATFORM))
+    report = check(stamps, shas, Current(config, CURRENT.code, VERSIONS, PLATFORM))
     assert "condition 'fast' is not in the config" in reasons(report, f"{PREFIX}r.parquet")
 
-    hashes = {**CURRENT.code_hashes, "analysis": "code-new"}
-    report = check(stamps, shas, Current(CONFIG, hashes, VERSIONS, PLATFORM))
-    assert reasons(report, f"{PREFIX}a.json").startswith("code changed: stage analysis (")
+    code = {**CURRENT.code, "analysis": {"workflow/scripts/analysis.py": "S", "mjtrial.stats": "U"}}
+    report = check(stamps, shas, Current(CONFIG, code, VERSIONS, PLATFORM))
+    assert reasons(report, f"{PREFIX}a.json") == "code changed: mjtrial.stats"
     assert report.with_status(Status.STALE) == [f"{PREFIX}a.json"]
 
     versions = {**VERSIONS, "mujoco": "3.15.0"}
-    report = check(stamps, shas, Current(CONFIG, CURRENT.code_hashes, versions, PLATFORM))
+    report = check(stamps, shas, Current(CONFIG, CURRENT.code, versions, PLATFORM))
     assert reasons(report, f"{PREFIX}s.parquet") == "versions changed: mujoco 3.14.0 -> 3.15.0"
 
 
@@ -452,7 +453,7 @@ def test_disagreeing_stamps_and_other_platform_warn_only():
 
     stamps, shas = chain()
     here = {"cpu_model": "CPU B", "cpu_flags_fp": ["avx", "avx2", "sse"]}
-    report = check(stamps, shas, Current(CONFIG, CURRENT.code_hashes, VERSIONS, here))
+    report = check(stamps, shas, Current(CONFIG, CURRENT.code, VERSIONS, here))
     assert report.ok
     (warning,) = report.warnings
     assert warning.startswith("platform differs from this machine: cpu_model 'CPU A' (here")

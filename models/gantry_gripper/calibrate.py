@@ -17,7 +17,9 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, model_path
-from mjtrial.simulate import cube_height, iter_episode_batches, load_model
+from mjtrial.model_spec import ModelSpec
+from mjtrial.protocol import PROTOCOL
+from mjtrial.simulate import iter_episode_batches, load_model
 from mjtrial.states import generate_initial_states, states_from_table
 
 BANDS = (0.05, 0.23, 0.42, 0.6)
@@ -46,7 +48,7 @@ def variant(*, grip=None, friction=None, torsion=None, z_kp=None, timestep=None)
 def band_rates(model, states, lift_time: float) -> tuple[float, list[float]]:
     success = np.concatenate(
         [
-            cube_height(model, b.physics[:, -1]) > 0.2
+            b.physics[:, -1, ModelSpec.of(model).state_cube_z] > PROTOCOL.success_height
             for b in iter_episode_batches(model, states, lift_time=lift_time, nthread=2)
         ]
     )

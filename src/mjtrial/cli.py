@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from mjtrial import provenance, stats
+from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 
 
 def _provenance(args: argparse.Namespace) -> int:
@@ -85,13 +86,13 @@ def _verify(args: argparse.Namespace) -> int:
     from mjtrial.verify import load_checked_config, verify_results
 
     repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
-    config_path = Path(args.config) if args.config else repo_root / "config" / "config.yaml"
+    config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
     try:
         if args.results_dir:
             results_dir = Path(args.results_dir)
         else:
             config = load_checked_config(config_path, repo_root=repo_root)
-            results_dir = repo_root / "results" / config["experiment"]
+            results_dir = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR).root
         report = verify_results(results_dir, config_path=config_path, repo_root=repo_root)
     except (ConfigError, OSError, ValueError) as err:
         print(f"mjtrial verify: {err}", file=sys.stderr)

@@ -113,9 +113,7 @@ class ModelSpec:
         if model.body_jntnum[cube] != 1 or model.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_FREE:
             raise ModelError(f"{source}: body {CUBE!r}: expected exactly one free joint")
         if model.nu != N_CTRL:
-            raise ModelError(
-                f"{source}: expected {N_CTRL} actuators {ACTUATORS}, found {model.nu}"
-            )
+            raise ModelError(f"{source}: expected {N_CTRL} actuators {ACTUATORS}, found {model.nu}")
         for index, name in enumerate(ACTUATORS):
             if find(mujoco.mjtObj.mjOBJ_ACTUATOR, name) != index:
                 raise ModelError(
@@ -141,7 +139,7 @@ class ModelSpec:
             ):
                 raise ModelError(
                     f"{source}: sensor {name!r}: expected a contact sensor of geom "
-                    f"{model.geom(pad).name!r} with data=\"found force\" "
+                    f'{model.geom(pad).name!r} with data="found force" '
                     f"({CONTACT_SENSOR_DIM} values)"
                 )
             sensors.append(int(model.sensor_adr[sid]))

@@ -16,11 +16,19 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial import pipeline, provenance, taxonomy
+from mjtrial import provenance, taxonomy
 from mjtrial.config import load_config
+from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 from mjtrial.protocol import control_sequence
 from mjtrial.recording import read_episode, write_episode_recording
 from mjtrial.simulate import load_model
+from mjtrial.stages.rollout import (
+    ROLLOUT_COLUMNS,
+    condition_outcomes,
+    episode_records,
+    read_states,
+)
+from mjtrial.stages.stamping import config_slice, model_inputs
 
 __all__ = ["ReplayMismatch", "Replay", "read_episode", "replay_episode"]
 
@@ -68,14 +76,14 @@ def replay_episode(
       KeyError: unknown condition or state.
     """
     repo_root = Path.cwd() if repo_root is None else repo_root
-    config = load_config(config_path or repo_root / "config" / "config.yaml")
+    config = load_config(config_path or repo_root / CONFIG_FILE)
     if condition not in config["conditions"]:
         raise KeyError(f"condition {condition!r}: expected one of {sorted(config['conditions'])}")
-    results = repo_root / "results" / config["experiment"]
-    table_path = results / "rollouts" / f"{condition}.parquet"
+    layout = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR)
+    table_path = layout.rollout_table(condition)
     recorded = _recorded_row(table_path, state_id)
     recorded_stamp = provenance.read_stamp(table_path)
-    slice_ = pipeline.config_slice("rollout", config, condition=condition)
+    slice_ = config_slice("rollout", config, condition=condition)
     if provenance.config_hash(slice_) != recorded_stamp["config_slice_sha256"]:
         raise ReplayMismatch(
             f"{table_path}: recorded with a different config for {condition!r} than "
@@ -83,12 +91,12 @@ def replay_episode(
         )
 
     model = load_model(repo_root / config["model"])
-    states = [s for s in pipeline.read_states(results / "states.parquet") if s.state_id == state_id]
+    states = [s for s in read_states(layout.states) if s.state_id == state_id]
     if not states:
-        raise KeyError(f"{results / 'states.parquet'}: no state {state_id}")
+        raise KeyError(f"{layout.states}: no state {state_id}")
     lift_time = float(slice_["lift_time"])
     batch, outcome = next(
-        pipeline.condition_outcomes(
+        condition_outcomes(
             model,
             states,
             lift_time=lift_time,
@@ -96,21 +104,21 @@ def replay_episode(
             nthread=1,
         )
     )
-    replayed = {c: outcome[c][0] for c in pipeline.ROLLOUT_COLUMNS}
+    replayed = {c: outcome[c][0] for c in ROLLOUT_COLUMNS}
     replayed = {k: (v.item() if hasattr(v, "item") else v) for k, v in replayed.items()}
 
-    output = output or results / "replay" / f"{condition}_state{state_id}.rrd"
+    output = output or layout.replay(condition, state_id)
     stamp = provenance.make_stamp(
         rule="replay",
         config_slice=slice_,
         inputs={
-            "states": results / "states.parquet",
-            **pipeline.model_inputs(repo_root / config["model"]),
+            "states": layout.states,
+            **model_inputs(repo_root / config["model"]),
         },
         repo_dir=repo_root,
         extra={"replay_of": {"condition": condition, "state_id": state_id}},
     )
-    [episode] = pipeline.episode_records(batch, outcome)
+    [episode] = episode_records(batch, outcome)
     write_episode_recording(
         output,
         model=model,

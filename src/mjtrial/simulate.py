@@ -19,14 +19,15 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from mjtrial.model_spec import (
+    FULLPHYSICS,
+    ModelError,
+    ModelSpec,
+    halted,
+    nonfinite,
+    steps_simulated,
+)
 from mjtrial.protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, Protocol, control_sequence, hold_steps
-
-CUBE_BODY = "cube"
-N_ACTUATORS = 4
-FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
-# Layout of an mjSTATE_FULLPHYSICS vector: time, qpos, qvel, act, ...
-STATE_TIME = 0
-STATE_QPOS = 1
 
 
 @dataclass(frozen=True)
@@ -40,12 +41,8 @@ class InitialState:
     mass: float
 
 
-class ModelError(ValueError):
-    """The model file is missing, malformed, or lacks what the protocol needs."""
-
-
 def load_model(path: str | Path) -> mujoco.MjModel:
-    """Load and check a model for the protocol: a body named `cube` on a free joint, 4 actuators."""
+    """Load a model and check that it has every element the protocol needs (`ModelSpec`)."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found")
@@ -54,25 +51,8 @@ def load_model(path: str | Path) -> mujoco.MjModel:
     except ValueError as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else "compile error"
         raise ModelError(f"{path}: MuJoCo could not compile the model: {first}") from None
-    cube = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, CUBE_BODY)
-    if cube < 0:
-        raise ModelError(f"{path}: expected a body named {CUBE_BODY!r}, found none")
-    jnt = model.body_jntadr[cube]
-    if model.body_jntnum[cube] != 1 or model.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_FREE:
-        raise ModelError(f"{path}: body {CUBE_BODY!r}: expected exactly one free joint")
-    if model.nu != N_ACTUATORS:
-        raise ModelError(
-            f"{path}: expected {N_ACTUATORS} actuators (x, y, z, gripper), found {model.nu}"
-        )
-    if model.nkey < 1:
-        raise ModelError(f"{path}: expected a home keyframe (keyframe 0), found none")
+    ModelSpec.of(model, source=str(path))
     return model
-
-
-def cube_qpos_address(model: mujoco.MjModel) -> int:
-    """Index in qpos of the cube's free joint (position, then w-x-y-z quaternion)."""
-    cube = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, CUBE_BODY)
-    return int(model.jnt_qposadr[model.body_jntadr[cube]])
 
 
 def yaw_quaternion(yaw: float) -> np.ndarray:
@@ -89,8 +69,7 @@ def episode_model(
     `mj_setConst` only uses it as workspace.
     """
     episode = copy.copy(model)
-    cube = mujoco.mj_name2id(episode, mujoco.mjtObj.mjOBJ_BODY, CUBE_BODY)
-    episode.body_mass[cube] = mass
+    episode.body_mass[ModelSpec.of(model).cube_body] = mass
     mujoco.mj_setConst(episode, scratch if scratch is not None else mujoco.MjData(episode))
     return episode
 
@@ -108,7 +87,7 @@ def initial_physics_state(
     """
     data = scratch if scratch is not None else mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, 0)
-    adr = cube_qpos_address(model)
+    adr = ModelSpec.of(model).cube_qpos
     data.qpos[adr : adr + 3] = (protocol.home_x + state.dx, state.dy, protocol.cube_z)
     data.qpos[adr + 3 : adr + 7] = yaw_quaternion(state.yaw)
     out = np.empty(mujoco.mj_stateSize(model, FULLPHYSICS))
@@ -178,11 +157,11 @@ def reference_episode(
     d = mujoco.MjData(m)
     # 1. reset, set the cube's mass, recompute constants, place the cube.
     mujoco.mj_resetDataKeyframe(m, d, 0)
-    cube = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, CUBE_BODY)
-    m.body_mass[cube] = state.mass
+    spec = ModelSpec.of(m)
+    m.body_mass[spec.cube_body] = state.mass
     mujoco.mj_setConst(m, d)
     mujoco.mj_resetDataKeyframe(m, d, 0)
-    adr = m.jnt_qposadr[m.body_jntadr[cube]]
+    adr = spec.cube_qpos
     d.qpos[adr : adr + 3] = (p.home_x + state.dx, state.dy, p.cube_z)
     d.qpos[adr + 3 : adr + 7] = (np.cos(state.yaw / 2), 0, 0, np.sin(state.yaw / 2))
     d.ctrl[:] = (p.home_x, 0.0, p.z_up, p.gripper_open)
@@ -235,11 +214,6 @@ EPISODE_COLUMNS = (
 )
 
 
-def cube_height(model: mujoco.MjModel, physics: np.ndarray) -> np.ndarray:
-    """Cube centre height from mjSTATE_FULLPHYSICS vectors, shape (..., nstate) -> (...)."""
-    return physics[..., STATE_QPOS + cube_qpos_address(model) + 2]
-
-
 def warning_names(counters: np.ndarray) -> str:
     """MuJoCo warnings that fired, by name (e.g. "mjWARN_BADQACC"), comma-separated."""
     return ",".join(mujoco.mjtWarning(i).name for i, n in enumerate(counters) if n)
@@ -259,17 +233,12 @@ def episode_outcomes(
     and so costs nothing in a healthy experiment.
     """
     final = batch.physics[:, -1, :]
-    adr = STATE_QPOS + cube_qpos_address(model)
-    # A warning freezes the state (mujoco.rollout stops stepping), and a bad acceleration
-    # resets it first, so time is not a step counter: the first repeated time is the halt.
-    frozen = np.diff(batch.physics[:, :, STATE_TIME], axis=1) == 0
-    halted = frozen.any(axis=1)
-    steps = np.where(halted, frozen.argmax(axis=1) + 1, batch.physics.shape[1]).astype(np.int64)
-    nonfinite = ~np.isfinite(batch.physics).all(axis=(1, 2))
-    height = final[:, adr + 2]
-    success = (height > protocol.success_height) & ~halted & ~nonfinite
+    spec = ModelSpec.of(model)
+    stopped, broken = halted(batch.physics), nonfinite(batch.physics)
+    height = final[:, spec.state_cube_z]
+    success = (height > protocol.success_height) & ~stopped & ~broken
     warning = np.full(len(batch.states), "", dtype=object)
-    for i in np.flatnonzero(halted | nonfinite):
+    for i in np.flatnonzero(stopped | broken):
         _, counters = reference_episode(
             model, batch.states[i], lift_time=lift_time, protocol=protocol
         )
@@ -278,9 +247,9 @@ def episode_outcomes(
         "state_id": np.array([s.state_id for s in batch.states], dtype=np.int64),
         "success": success,
         "final_height": height,
-        "final_x": final[:, adr],
-        "final_y": final[:, adr + 1],
-        "steps_simulated": steps,
-        "nonfinite": nonfinite,
+        "final_x": final[:, spec.state_cube_position.start],
+        "final_y": final[:, spec.state_cube_position.start + 1],
+        "steps_simulated": steps_simulated(batch.physics),
+        "nonfinite": broken,
         "warning": warning,
     }

@@ -21,8 +21,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import mujoco
 import numpy as np
 
+from mjtrial.model_spec import ModelSpec, healthy
 from mjtrial.protocol import Phase
 
 
@@ -146,33 +148,22 @@ def classify(
 
 def trajectories_from_batch(model: Any, batch: Any, *, phase: np.ndarray, home_xy) -> Trajectories:
     """Read a batch of `mujoco.rollout` output (an `EpisodeBatch`) as `Trajectories`."""
-    import mujoco
-
-    from mjtrial.simulate import STATE_QPOS, STATE_TIME, cube_qpos_address
-
     physics, sensordata = batch.physics, batch.sensordata
-    cube = STATE_QPOS + cube_qpos_address(model)
-    z_joint = model.joint("gantry_z")
-    z_qpos = STATE_QPOS + int(z_joint.qposadr[0])
-    z_qvel = STATE_QPOS + model.nq + int(z_joint.dofadr[0])
+    spec = ModelSpec.of(model)
     # Pad centre height = carriage z joint + a constant offset, read off the compiled model.
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, 0)
     mujoco.mj_kinematics(model, data)
-    pad_offset = data.geom("left_pad").xpos[2] - data.qpos[z_joint.qposadr[0]]
-    found = [
-        int(model.sensor_adr[model.sensor(name).id]) for name in ("left_pad_cube", "right_pad_cube")
-    ]
-    frozen = np.diff(physics[:, :, STATE_TIME], axis=1) == 0
-    healthy = ~frozen.any(axis=1) & np.isfinite(physics).all(axis=(1, 2))
+    pad_offset = data.geom_xpos[spec.pad_geoms[0], 2] - data.qpos[spec.lift_qpos]
+    left, right = spec.pad_found
     return Trajectories(
-        cube_pos=physics[:, :, cube : cube + 3],
-        cube_quat=physics[:, :, cube + 3 : cube + 7],
-        pad_z=physics[:, :, z_qpos] + pad_offset,
-        carriage_vz=physics[:, :, z_qvel],
-        contacts=sensordata[:, :, found[0]] + sensordata[:, :, found[1]],
+        cube_pos=physics[:, :, spec.state_cube_position],
+        cube_quat=physics[:, :, spec.state_cube_quat],
+        pad_z=physics[:, :, spec.state_lift_z] + pad_offset,
+        carriage_vz=physics[:, :, spec.state_lift_vz],
+        contacts=sensordata[:, :, left] + sensordata[:, :, right],
         phase=phase,
         timestep=float(model.opt.timestep),
         home_xy=np.asarray(home_xy, dtype=float),
-        healthy=healthy,
+        healthy=healthy(physics),
     )

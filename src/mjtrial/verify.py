@@ -33,7 +33,10 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from mjtrial import pipeline, provenance
+from mjtrial import codehash, provenance
+from mjtrial.config import check_config, read_config_file
+from mjtrial.layout import STAGES, Layout
+from mjtrial.stages.stamping import config_slice, stage_code
 
 __all__ = [
     "STAMPED_SUFFIXES",
@@ -52,7 +55,7 @@ __all__ = [
 STAMPED_SUFFIXES = (".parquet", ".json", ".md", ".png", ".svg", ".rrd")
 
 # Pipeline order, for sorting the report.
-_STAGE_ORDER = ("states", "rollout", "failures", "analysis", "manifest", "report")
+_STAGE_ORDER = tuple(STAGES)
 
 # How many file names a reason lists before "and N more".
 _NAMES_SHOWN = 3
@@ -157,23 +160,23 @@ class Current:
     """What the stamps are checked against: the config, code, versions and machine of now."""
 
     config: Mapping[str, Any]
-    code_hashes: Mapping[str, str | None]
+    code: Mapping[str, Mapping[str, str] | None]  # per stage: `stamping.stage_code`
     versions: Mapping[str, str | None]
     platform: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
     def of_environment(cls, config: Mapping[str, Any]) -> Current:
-        """``config`` with the code hashes of the imported package, this environment's library
-        versions and this machine's platform fingerprint."""
-        hashes: dict[str, str | None] = {}
-        for stage in pipeline.STAGE_MODULES:
+        """``config`` with each stage's code as it is now, this environment's library versions
+        and this machine's platform fingerprint."""
+        code: dict[str, Mapping[str, str] | None] = {}
+        for stage in STAGES:
             try:
-                hashes[stage] = pipeline.stage_code_hash(stage)
-            except (ImportError, OSError, ValueError):
-                hashes[stage] = None
+                code[stage] = stage_code(stage)
+            except (ImportError, OSError, SyntaxError):
+                code[stage] = None
         return cls(
             config=config,
-            code_hashes=hashes,
+            code=code,
             versions=provenance.library_versions(),
             platform=provenance.platform_fingerprint(),
         )
@@ -189,7 +192,7 @@ def parse_rule(rule: Any) -> tuple[str, str | None] | None:
     if not isinstance(rule, str):
         return None
     stage, sep, qualifier = rule.partition(":")
-    if stage not in pipeline.STAGE_MODULES or (sep and not qualifier):
+    if stage not in STAGES or (sep and not qualifier):
         return None
     if stage == "rollout" and not qualifier:
         return None
@@ -357,20 +360,6 @@ def _consistency_warnings(
     return warnings
 
 
-def _current_slice(stage: str, config: Mapping[str, Any], condition: str | None) -> Any:
-    """The config slice a stage would get now (`pipeline.config_slice`).
-
-    The failures stage depends on no config (`pipeline.gather_failures` stamps ``{}``) and
-    `config_slice` does not know it.
-    """
-    try:
-        return pipeline.config_slice(stage, config, condition=condition)
-    except ValueError:
-        if stage == "failures":
-            return {}
-        raise
-
-
 def _topological(upstream: Mapping[str, set[str]], nodes: Iterable[str]) -> list[str]:
     """``nodes`` ordered so that each comes after its upstream nodes (cycles: any order)."""
     members = set(nodes)
@@ -471,7 +460,7 @@ def check_stamps(
 
         # Config slice.
         try:
-            now = _current_slice(stage, current.config, condition)
+            now = config_slice(stage, current.config, condition=condition)
         except (KeyError, TypeError) as err:
             gone = f"condition {condition!r} is not in the config" if condition else repr(err)
             stale[path].append(f"config slice changed: {rule}: {gone}")
@@ -482,17 +471,16 @@ def check_stamps(
                 detail = f" ({', '.join(diff[:3])}{more})" if diff else ""
                 stale[path].append(f"config slice changed: {rule}{detail}")
 
-        # Code.
+        # Code: the stage's script and every package module it imports, each by its sha256.
         extra = stamp.get("extra")
-        code = extra.get("code_sha256") if isinstance(extra, Mapping) else None
-        code_now = current.code_hashes.get(stage)
-        modules = ", ".join(pipeline.STAGE_MODULES[stage])
-        if code is None:
-            stale[path].append(f"no code hash recorded (stage {stage}: {modules})")
+        code = extra.get("code") if isinstance(extra, Mapping) else None
+        code_now = current.code.get(stage)
+        if not isinstance(code, Mapping):
+            stale[path].append(f"no code record in its stamp (stage {stage})")
         elif code_now is None:
-            stale[path].append(f"code hash unavailable now (stage {stage}: {modules})")
-        elif code != code_now:
-            stale[path].append(f"code changed: stage {stage} ({modules})")
+            stale[path].append(f"code of stage {stage} cannot be read now")
+        elif changed := codehash.changed_code(code, code_now):
+            stale[path].append(f"code changed: {_names(changed, '')}")
 
         # Library versions against this environment.
         versions = stamp.get("versions")
@@ -608,13 +596,8 @@ def check_stamps(
 
 def load_checked_config(config_path: Path, *, repo_root: Path) -> dict[str, Any]:
     """Read and check the config as the Snakefile does, the model resolved in ``repo_root``."""
-    from mjtrial import config as config_module
-
-    reader = getattr(config_module, "read_config_file", None)
-    if reader is None:  # pragma: no cover - older config module
-        return config_module.load_config(config_path)
-    config = reader(config_path)
-    config_module.check_config(config, source=str(config_path), repo_root=repo_root)
+    config = read_config_file(config_path)
+    check_config(config, source=str(config_path), repo_root=repo_root)
     return config
 
 
@@ -687,7 +670,7 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
             if file.exists():
                 unreadable[rel] = _why_unreadable(err, file)
 
-    manifest_file = results_dir / "manifest.json"
+    manifest_file = Layout(results_dir).manifest
     manifest: dict[str, Any] | None = None
     try:
         loaded = json.loads(manifest_file.read_text(encoding="utf-8"))

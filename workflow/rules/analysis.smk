@@ -1,20 +1,16 @@
 rule analysis:
     input:
-        states=RESULTS / "states.parquet",
-        rollouts=expand(
-            RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS
-        ),
-        nominals=expand(
-            RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS
-        ),
+        states=LAYOUT.states,
+        rollouts=per_condition(LAYOUT.rollout_table),
+        nominals=per_condition(LAYOUT.nominal_episode),
     output:
         summary=report(
-            RESULTS / "analysis" / "summary.json",
+            LAYOUT.summary,
             caption="../report/summary.rst",
             category="Results",
         ),
     log:
-        RESULTS / "logs" / "analysis.log",
+        LAYOUT.log("analysis"),
     params:
         slice=config_slice("analysis", config),
         code=stage_code_hash("analysis"),

@@ -1,14 +1,12 @@
 rule failures:
     input:
-        recordings=expand(RESULTS / "rollouts" / "{condition}", condition=CONDITIONS),
+        recordings=per_condition(LAYOUT.recordings),
         # which episodes failed, so that only their recordings are opened
-        tables=expand(
-            RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS
-        ),
+        tables=per_condition(LAYOUT.rollout_table),
     output:
-        failures=RESULTS / "replay" / "failures.rrd",
+        failures=LAYOUT.failures,
     log:
-        RESULTS / "logs" / "failures.log",
+        LAYOUT.log("failures"),
     params:
         code=stage_code_hash("failures"),
     script:

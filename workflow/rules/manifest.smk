@@ -1,24 +1,20 @@
 rule manifest:
     input:
-        states=RESULTS / "states.parquet",
-        rollouts=expand(
-            RESULTS / "rollouts" / "{condition}.parquet", condition=CONDITIONS
-        ),
-        nominals=expand(
-            RESULTS / "rollouts" / "{condition}.nominal.json", condition=CONDITIONS
-        ),
-        recordings=expand(RESULTS / "rollouts" / "{condition}", condition=CONDITIONS),
-        failures=RESULTS / "replay" / "failures.rrd",
-        summary=RESULTS / "analysis" / "summary.json",
+        states=LAYOUT.states,
+        rollouts=per_condition(LAYOUT.rollout_table),
+        nominals=per_condition(LAYOUT.nominal_episode),
+        recordings=per_condition(LAYOUT.recordings),
+        failures=LAYOUT.failures,
+        summary=LAYOUT.summary,
         model=config["model"],
     output:
         manifest=report(
-            RESULTS / "manifest.json",
+            LAYOUT.manifest,
             caption="../report/manifest.rst",
             category="Provenance",
         ),
     log:
-        RESULTS / "logs" / "manifest.log",
+        LAYOUT.log("manifest"),
     params:
         # The manifest records the whole config, so it depends on all of it.
         slice=config_slice("manifest", config),

@@ -1,24 +1,24 @@
 rule rollout:
     input:
-        states=RESULTS / "states.parquet",
+        states=LAYOUT.states,
         model=config["model"],
     output:
         table=report(
-            RESULTS / "rollouts" / "{condition}.parquet",
+            LAYOUT.rollout_table("{condition}"),
             caption="../report/rollout_table.rst",
             category="Tables",
         ),
-        nominal=RESULTS / "rollouts" / "{condition}.nominal.json",
+        nominal=LAYOUT.nominal_episode("{condition}"),
         # one .rrd per episode and the folder's blueprint.rbl: `rerun <folder>/*` opens them
-        recording=directory(RESULTS / "rollouts" / "{condition}"),
+        recording=directory(LAYOUT.recordings("{condition}")),
     log:
-        RESULTS / "logs" / "rollout_{condition}.log",
+        LAYOUT.log("rollout_{condition}"),
     wildcard_constraints:
         condition="|".join(CONDITIONS),
     threads: 2
     params:
         slice=rollout_slice,
-        model_sha256=model_sha256,
+        model_sha256=model_content,
         code=stage_code_hash("rollout"),
     script:
         "../scripts/rollout.py"

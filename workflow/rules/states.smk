@@ -1,8 +1,8 @@
 rule states:
     output:
-        states=RESULTS / "states.parquet",
+        states=LAYOUT.states,
     log:
-        RESULTS / "logs" / "states.log",
+        LAYOUT.log("states"),
     params:
         slice=config_slice("states", config),
         development=False,
@@ -14,9 +14,9 @@ rule states:
 # Tuning states only, never reported: `snakemake -c2 dev`.
 rule development_states:
     output:
-        states=RESULTS / "development" / "states.parquet",
+        states=LAYOUT.development_states,
     log:
-        RESULTS / "logs" / "development_states.log",
+        LAYOUT.log("development_states"),
     params:
         slice=config_slice("states", config),
         development=True,
@@ -27,4 +27,4 @@ rule development_states:
 
 rule dev:
     input:
-        RESULTS / "development" / "states.parquet",
+        LAYOUT.development_states,

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from mjtrial.pipeline import run_analysis
+from mjtrial.stages.analysis import run_analysis
 from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from mjtrial.pipeline import gather_failures
+from mjtrial.stages.failures import gather_failures
 from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]

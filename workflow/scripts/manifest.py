@@ -1,8 +1,8 @@
-"""Snakemake adapter: write the reproducibility record (mjtrial.pipeline.write_manifest)."""
+"""Snakemake adapter: write the reproducibility record (mjtrial.stages.manifest.write_manifest)."""
 
 from pathlib import Path
 
-from mjtrial.pipeline import write_manifest
+from mjtrial.stages.manifest import write_manifest
 from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]

@@ -1,8 +1,8 @@
-"""Snakemake adapter: figures and report.md (mjtrial.pipeline.write_report_stage)."""
+"""Snakemake adapter: figures and report.md (mjtrial.stages.report.write_report_stage)."""
 
 from pathlib import Path
 
-from mjtrial.pipeline import write_report_stage
+from mjtrial.stages.report import write_report_stage
 from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]

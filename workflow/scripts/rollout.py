@@ -1,8 +1,8 @@
-"""Snakemake adapter: roll out one condition (mjtrial.pipeline.run_condition)."""
+"""Snakemake adapter: roll out one condition (mjtrial.stages.rollout.run_condition)."""
 
 from pathlib import Path
 
-from mjtrial.pipeline import run_condition
+from mjtrial.stages.rollout import run_condition
 from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]

@@ -1,8 +1,8 @@
-"""Snakemake adapter: draw the initial states (mjtrial.pipeline.build_states)."""
+"""Snakemake adapter: draw the initial states (mjtrial.stages.states.build_states)."""
 
 from pathlib import Path
 
-from mjtrial.pipeline import build_states
+from mjtrial.stages.states import build_states
 from mjtrial.workflow_script import setup_logging
 
 snakemake = globals()["snakemake"]

@@ -1,0 +1,145 @@
+"""Every path under `results/<experiment>/`, and the pipeline's stages: the one place for both.
+
+The Snakemake rules, `mjtrial verify`, `mjtrial replay`, the CLI, the report and the benchmarks
+all take paths from a `Layout`. Each path method also accepts Snakemake wildcards as arguments
+(`layout.rollout_table("{condition}")`), so the rules spell no path of their own.
+
+The unit of rollout work is an episode group: a (variant, condition, shard). Today there is one
+variant, `NOMINAL` (the model as committed), and one shard per condition, so a group is a
+condition and its files sit directly under `rollouts/`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+RESULTS_DIR = "results"
+CONFIG_FILE = "config/config.yaml"  # the design, relative to the repository root
+NOMINAL = "nominal"  # the variant that is the model as committed
+
+# The report's figures, each written as .png and .svg under figures/.
+FIGURES = (
+    "success_by_condition",
+    "success_by_mass",
+    "paired_outcomes",
+    "failure_categories",
+    "cube_height",
+)
+FIGURE_FORMATS = ("png", "svg")
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A pipeline stage: its workflow script (`workflow/scripts/<script>.py`) and rule names.
+
+    `rules` are the Snakemake rules that run the script; a stamp's rule is the stage's name,
+    or `<stage>:<qualifier>` (`rollout:fast`, `states:development`).
+    """
+
+    name: str
+    script: str
+
+    @property
+    def script_path(self) -> str:
+        """The script's path relative to the repository root."""
+        return f"workflow/scripts/{self.script}.py"
+
+
+# In pipeline order.
+STAGES: dict[str, Stage] = {
+    s.name: s
+    for s in (
+        Stage("states", "states"),
+        Stage("rollout", "rollout"),
+        Stage("failures", "failures"),
+        Stage("analysis", "analysis"),
+        Stage("manifest", "manifest"),
+        Stage("report", "report"),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The files of one experiment's results folder, `root` (`results/<experiment>`)."""
+
+    root: Path
+
+    @classmethod
+    def of(cls, experiment: str, *, base: Path | str = RESULTS_DIR) -> Layout:
+        """The layout of `experiment` under `base` (relative paths stay relative)."""
+        return cls(Path(base) / experiment)
+
+    # -- states ---------------------------------------------------------------------------
+    @property
+    def states(self) -> Path:
+        """The evaluation states: `state_id, dx, dy, yaw, mass`."""
+        return self.root / "states.parquet"
+
+    @property
+    def development_states(self) -> Path:
+        """The tuning states, never reported."""
+        return self.root / "development" / "states.parquet"
+
+    # -- rollouts -------------------------------------------------------------------------
+    def rollouts_dir(self, variant: str = NOMINAL) -> Path:
+        if variant == NOMINAL:
+            return self.root / "rollouts"
+        return self.root / "variants" / variant / "rollouts"
+
+    def rollout_table(self, condition: str, variant: str = NOMINAL) -> Path:
+        """One row per episode of `condition` (`mjtrial.stages.rollout.ROLLOUT_COLUMNS`)."""
+        return self.rollouts_dir(variant) / f"{condition}.parquet"
+
+    def nominal_episode(self, condition: str, variant: str = NOMINAL) -> Path:
+        """The nominal state's episode (no offset, no yaw, mass as compiled)."""
+        return self.rollouts_dir(variant) / f"{condition}.nominal.json"
+
+    def recordings(self, condition: str, variant: str = NOMINAL) -> Path:
+        """The folder of `condition`'s Rerun recordings, one .rrd per episode."""
+        return self.rollouts_dir(variant) / condition
+
+    # -- downstream -----------------------------------------------------------------------
+    @property
+    def failures(self) -> Path:
+        """Every failed episode's recording, gathered for the viewer."""
+        return self.root / "replay" / "failures.rrd"
+
+    def replay(self, condition: str, state_id: int) -> Path:
+        """Where `mjtrial replay` writes one re-simulated episode by default."""
+        return self.root / "replay" / f"{condition}_state{state_id}.rrd"
+
+    @property
+    def summary(self) -> Path:
+        return self.root / "analysis" / "summary.json"
+
+    @property
+    def manifest(self) -> Path:
+        return self.root / "manifest.json"
+
+    @property
+    def report(self) -> Path:
+        return self.root / "report.md"
+
+    @property
+    def figures_dir(self) -> Path:
+        return self.root / "figures"
+
+    def figure(self, name: str, fmt: str) -> Path:
+        return self.figures_dir / f"{name}.{fmt}"
+
+    def log(self, job: str) -> Path:
+        """The log of one job: `rollout_fast`, `analysis`, ..."""
+        return self.root / "logs" / f"{job}.log"
+
+    # -- sets of outputs ------------------------------------------------------------------
+    def rollout_outputs(self, conditions: list[str]) -> list[Path]:
+        """Every rollout output of the built-in experiment's conditions."""
+        out: list[Path] = []
+        for c in conditions:
+            out += [self.rollout_table(c), self.nominal_episode(c), self.recordings(c)]
+        return out
+
+    def figure_files(self) -> list[Path]:
+        return [self.figure(name, fmt) for name in FIGURES for fmt in FIGURE_FORMATS]

@@ -1,0 +1,92 @@
+"""The manifest stage: the reproducibility record and the stamp of every output."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+
+from mjtrial import REPO_ROOT, provenance
+from mjtrial.protocol import PROTOCOL
+from mjtrial.simulate import load_model
+from mjtrial.stages.stamping import make_stage_stamp
+
+log = logging.getLogger("mjtrial")
+
+
+def write_manifest(
+    *,
+    config: Mapping[str, Any],
+    summary_path: Path,
+    outputs: Sequence[Path],
+    model_file: Path,
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """Gather the reproducibility record and the stamp of every output into `manifest.json`."""
+    model = load_model(model_file)
+    summary = json.loads(Path(summary_path).read_text())
+
+    def rel(path: Path) -> str:
+        path = Path(path).resolve()
+        try:
+            return path.relative_to(repo_root.resolve()).as_posix()
+        except ValueError:
+            return path.name
+
+    stamps = {rel(p): provenance.read_stamp(p) for p in [*outputs, summary_path]}
+    manifest = {
+        "experiment": config["experiment"],
+        "design": config["design"],
+        "rerun": {
+            "command": "snakemake -c2",
+            "config": dict(config),
+            "commit": next(iter(stamps.values()))["git"].get("commit"),
+        },
+        "versions": provenance.library_versions(),
+        "model": {
+            "path": config["model"],
+            "sha256": provenance.model_sha256(model_file),
+            "files": {
+                p.relative_to(model_file.parent).as_posix(): provenance.file_sha256(p)
+                for p in provenance.model_files(model_file)
+            },
+            "timestep": model.opt.timestep,
+            "integrator": mujoco.mjtIntegrator(model.opt.integrator).name,
+            "cone": mujoco.mjtCone(model.opt.cone).name,
+            "impratio": model.opt.impratio,
+        },
+        "seeds": {
+            "states": config["states"]["seed"],
+            "development": config["states"]["development_seed"],
+            "bootstrap": config["analysis"]["seed"],
+        },
+        "n_states": config["states"]["n"],
+        "randomization_ranges": config["states"]["ranges"],
+        "success_definition": {
+            "cube_height_above_m": PROTOCOL.success_height,
+            "judged": f"at the end of the {PROTOCOL.hold_time:g} s hold after the lift",
+        },
+        "results": {
+            "conditions": {
+                name: {"successes": rec["successes"], "n": rec["n"], "rate": rec["rate"]}
+                for name, rec in summary["conditions"].items()
+            },
+            "paired_difference": summary["paired_difference"],
+            "falsifier": summary["falsifier"],
+        },
+        "stamps": stamps,
+    }
+    stamp = make_stage_stamp(
+        "manifest",
+        dict(config),
+        {rel(p): p for p in [*outputs, summary_path]},
+        repo_root=repo_root,
+    )
+    provenance.write_json(manifest, output, stamp)
+    log.info("manifest -> %s", output)
+    return manifest

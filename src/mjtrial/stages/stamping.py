@@ -1,0 +1,79 @@
+"""What every stage shares: its config slice, its code record and its outputs' stamp."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from mjtrial import REPO_ROOT, codehash, provenance
+from mjtrial.layout import STAGES
+
+
+def config_slice(
+    stage: str, config: Mapping[str, Any], *, condition: str | None = None
+) -> dict[str, Any]:
+    """The part of the config a stage depends on: its rule's params and its stamp's record.
+
+    Changing a value outside a stage's slice never reruns that stage. The failures stage
+    depends on no config value.
+    """
+    if stage == "states":
+        return dict(config["states"])
+    if stage == "rollout":
+        return {
+            "condition": condition,
+            **config["conditions"][condition],
+            "failure_taxonomy": dict(config["failure_taxonomy"]),
+            "recording": dict(config["recording"]),
+        }
+    if stage == "analysis":
+        return {
+            "conditions": dict(config["conditions"]),
+            "falsifier": dict(config["design"]["falsifier"]),
+            "sample_size": dict(config["design"]["sample_size"]),
+            "analysis": dict(config["analysis"]),
+        }
+    if stage == "failures":
+        return {}
+    if stage in ("manifest", "report"):
+        return dict(config)
+    raise ValueError(f"stage: expected one of {list(STAGES)}, got {stage!r}")
+
+
+@cache
+def stage_code(stage: str) -> dict[str, str]:
+    """sha256 of the stage's workflow script and of every package module it runs, by name."""
+    return codehash.script_code(STAGES[stage].script_path, repo_root=REPO_ROOT)
+
+
+def stage_code_hash(stage: str) -> str:
+    """One digest of `stage_code(stage)`: a rule's `code` param."""
+    return codehash.code_digest(stage_code(stage))
+
+
+def model_inputs(model_file: Path) -> dict[str, Any]:
+    """A stamp's record of the model: the scene, and the other files it is built from."""
+    scene, *included = provenance.model_files(model_file)
+    return {"model": scene, "model_files": included}
+
+
+def make_stage_stamp(
+    rule: str,
+    config_slice: Any,
+    inputs: Mapping[str, Any],
+    *,
+    seeds: Mapping[str, int] | None = None,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`."""
+    stage = rule.split(":")[0]
+    return provenance.make_stamp(
+        rule=rule,
+        config_slice=config_slice,
+        inputs=inputs,
+        seeds=seeds,
+        repo_dir=repo_root,
+        extra={"code_sha256": stage_code_hash(stage), "code": stage_code(stage)},
+    )
