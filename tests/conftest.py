@@ -56,11 +56,17 @@ def edit_config(workdir: Path, edit) -> None:
     path.write_text(yaml.safe_dump(config, sort_keys=False))
 
 
-def run_snakemake(workdir: Path, *args: str, check: bool = True):
+def run_snakemake(workdir: Path, *args: str, check: bool = True, env: dict | None = None):
+    """Run Snakemake in `workdir`; `env` adds environment variables (e.g. PYTHONPATH)."""
     import subprocess
 
     proc = subprocess.run(
-        [SNAKEMAKE, "-c2", *args], cwd=workdir, capture_output=True, text=True, timeout=600
+        [SNAKEMAKE, "-c2", *args],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=None if env is None else os.environ | env,
     )
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake {args} failed:\n{proc.stdout}\n{proc.stderr}")

@@ -20,9 +20,9 @@ from conftest import run_snakemake as run
 from mjtrial import provenance
 
 
-def planned_jobs(workdir: Path) -> dict[str, int]:
+def planned_jobs(workdir: Path, env: dict | None = None) -> dict[str, int]:
     """Rules and job counts that a dry run would execute, from Snakemake's job stats table."""
-    out = run(workdir, "-n").stdout
+    out = run(workdir, "-n", env=env).stdout
     if "Nothing to be done" in out:
         return {}
     table = out.split("Job stats:")[1]

@@ -1,0 +1,177 @@
+"""A stage's code is its script plus the package modules it imports, found from the source.
+
+Unit tests of the import reading on hand-written sources; the closure against what Python
+itself imports; and, end to end on a copy of the repository with its own package source, that
+`touch` reruns nothing while an edit to one module reruns exactly the stages that import it
+(and what depends on their outputs), with `mjtrial verify` naming that module.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import REPO_ROOT
+from test_pipeline import planned_jobs
+
+from mjtrial import codehash
+from mjtrial.layout import STAGES
+from mjtrial.stages.stamping import stage_code
+
+
+def test_imports_are_read_wherever_they_stand():
+    source = """
+import os
+import mjtrial.stats
+from mjtrial import layout, REPO_ROOT
+from mjtrial.stages.rollout import run_condition
+import numpy as np
+
+def later():
+    from mjtrial.taxonomy import classify
+    import mjtrial.recording as rec
+"""
+    assert codehash.imported_modules(source) == {
+        "mjtrial.stats",
+        "mjtrial.layout",
+        "mjtrial",  # REPO_ROOT is a name in the package, not a module
+        "mjtrial.stages.rollout",
+        "mjtrial.taxonomy",
+        "mjtrial.recording",
+    }
+
+
+def test_relative_imports_resolve_against_the_importing_module():
+    source = "from . import stamping\nfrom ..simulate import load_model\nfrom .rollout import x\n"
+    assert codehash.imported_modules(source, module="mjtrial.stages.failures") == {
+        "mjtrial.stages.stamping",
+        "mjtrial.simulate",
+        "mjtrial.stages.rollout",
+    }
+    # In a package's __init__, "." is the package itself.
+    assert codehash.imported_modules("from .rollout import x", module="mjtrial.stages") == {
+        "mjtrial.stages.rollout"
+    }
+
+
+def test_unknown_module_is_an_error():
+    with pytest.raises(ModuleNotFoundError, match="mjtrial.no_such_module"):
+        codehash.module_closure({"mjtrial.no_such_module"})
+
+
+def _runtime_imports(modules: list[str]) -> set[str]:
+    """The mjtrial modules a fresh interpreter holds after importing `modules`."""
+    code = (
+        "import importlib, json, sys\n"
+        f"for m in {modules!r}: importlib.import_module(m)\n"
+        "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] == 'mjtrial')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    ).stdout
+    return set(json.loads(out))
+
+
+@pytest.mark.parametrize("stage", list(STAGES))
+def test_closure_holds_everything_python_imports_for_the_stage(stage):
+    code = stage_code(stage)
+    script = STAGES[stage].script_path
+    assert script in code
+    top = sorted(codehash.imported_modules((REPO_ROOT / script).read_text()))
+    # The closure may hold more (imports inside functions), never less.
+    assert _runtime_imports(top) <= set(code) - {script}
+
+
+def test_digest_changes_with_any_file_and_names_it():
+    code = stage_code("analysis")
+    edited = {**code, "mjtrial.stats": "0" * 64}
+    assert codehash.code_digest(edited) != codehash.code_digest(code)
+    assert codehash.changed_code(code, edited) == ["mjtrial.stats"]
+    assert codehash.changed_code(code, {**code, "mjtrial.extra": "1"}) == ["mjtrial.extra"]
+
+
+# --------------------------------------------------------------------------------------------
+# End to end: a copy of the repository whose package is the copy's own source
+# --------------------------------------------------------------------------------------------
+
+# Rules whose inputs come from each stage, directly or not (workflow/rules/*.smk).
+DOWNSTREAM = {
+    "states": {"rollout", "failures", "analysis", "manifest", "report"},
+    "rollout": {"failures", "analysis", "manifest", "report"},
+    "failures": {"manifest", "report"},
+    "analysis": {"manifest", "report"},
+    "manifest": {"report"},
+    "report": set(),
+}
+
+
+@pytest.fixture
+def own_package(built, tmp_path) -> tuple[Path, dict[str, str]]:
+    """A copy of the built experiment with a copy of `src/`, and the env that imports it."""
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    shutil.copytree(REPO_ROOT / "src", workdir / "src", ignore=shutil.ignore_patterns("*.pyc"))
+    return workdir, {"PYTHONPATH": str(workdir / "src")}
+
+
+def test_touching_every_file_reruns_nothing(own_package):
+    workdir, env = own_package
+    for path in workdir.rglob("*"):
+        if path.is_file() and ".snakemake" not in path.parts:
+            path.touch()
+    assert planned_jobs(workdir, env=env) == {}
+
+
+def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(own_package):
+    workdir, env = own_package
+    module = "mjtrial.stats"
+    importing = {
+        stage
+        for stage in STAGES
+        if module in _runtime_imports([f"mjtrial.stages.{STAGES[stage].script}"])
+    }
+    assert importing, f"no stage imports {module}: pick another module for this test"
+    with open(workdir / "src" / "mjtrial" / "stats.py", "a") as f:
+        f.write("\n# an edit\n")
+
+    expected = importing | {d for s in importing for d in DOWNSTREAM[s]}
+    jobs = planned_jobs(workdir, env=env)
+    assert set(jobs) - {"all"} == expected
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "mjtrial.cli", "verify", "--repo-root", str(workdir)],
+        capture_output=True,
+        text=True,
+        env=os.environ | env,
+        timeout=300,
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("stale")]
+    named = {line.split()[1] for line in lines if f"code changed: {module}" in line}
+    assert proc.returncode != 0 and named
+    # Every output of an importing stage, and only those, names the module.
+    for line in proc.stdout.splitlines():
+        path = line.split()[1] if line.startswith(("ok", "stale")) else None
+        if path is None:
+            continue
+        assert (path in named) == (_stage_of(path) in importing), line
+
+
+def _stage_of(path: str) -> str:
+    """The stage that writes a results path of the built-in experiment."""
+    rel = path.split("research_mode/", 1)[1]
+    if rel.startswith("rollouts/"):
+        return "rollout"
+    if rel.startswith("replay/"):
+        return "failures"
+    if rel.startswith("analysis/"):
+        return "analysis"
+    if rel == "manifest.json":
+        return "manifest"
+    if rel == "states.parquet":
+        return "states"
+    return "report"
