@@ -6,8 +6,10 @@ rule report:
         rollouts=per_condition(LAYOUT.rollout_table),
         model=config["model"],
     output:
-        report=report(LAYOUT.report, caption="../report/report_md.rst", category="Report"),
         **figure_outputs(),
+        report=report(
+            LAYOUT.report, caption="../report/report_md.rst", category="Report"
+        ),
     log:
         LAYOUT.log("report"),
     params:
