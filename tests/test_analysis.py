@@ -1,10 +1,12 @@
-"""The summary against naive recomputation and scipy, on outcomes built by hand."""
+"""The summary against naive recomputation and closed forms, on outcomes built by hand."""
 
 from __future__ import annotations
 
+import math
+from statistics import NormalDist
+
 import numpy as np
 import pytest
-from scipy import stats as sps
 
 from mjtrial.analysis import band_index, band_labels, format_table, judge_falsifier, summarize
 
@@ -63,18 +65,31 @@ def _summary(states, outcomes, **over):
     )
 
 
-def test_rates_and_wilson_match_scipy():
+def wilson_reference(k: int, n: int, confidence: float) -> tuple[float, float]:
+    """Wilson's closed form: (k + z^2/2 +- z sqrt(k(n-k)/n + z^2/4)) / (n + z^2)."""
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
+    centre, root = k + z * z / 2, z * math.sqrt(k * (n - k) / n + z * z / 4)
+    return (centre - root) / (n + z * z), (centre + root) / (n + z * z)
+
+
+def mcnemar_reference(only_a: int, only_b: int) -> float:
+    """Exact two-sided McNemar p-value: twice the smaller binomial(n, 1/2) tail, at most 1."""
+    n, k = only_a + only_b, min(only_a, only_b)
+    return min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2**n)
+
+
+def test_rates_and_wilson_match_closed_form():
     states, outcomes, fast, slow = _experiment()
     summary = _summary(states, outcomes)
     for name, truth in (("fast", fast), ("slow", slow)):
         rec = summary["conditions"][name]
         assert rec["successes"] == int(truth.sum()) and rec["n"] == truth.size
-        ci = sps.binomtest(int(truth.sum()), truth.size).proportion_ci(0.95, method="wilson")
-        assert rec["wilson_low"] == pytest.approx(ci.low, abs=1e-12)
-        assert rec["wilson_high"] == pytest.approx(ci.high, abs=1e-12)
+        low, high = wilson_reference(int(truth.sum()), truth.size, 0.95)
+        assert rec["wilson_low"] == pytest.approx(low, abs=1e-12)
+        assert rec["wilson_high"] == pytest.approx(high, abs=1e-12)
 
 
-def test_paired_counts_and_mcnemar_match_naive_loop_and_scipy():
+def test_paired_counts_and_mcnemar_match_naive_loop_and_exact_sum():
     states, outcomes, fast, slow = _experiment()
     summary = _summary(states, outcomes)
     only_slow = sum(1 for f, s in zip(fast, slow, strict=True) if s and not f)
@@ -86,8 +101,8 @@ def test_paired_counts_and_mcnemar_match_naive_loop_and_scipy():
         "only_fast": only_fast,
         "neither": len(fast) - both - only_slow - only_fast,
     }
-    p = sps.binomtest(min(only_slow, only_fast), only_slow + only_fast, 0.5).pvalue
-    assert summary["mcnemar"]["p_value"] == pytest.approx(p, rel=1e-9)
+    p = mcnemar_reference(only_slow, only_fast)
+    assert summary["mcnemar"]["p_value"] == pytest.approx(p, rel=1e-12)
     paired = summary["paired_difference"]
     assert paired["estimate"] == pytest.approx((only_slow - only_fast) / len(fast))
     assert paired["low"] < paired["estimate"] < paired["high"]

@@ -6,12 +6,14 @@ the result; the printed table is rendered from the same summary, so the two cann
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from mjtrial import stats
+from mjtrial.taxonomy import FailureCategory
 
 VERDICT_SURVIVES = "survives"
 VERDICT_REFUTED = "refuted"
@@ -77,10 +79,13 @@ def band_table(
 
 
 def failure_counts(categories: np.ndarray) -> dict[str, int]:
-    """Failed episodes per category, in the taxonomy's order (zeros included)."""
-    from mjtrial.taxonomy import FailureCategory
+    """Failed episodes per category, in the taxonomy's order (zeros included).
 
-    return {c.value: int(sum(1 for x in categories if x == c.value)) for c in FailureCategory}
+    Args:
+      categories: each episode's category name, or None for a success; shape (n,).
+    """
+    counts = Counter(categories)
+    return {c.value: counts[c.value] for c in FailureCategory}
 
 
 def judge_falsifier(falsifier: Mapping[str, Any], paired: Mapping[str, float]) -> dict[str, Any]:

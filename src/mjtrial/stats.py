@@ -6,9 +6,9 @@ failure of a lift for each, so the natural data are two aligned 0/1 arrays of sh
 calculations used to plan and report such an experiment.
 
 Everything here is pure: no I/O, no global state, and randomness only through
-``np.random.default_rng(seed)`` so that every interval is reproducible from its seed. Only numpy
-and the standard library are used at runtime (normal quantiles come from
-``statistics.NormalDist``, binomial tails from exact integer arithmetic or log space).
+``np.random.default_rng(seed)`` so that every interval is reproducible from its seed. The Wilson
+interval and the exact McNemar p-value come from ``scipy.stats.binomtest``; the percentile
+bootstrap is written out here because its documented draws define the published intervals.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from fractions import Fraction
 from numbers import Integral, Real
 from statistics import NormalDist
 from typing import Any, overload
@@ -46,10 +45,6 @@ MCNEMAR_METHOD = "exact McNemar (two-sided binomial)"
 # Upper bound on the number of elements in one block of bootstrap resamples (index array and
 # gathered values each hold this many elements), so memory stays bounded (~64 MB) for large n.
 _MAX_BLOCK_ELEMENTS = 1 << 22
-
-# Up to this many discordant pairs the McNemar tail is summed with exact integers (at most a few
-# tens of milliseconds); above it a log-space recurrence is used.
-_EXACT_MAX_DISCORDANT = 20_000
 
 # Relative tolerance under which a computed sample size is treated as the integer it is
 # mathematically equal to, so floating-point noise cannot bump e.g. 100.00000000000001 to 101.
@@ -146,24 +141,20 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
         confidence: Two-sided confidence level in (0, 1).
 
     Returns:
-        ``(low, high)``, clipped to [0, 1]; ``low`` is exactly 0 when ``successes == 0`` and
-        ``high`` exactly 1 when ``successes == n``.
+        ``(low, high)`` within [0, 1]; ``low`` is exactly 0 when ``successes == 0`` and ``high``
+        exactly 1 when ``successes == n``.
     """
     n = _check_int("n", n, minimum=1)
     successes = _check_int("successes", successes, minimum=0)
     if successes > n:
         raise ValueError(f"successes must be <= n ({n}), got {successes}")
     confidence = _check_open_unit("confidence", confidence)
+    # Imported here: scipy.stats takes about a second to import, and the CLI's sample-size
+    # commands import this module without needing it.
+    from scipy.stats import binomtest
 
-    z = _z_two_sided(confidence)
-    p_hat = successes / n
-    z2_n = z * z / n
-    denom = 1.0 + z2_n
-    centre = (p_hat + z2_n / 2.0) / denom
-    half = (z / denom) * math.sqrt(p_hat * (1.0 - p_hat) / n + z2_n / (4.0 * n))
-    low = 0.0 if successes == 0 else min(1.0, max(0.0, centre - half))
-    high = 1.0 if successes == n else min(1.0, max(0.0, centre + half))
-    return low, high
+    ci = binomtest(successes, n).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(ci.low), float(ci.high)
 
 
 def _accepts_axis(statistic: Callable[..., Any], values: np.ndarray) -> bool:
@@ -371,43 +362,13 @@ class McNemarResult:
     method: str = MCNEMAR_METHOD
 
 
-def _binom_half_cdf_exact(k: int, n: int) -> float:
-    """P(X <= k) for X ~ Binomial(n, 1/2), exact integers, correctly rounded to float."""
-    term = 1
-    total = 1
-    for i in range(k):
-        term = term * (n - i) // (i + 1)
-        total += term
-    return float(Fraction(total, 1 << n))
-
-
-def _binom_half_cdf_log(k: int, n: int) -> float:
-    """P(X <= k) for X ~ Binomial(n, 1/2) with ``k <= n / 2``, summed in log space.
-
-    The largest term, at ``k``, comes from ``math.lgamma``; smaller terms follow from the ratio
-    ``C(n, i - 1) / C(n, i) = i / (n - i + 1)`` until they are negligible. Relative error is
-    about 1e-10 at n = 1e5, and the result underflows cleanly to 0.0.
-    """
-    log_top = math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) - n * math.log(2)
-    terms = [1.0]
-    term = 1.0
-    for i in range(k, 0, -1):
-        term *= i / (n - i + 1)
-        terms.append(term)
-        if term < 1e-20:  # terms shrink geometrically from here; the rest is negligible
-            break
-    log_cdf = log_top + math.log(math.fsum(terms))
-    return math.exp(log_cdf) if log_cdf > -745.0 else 0.0
-
-
 def mcnemar(a: Any, b: Any) -> McNemarResult:
     """Exact McNemar test of equal success rates under two paired conditions.
 
     Only discordant pairs carry information about the difference; under the null each is
     equally likely to favour either condition, so ``only_a ~ Binomial(only_a + only_b, 1/2)``.
-    The p-value is ``min(1, 2 * P(X <= min(only_a, only_b)))``, and 1.0 when there are no
-    discordant pairs. Exact (integer arithmetic, correctly rounded) up to 20 000 discordant
-    pairs, log space with ~1e-10 relative error beyond.
+    The p-value is the two-sided binomial test's, ``min(1, 2 * P(X <= min(only_a, only_b)))``,
+    and 1.0 when there are no discordant pairs.
 
     Args:
         a: Outcomes under condition A, shape ``(n_pairs,)``, values 0/1 or bool.
@@ -425,15 +386,14 @@ def mcnemar(a: Any, b: Any) -> McNemarResult:
         )
     only_a = int(np.count_nonzero(a_ok & ~b_ok))
     only_b = int(np.count_nonzero(b_ok & ~a_ok))
-    n = only_a + only_b
-    if n == 0:
+    if only_a + only_b == 0:
         return McNemarResult(only_a=0, only_b=0, p_value=1.0)
-    k = min(only_a, only_b)
-    if n <= _EXACT_MAX_DISCORDANT:
-        cdf = _binom_half_cdf_exact(k, n)
-    else:
-        cdf = _binom_half_cdf_log(k, n)
-    return McNemarResult(only_a=only_a, only_b=only_b, p_value=min(1.0, 2.0 * cdf))
+    # Imported here for the reason given in wilson_interval.
+    from scipy.stats import binomtest
+
+    # The smaller count as k, so that swapping the conditions gives the very same float.
+    p_value = binomtest(min(only_a, only_b), only_a + only_b, 0.5).pvalue
+    return McNemarResult(only_a=only_a, only_b=only_b, p_value=float(p_value))
 
 
 # --------------------------------------------------------------------------------------------
