@@ -1,4 +1,4 @@
-"""Initial states follow DESIGN.md's generator exactly."""
+"""Initial states are the documented draws of a seeded generator, exactly."""
 
 from __future__ import annotations
 

@@ -31,7 +31,18 @@ class Phase(enum.IntEnum):
 
 @dataclass(frozen=True)
 class Protocol:
-    """Timings and targets of the grasp-and-lift episode (DESIGN.md, "Episode protocol")."""
+    """Timings and targets of the grasp-and-lift episode, in the order `control_sequence` uses them.
+
+    Attributes:
+      home_x: gantry x target above the cube's nominal position, m.
+      cube_z: the cube centre's starting height, m.
+      gripper_open, gripper_closed: mean finger opening targets, m.
+      z_down, z_up: carriage (gantry_z) targets at the bottom and at home, m.
+      settle_time, pre_close_time, close_time, hold_time: durations of the holds, s.
+      descend_segments: set-points of the descent, each held for `segment_time` s.
+      segment_time: duration of one descent or lift set-point, s.
+      success_height: height the cube's centre must exceed at the end of the hold, m.
+    """
 
     home_x: float = 0.12
     cube_z: float = 0.02
