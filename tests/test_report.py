@@ -9,13 +9,24 @@ import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 import yaml
 
 from mjtrial import provenance, report
-from mjtrial.pipeline import build_states, config_slice, run_analysis, run_condition, write_manifest
+from mjtrial.layout import FIGURES, RESULTS_DIR, Layout
+from mjtrial.protocol import PROTOCOL
+from mjtrial.recording import read_episode
+from mjtrial.report.figures import CONDITION_PALETTE, condition_colors
+from mjtrial.report.text import render_report
+from mjtrial.report.traces import TRACES_PER_OUTCOME, cube_height_traces
+from mjtrial.stages.analysis import run_analysis
+from mjtrial.stages.manifest import write_manifest
+from mjtrial.stages.rollout import run_condition
+from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.states import build_states
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -23,31 +34,33 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory) -> dict:
-    """States, rollouts, summary and manifest of a 12-state copy of the experiment, and its
-    figures and report; the folder is not a git repository."""
+    """States, rollouts (tables and recordings), summary and manifest of a 12-state copy of the
+    experiment, and its figures and report; the folder is not a git repository."""
     root = tmp_path_factory.mktemp("report_experiment")
     shutil.copytree(REPO_ROOT / "models", root / "models")
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     config["states"]["n"] = 12
     config["analysis"]["n_resamples"] = 300
-    results = root / "results" / config["experiment"]
+    layout = Layout.of(config["experiment"], base=root / RESULTS_DIR)
     model_file = root / config["model"]
-    states_path = results / "states.parquet"
+    states_path = layout.states
     build_states(states_slice=config_slice("states", config), output=states_path, repo_root=root)
-    tables, nominals = {}, {}
+    tables, nominals, recordings = {}, {}, {}
     for name in config["conditions"]:
-        tables[name] = results / "rollouts" / f"{name}.parquet"
-        nominals[name] = results / "rollouts" / f"{name}.nominal.json"
+        tables[name] = layout.rollout_table(name)
+        nominals[name] = layout.nominal_episode(name)
+        recordings[name] = layout.recordings(name)
         run_condition(
             condition_slice=config_slice("rollout", config, condition=name),
             states_path=states_path,
             model_file=model_file,
             output_table=tables[name],
             output_nominal=nominals[name],
+            output_recording=recordings[name],
             nthread=1,
             repo_root=root,
         )
-    summary_path = results / "analysis" / "summary.json"
+    summary_path = layout.summary
     summary = run_analysis(
         states_path=states_path,
         rollout_tables=tables,
@@ -56,7 +69,7 @@ def experiment(tmp_path_factory) -> dict:
         output=summary_path,
         repo_root=root,
     )
-    manifest_path = results / "manifest.json"
+    manifest_path = layout.manifest
     write_manifest(
         config=config,
         summary_path=summary_path,
@@ -71,16 +84,16 @@ def experiment(tmp_path_factory) -> dict:
         inputs={"summary": summary_path, "manifest": manifest_path},
         repo_dir=root,
     )
+    manifest = json.loads(manifest_path.read_text())
     figure_args = dict(
         summary=summary,
-        states_path=states_path,
         rollout_tables=tables,
-        model_file=model_file,
-        lift_times={name: c["lift_time"] for name, c in config["conditions"].items()},
+        recordings=recordings,
+        timestep=manifest["model"]["timestep"],
         stamp=stamp,
     )
-    figures = report.write_figures(**figure_args, out_dir=results / "report" / "figures")
-    output = results / "report" / "report.md"
+    figures = report.write_figures(**figure_args, out_dir=layout.figures_dir)
+    output = layout.report
     text = report.write_report(
         summary_path=summary_path,
         config=config,
@@ -94,20 +107,21 @@ def experiment(tmp_path_factory) -> dict:
         "root": root,
         "config": config,
         "summary": summary,
-        "manifest": json.loads(manifest_path.read_text()),
+        "manifest": manifest,
         "stamp": stamp,
         "figures": figures,
         "figure_args": figure_args,
         "report": output,
         "text": text,
         "tables": tables,
+        "recordings": recordings,
     }
 
 
 def test_every_figure_is_a_stamped_png_and_svg(experiment):
     figures = experiment["figures"]
     assert [p.name for p in figures] == [
-        f"{name}.{ext}" for name in report.FIGURE_NAMES for ext in ("png", "svg")
+        f"{name}.{ext}" for name in FIGURES for ext in ("png", "svg")
     ]
     for path in figures:
         assert path.is_file(), path
@@ -234,42 +248,71 @@ def test_figure_links_point_to_files(experiment):
     text, folder = experiment["text"], experiment["report"].parent
     links = re.findall(r"\]\(([^)]+)\)", text)
     embedded = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
-    assert sorted(Path(link).stem for link in embedded) == sorted(report.FIGURE_NAMES)
+    assert sorted(Path(link).stem for link in embedded) == sorted(FIGURES)
     for link in links:
         assert not Path(link).is_absolute()
         assert (folder / link).is_file(), link
 
 
-def test_cube_height_traces_pick_lowest_ids_and_refuse_stale_rollouts(experiment, tmp_path):
-    args = experiment["figure_args"]
-    traces = report.cube_height_traces(
-        states_path=args["states_path"],
+def test_cube_height_traces_are_the_lowest_ids_recordings_on_the_protocol_clock(experiment):
+    args, timestep = experiment["figure_args"], experiment["manifest"]["model"]["timestep"]
+    lift_times = {name: c["lift_time"] for name, c in experiment["config"]["conditions"].items()}
+    traces = cube_height_traces(
         rollout_tables=args["rollout_tables"],
-        model_file=args["model_file"],
-        lift_times=args["lift_times"],
+        recordings=args["recordings"],
+        lift_times=lift_times,
+        timestep=timestep,
     )
+    p = PROTOCOL
+    close_start = p.settle_time + p.descend_segments * p.segment_time + p.pre_close_time
+    rate_hz = experiment["config"]["recording"]["rate_hz"]
     for name, path in experiment["tables"].items():
         table = pq.read_table(path).to_pydict()
         outcome = dict(zip(table["state_id"], table["success"], strict=True))
         t = traces[name]
-        wins = sorted(i for i, ok in outcome.items() if ok)[: report.TRACES_PER_OUTCOME]
-        losses = sorted(i for i, ok in outcome.items() if not ok)[: report.TRACES_PER_OUTCOME]
+        wins = sorted(i for i, ok in outcome.items() if ok)[:TRACES_PER_OUTCOME]
+        losses = sorted(i for i, ok in outcome.items() if not ok)[:TRACES_PER_OUTCOME]
         assert t.state_ids == tuple(sorted(wins + losses))
         assert t.success == tuple(outcome[i] for i in t.state_ids)
-        assert t.height.shape == (len(t.state_ids), t.time.size)
-        assert t.close_start < t.lift_start < t.lift_end < t.time[-1]
+        # Phase boundaries and the episode's end from the protocol's durations (the built-in
+        # durations are whole multiples of the timestep).
+        lift_time = lift_times[name]
+        assert t.close_start == pytest.approx(close_start)
+        assert t.lift_start == pytest.approx(close_start + p.close_time)
+        assert t.lift_end == pytest.approx(close_start + p.close_time + lift_time)
+        assert t.time[-1] == pytest.approx(t.lift_end + p.hold_time)
+        assert t.log_interval == pytest.approx(1 / rate_hz)
+        assert np.diff(t.time)[:-1] == pytest.approx(np.full(t.time.size - 2, 1 / rate_hz))
+        for row, state_id in enumerate(t.state_ids):
+            logged = read_episode(args["recordings"][name], condition=name, state_id=state_id)
+            assert t.time == pytest.approx(logged["time"])  # healthy episodes: same clock
+            assert np.array_equal(t.height[row], logged["cube_height"])
+            ended_above = t.height[row, -1] > p.success_height
+            assert ended_above == outcome[state_id]
 
+
+def test_cube_height_traces_refuse_a_table_the_recordings_disagree_with(experiment, tmp_path):
+    args = experiment["figure_args"]
     name, path = next(iter(experiment["tables"].items()))
     table = pq.read_table(path)
-    column = table.schema.get_field_index("success")
+    column = table.schema.get_field_index("final_height")
     stale = tmp_path / "stale.parquet"
-    pq.write_table(table.set_column(column, "success", pc.invert(table.column(column))), stale)
+    moved = pc.add(table.column(column), 0.01)
+    pq.write_table(table.set_column(column, "final_height", moved), stale)
     with pytest.raises(ValueError, match="stale"):
-        report.cube_height_traces(
-            states_path=args["states_path"],
+        cube_height_traces(
             rollout_tables={name: stale},
-            model_file=args["model_file"],
-            lift_times=args["lift_times"],
+            recordings=args["recordings"],
+            lift_times={name: experiment["summary"]["conditions"][name]["lift_time"]},
+            timestep=args["timestep"],
+            per_outcome=1,
+        )
+    with pytest.raises(ValueError, match="steps recorded"):
+        cube_height_traces(
+            rollout_tables={name: path},
+            recordings=args["recordings"],
+            lift_times={name: experiment["summary"]["conditions"][name]["lift_time"] * 2},
+            timestep=args["timestep"],
             per_outcome=1,
         )
 
@@ -278,7 +321,7 @@ def test_render_report_refuses_a_model_that_changed(experiment):
     manifest = copy.deepcopy(experiment["manifest"])
     manifest["model"]["sha256"] = "0" * 64
     with pytest.raises(ValueError, match="sha256"):
-        report.render_report(
+        render_report(
             summary=experiment["summary"],
             config=experiment["config"],
             manifest=manifest,
@@ -287,8 +330,11 @@ def test_render_report_refuses_a_model_that_changed(experiment):
         )
 
 
-def test_condition_colours_are_colour_blind_safe_and_stable():
-    colours = report.condition_colors(["fast", "slow", "medium"])
-    assert colours == report.condition_colors(["fast", "slow", "medium"])
+def test_condition_colours_are_okabe_ito_and_stable():
+    okabe_ito = {"#E69F00", "#56B4E9", "#009E73", "#F0E442", "#0072B2", "#D55E00", "#CC79A7"}
+    okabe_ito.add("#000000")
+    colours = condition_colors(["fast", "slow", "medium"])
+    assert colours == condition_colors(["fast", "slow", "medium"])
     assert len(set(colours.values())) == 3
-    assert set(colours.values()) <= set(report.CONDITION_PALETTE)
+    assert set(CONDITION_PALETTE) <= okabe_ito
+    assert "#F0E442" not in CONDITION_PALETTE  # yellow vanishes on white
