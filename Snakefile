@@ -47,3 +47,17 @@ rule all:
         manifest=LAYOUT.manifest,
         failures=LAYOUT.failures,
         report=LAYOUT.report,
+
+
+# No good result is lost (mjtrial.safekeeping): the results are snapshot before any job runs,
+# and whatever a failed job removed is put back as it was.
+onstart:
+    on_start()
+
+
+onsuccess:
+    SAFEKEEPING.drop()
+
+
+onerror:
+    on_error()

@@ -129,9 +129,13 @@ class Layout:
     def figure(self, name: str, fmt: str) -> Path:
         return self.figures_dir / f"{name}.{fmt}"
 
+    @property
+    def logs_dir(self) -> Path:
+        return self.root / "logs"
+
     def log(self, job: str) -> Path:
         """The log of one job: `rollout_fast`, `analysis`, ..."""
-        return self.root / "logs" / f"{job}.log"
+        return self.logs_dir / f"{job}.log"
 
     # -- sets of outputs ------------------------------------------------------------------
     def rollout_outputs(self, conditions: list[str]) -> list[Path]:
