@@ -1,7 +1,8 @@
-"""Tests for mjtrial.provenance: building stamps, embedding them in every format, reading back."""
+"""Tests for mjtrial.provenance.stamp: hashes, git state, versions, platform, make_stamp."""
 
 from __future__ import annotations
 
+import ast
 import getpass
 import hashlib
 import importlib.metadata
@@ -10,20 +11,15 @@ import os
 import re
 import shutil
 import socket
-import struct
 import subprocess
 import sys
-import types
-import zlib
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 import pytest
 
-from mjtrial import provenance
+import mjtrial.provenance.stamp as building
 from mjtrial.provenance import (
-    MissingStampError,
     code_hash,
     config_hash,
     file_sha256,
@@ -31,13 +27,6 @@ from mjtrial.provenance import (
     library_versions,
     make_stamp,
     platform_fingerprint,
-    read_stamp,
-    stamp_parquet_metadata,
-    stamp_png_bytes,
-    write_json,
-    write_markdown,
-    write_parquet,
-    write_png,
 )
 
 needs_git = pytest.mark.skipif(shutil.which("git") is None, reason="git executable not installed")
@@ -100,41 +89,6 @@ def stamp(repo: Path, tmp_path: Path) -> dict:
         repo_dir=repo,
         extra={"code_sha256": "0" * 64, "note": "ünïcode ✓"},
     )
-
-
-def _png_chunk(ctype: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + ctype + data + struct.pack(">I", zlib.crc32(ctype + data))
-
-
-def _tiny_png() -> bytes:
-    """A valid 1x1 8-bit greyscale PNG built by hand."""
-    ihdr = struct.pack(">IIBBBBB", 1, 1, 8, 0, 0, 0, 0)
-    return (
-        b"\x89PNG\r\n\x1a\n"
-        + _png_chunk(b"IHDR", ihdr)
-        + _png_chunk(b"IDAT", zlib.compress(b"\x00\x7f"))
-        + _png_chunk(b"IEND", b"")
-    )
-
-
-def _parse_png(data: bytes) -> list[tuple[bytes, bytes]]:
-    """Independent PNG chunk parser that checks every CRC and that IEND ends the file."""
-    assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    pos, chunks = 8, []
-    while pos < len(data):
-        (length,) = struct.unpack(">I", data[pos : pos + 4])
-        ctype = data[pos + 4 : pos + 8]
-        body = data[pos + 8 : pos + 8 + length]
-        (crc,) = struct.unpack(">I", data[pos + 8 + length : pos + 12 + length])
-        assert len(body) == length
-        assert zlib.crc32(ctype + body) == crc, f"bad CRC in {ctype!r}"
-        chunks.append((ctype, body))
-        pos += 12 + length
-    assert pos == len(data)
-    assert chunks[0][0] == b"IHDR"
-    assert chunks[-1] == (b"IEND", b"")
-    assert [c for c, _ in chunks].count(b"IEND") == 1
-    return chunks
 
 
 # --------------------------------------------------------------------------------------------
@@ -338,7 +292,7 @@ def test_git_state_never_raises(monkeypatch: pytest.MonkeyPatch, repo: Path) -> 
     def boom(*args, **kwargs):
         raise RuntimeError(f"exploded in {repo}\nsecond line")
 
-    monkeypatch.setattr(provenance, "_git_state_of", boom)
+    monkeypatch.setattr(building, "_git_state_of", boom)
     state = git_state(repo)
     assert state["available"] is False
     assert "RuntimeError" in state["reason"]
@@ -385,7 +339,7 @@ def test_platform_fingerprint() -> None:
         "ncpu",
     }
     assert fp["cpu_flags_fp"] == sorted(fp["cpu_flags_fp"])
-    assert set(fp["cpu_flags_fp"]) <= provenance._FP_FLAGS
+    assert set(fp["cpu_flags_fp"]) <= building._FP_FLAGS
     assert fp["ncpu"] is None or fp["ncpu"] >= 1
     json.dumps(fp)
 
@@ -471,208 +425,19 @@ def test_make_stamp_holds_nothing_private(
 
 
 # --------------------------------------------------------------------------------------------
-# Formats
+# The package's place among mjtrial's modules
 # --------------------------------------------------------------------------------------------
 
 
-@needs_git
-def test_parquet_roundtrip(stamp: dict, tmp_path: Path) -> None:
-    table = pa.table({"a": [1, 2, 3], "b": ["x", "y", "z"]}).replace_schema_metadata(
-        {b"other": b"keep me"}
-    )
-    stamped = stamp_parquet_metadata(table, stamp)
-    assert stamped.schema.metadata[b"other"] == b"keep me"
-    assert table.schema.metadata == {b"other": b"keep me"}  # input not modified
-
-    path = tmp_path / "out" / "table.parquet"
-    write_parquet(table, path, stamp)
-    assert read_stamp(path) == stamp
-
-    back = pq.read_table(path)
-    assert back.equals(table)  # data unchanged
-    assert back.schema.metadata[b"other"] == b"keep me"
-    assert json.loads(back.schema.metadata[b"mjtrial.provenance"]) == stamp
-    assert not [p for p in path.parent.iterdir() if ".tmp-" in p.name]
-
-
-@needs_git
-def test_json_roundtrip(stamp: dict, tmp_path: Path) -> None:
-    obj = {"metric": 0.5, "provenance": "stale", "rows": [1, 2]}
-    path = tmp_path / "summary.json"
-    write_json(obj, path, stamp)
-    assert obj["provenance"] == "stale"  # caller's object untouched
-    assert read_stamp(path) == stamp
-    data = json.loads(path.read_text(encoding="utf-8"))
-    assert data["metric"] == 0.5 and data["rows"] == [1, 2]
-    assert data["provenance"] == stamp
-    assert path.read_text(encoding="utf-8").endswith("}\n")
-
-
-@needs_git
-def test_markdown_roundtrip(stamp: dict, tmp_path: Path) -> None:
-    body = "# Report\n\nSome text.\n\n---\n\nafter a rule\n"
-    path = tmp_path / "report.md"
-    write_markdown(body, path, stamp)
-    text = path.read_text(encoding="utf-8")
-    lines = text.split("\n")
-    assert lines[0] == "---"
-    assert lines[1].startswith("provenance: {")
-    assert lines[2] == "---"
-    assert text == "\n".join(lines[:3]) + "\n" + body
-    assert json.loads(lines[1][len("provenance: ") :]) == stamp
-    assert read_stamp(path) == stamp
-
-    yaml = pytest.importorskip("yaml")
-    assert yaml.safe_load("\n".join(lines[1:2]))["provenance"] == stamp
-
-
-@needs_git
-def test_markdown_merges_existing_front_matter(stamp: dict, tmp_path: Path) -> None:
-    path = tmp_path / "r.md"
-    write_markdown("---\ntitle: Hello\nprovenance: {}\n---\nbody\n", path, stamp)
-    text = path.read_text(encoding="utf-8")
-    assert text.count("provenance:") == 1
-    assert "title: Hello\n---\nbody\n" in text
-    assert read_stamp(path) == stamp
-
-
-@needs_git
-def test_png_roundtrip_is_valid_png(stamp: dict, tmp_path: Path) -> None:
-    png = _tiny_png()
-    original = _parse_png(png)
-    stamped = stamp_png_bytes(png, stamp)
-    chunks = _parse_png(stamped)
-    text_chunks = [d for c, d in chunks if c == b"tEXt"]
-    assert len(text_chunks) == 1
-    keyword, _, value = text_chunks[0].partition(b"\0")
-    assert keyword == b"mjtrial.provenance"
-    assert json.loads(value.decode("latin-1")) == stamp
-    assert [c for c in chunks if c[0] != b"tEXt"] == original  # image data untouched
-    assert chunks[-2][0] == b"tEXt"  # inserted right before IEND
-
-    path = tmp_path / "fig" / "plot.png"
-    write_png(png, path, stamp)
-    assert path.read_bytes() == stamped
-    assert read_stamp(path) == stamp
-
-    # Restamping replaces rather than accumulates.
-    again = stamp_png_bytes(stamped, {**stamp, "rule": "other"})
-    assert [c for c, _ in _parse_png(again)].count(b"tEXt") == 1
-    (tmp_path / "again.png").write_bytes(again)
-    assert read_stamp(tmp_path / "again.png")["rule"] == "other"
-
-
-def test_png_rejects_corrupt_input() -> None:
-    s = {"mjtrial_stamp": 1}
-    with pytest.raises(ValueError):
-        stamp_png_bytes(b"not a png", s)
-    bad = bytearray(_tiny_png())
-    bad[20] ^= 0xFF  # inside IHDR data -> CRC mismatch
-    with pytest.raises(ValueError, match="CRC"):
-        stamp_png_bytes(bytes(bad), s)
-    with pytest.raises(ValueError):
-        stamp_png_bytes(_tiny_png()[:-12], s)  # no IEND
-
-
-def test_rrd_delegates_to_recording(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    path = tmp_path / "run.rrd"
-    path.write_bytes(b"")
-    fake = types.ModuleType("mjtrial.recording")
-    fake.read_rrd_stamp = lambda p: {"mjtrial_stamp": 1, "from": str(Path(p).name)}
-    monkeypatch.setitem(sys.modules, "mjtrial.recording", fake)
-    assert read_stamp(path) == {"mjtrial_stamp": 1, "from": "run.rrd"}
-
-
-def test_rrd_without_recording_module_is_a_clear_error(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
-) -> None:
-    path = tmp_path / "run.rrd"
-    path.write_bytes(b"")
-    monkeypatch.setitem(sys.modules, "mjtrial.recording", None)  # makes the import fail
-    with pytest.raises(ImportError, match=r"mjtrial\.recording"):
-        read_stamp(path)
-
-
-def test_missing_stamp_every_format(tmp_path: Path) -> None:
-    pq.write_table(pa.table({"a": [1]}), tmp_path / "plain.parquet")
-    (tmp_path / "plain.json").write_text('{"a": 1}\n')
-    (tmp_path / "list.json").write_text("[1, 2]\n")
-    (tmp_path / "plain.md").write_text("# Title\n")
-    (tmp_path / "front.md").write_text("---\ntitle: x\n---\n# Title\n")
-    (tmp_path / "plain.png").write_bytes(_tiny_png())
-    for name in ["plain.parquet", "plain.json", "list.json", "plain.md", "front.md", "plain.png"]:
-        path = tmp_path / name
-        with pytest.raises(MissingStampError) as info:
-            read_stamp(path)
-        assert isinstance(info.value, ValueError)
-        assert str(info.value) == f"{path}: no mjtrial provenance stamp"
-
-
-def test_unsupported_suffix_and_missing_file(tmp_path: Path) -> None:
-    (tmp_path / "x.csv").write_text("a\n")
-    with pytest.raises(ValueError, match="supported"):
-        read_stamp(tmp_path / "x.csv")
-    with pytest.raises(FileNotFoundError):
-        read_stamp(tmp_path / "absent.json")
-
-
-def test_writers_reject_non_stamps(tmp_path: Path) -> None:
-    with pytest.raises(ValueError):
-        write_json({"a": 1}, tmp_path / "a.json", {"not": "a stamp"})
-    assert not (tmp_path / "a.json").exists()
-
-
-# --------------------------------------------------------------------------------------------
-# SVG
-# --------------------------------------------------------------------------------------------
-
-_SVG = (
-    '<?xml version="1.0" encoding="utf-8" standalone="no"?>\n'
-    '<!DOCTYPE svg PUBLIC "-//W3C//DTD SVG 1.1//EN"\n'
-    '  "http://www.w3.org/Graphics/SVG/1.1/DTD/svg11.dtd">\n'
-    '<svg xmlns="http://www.w3.org/2000/svg" width="10pt" height="10pt" data-x="a>b">\n'
-    " <metadata><title>other metadata</title></metadata>\n"
-    ' <rect width="5" height="5"/>\n'
-    "</svg>\n"
-)
-
-
-def test_svg_roundtrip_and_restamp(tmp_path: Path) -> None:
-    import xml.etree.ElementTree as ET
-
-    # JSON that an XML comment could not hold ("--") and that needs escaping (<, &, >).
-    stamp = {"mjtrial_stamp": 1, "rule": "report", "extra": {"cmd": "plan --x <a & b>", "u": "ü"}}
-    stamped = provenance.stamp_svg_text(_SVG, stamp)
-    root = ET.fromstring(stamped.encode("utf-8"))
-    assert root[0].tag == "{http://www.w3.org/2000/svg}metadata"
-    assert root[0].get("id") == "mjtrial.provenance"
-    assert json.loads(root[0].text) == stamp
-    # The rest of the document is untouched.
-    assert provenance._SVG_STAMP_RE.sub("", stamped) == _SVG
-
-    path = tmp_path / "fig" / "plot.svg"
-    provenance.write_svg(_SVG.encode("utf-8"), path, stamp)
-    assert path.read_text(encoding="utf-8") == stamped
-    assert read_stamp(path) == stamp
-
-    again = provenance.stamp_svg_text(stamped, {**stamp, "rule": "other"})
-    assert again.count("mjtrial.provenance") == 1
-    (tmp_path / "again.svg").write_text(again, encoding="utf-8")
-    assert read_stamp(tmp_path / "again.svg")["rule"] == "other"
-
-
-def test_svg_missing_stamp_and_bad_input(tmp_path: Path) -> None:
-    (tmp_path / "plain.svg").write_text(_SVG, encoding="utf-8")
-    with pytest.raises(MissingStampError):
-        read_stamp(tmp_path / "plain.svg")
-    (tmp_path / "broken.svg").write_text("<svg><g></svg>", encoding="utf-8")
-    with pytest.raises(ValueError, match="not an SVG"):
-        read_stamp(tmp_path / "broken.svg")
-    s = {"mjtrial_stamp": 1}
-    with pytest.raises(ValueError, match="not an SVG"):
-        provenance.stamp_svg_text("<html></html>", s)
-    with pytest.raises(ValueError, match="not an SVG"):
-        provenance.stamp_svg_text("not xml", s)
-    with pytest.raises(ValueError, match="mjtrial_stamp"):
-        provenance.write_svg(_SVG, tmp_path / "x.svg", {"not": "a stamp"})
-    assert not (tmp_path / "x.svg").exists()
+def test_provenance_imports_no_other_mjtrial_module() -> None:
+    # Every stage imports provenance; a module it imported, even inside a function (as it once
+    # did recording), would import it back: a cycle.
+    imported = set()
+    for source in Path(building.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                imported.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                imported.add(node.module)
+    ours = {m for m in imported if m.split(".")[0] == "mjtrial"}
+    assert ours == {"mjtrial.atomic", "mjtrial.provenance.formats", "mjtrial.provenance.stamp"}

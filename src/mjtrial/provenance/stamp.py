@@ -1,21 +1,10 @@
-"""Provenance stamps: what produced an output file, and how to embed / read that record.
+"""Building a provenance stamp: the record of what produced one output file.
 
 A stamp is a JSON-serialisable dict (see :func:`make_stamp`) recording the rule, the code
 (git commit + hash of any uncommitted diff), the config slice, input file hashes, seeds,
 library versions and a coarse platform fingerprint.  It deliberately holds nothing private:
-no host name, user name, environment variables or home paths.
-
-Every output format carries its stamp in-band:
-
-* Parquet: schema metadata key ``b"mjtrial.provenance"``.
-* JSON: top-level key ``"provenance"``.
-* Markdown: front matter line ``provenance: <single-line JSON>``.
-* PNG: a ``tEXt`` chunk with keyword ``mjtrial.provenance``, just before ``IEND``.
-* SVG: a ``<metadata id="mjtrial.provenance">`` element (the JSON as escaped text), first child
-  of the root ``<svg>``.
-* Rerun ``.rrd``: a recording property, read by :mod:`mjtrial.recording`.
-
-:func:`read_stamp` reads any of them back.
+no host name, user name, environment variables or home paths.  How a stamp travels inside each
+file format is :mod:`mjtrial.provenance.formats`.
 """
 
 from __future__ import annotations
@@ -26,48 +15,31 @@ import importlib.util
 import json
 import os
 import platform
-import re
-import struct
-import zlib
 from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-from xml.sax.saxutils import escape as xml_escape
-
-from mjtrial.atomic import atomic_path, write_bytes_atomic, write_json_atomic, write_text_atomic
-
-if TYPE_CHECKING:  # pragma: no cover
-    import pyarrow
+from typing import Any
 
 __all__ = [
-    "STAMP_KEY",
+    "MODEL_FILE_SUFFIXES",
+    "RECORDING_FOLDER_BLUEPRINT",
     "STAMP_VERSION",
-    "MissingStampError",
     "code_hash",
     "config_hash",
     "file_sha256",
-    "is_recording_folder",
     "git_state",
+    "is_recording_folder",
+    "is_stamp",
     "library_versions",
     "make_stamp",
+    "model_files",
+    "model_sha256",
     "platform_fingerprint",
-    "read_stamp",
-    "stamp_png_bytes",
-    "stamp_parquet_metadata",
-    "stamp_svg_text",
-    "write_json",
-    "write_markdown",
-    "write_parquet",
-    "write_png",
-    "write_svg",
 ]
 
 STAMP_VERSION = 1
-STAMP_KEY = "mjtrial.provenance"
-_PARQUET_KEY = STAMP_KEY.encode("ascii")
-_PNG_KEYWORD = STAMP_KEY.encode("latin-1")
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# The field that marks a dict as a stamp, holding STAMP_VERSION.
+_VERSION_FIELD = "mjtrial_stamp"
 _BLOCK = 1 << 20
 
 # Distributions whose versions go into every stamp: stamp key -> distribution name.
@@ -103,10 +75,6 @@ _FP_FLAGS = frozenset(
 
 # Untracked files under these top-level directories are outputs, not code.
 _IGNORED_UNTRACKED_DIRS = ("results", ".snakemake")
-
-
-class MissingStampError(ValueError):
-    """The file exists and has a supported format but carries no mjtrial provenance stamp."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -444,7 +412,7 @@ def make_stamp(
             recorded_inputs[str(name)] = [_input_record(v, root) for v in value]
 
     stamp = {
-        "mjtrial_stamp": STAMP_VERSION,
+        _VERSION_FIELD: STAMP_VERSION,
         "rule": rule,
         "created_utc": _utc_now(),
         "git": git_state(root),
@@ -459,313 +427,6 @@ def make_stamp(
     return json.loads(json.dumps(stamp, allow_nan=False))
 
 
-def _stamp_json(stamp: Mapping[str, Any], *, ascii_only: bool = False) -> str:
-    """Compact single-line JSON of a stamp (validated to look like one)."""
-    if not isinstance(stamp, Mapping) or "mjtrial_stamp" not in stamp:
-        raise ValueError(
-            "not an mjtrial provenance stamp (missing 'mjtrial_stamp'); use make_stamp"
-        )
-    return json.dumps(dict(stamp), ensure_ascii=ascii_only, allow_nan=False)
-
-
-def _parse_stamp(text: str | bytes, path: Path) -> dict[str, Any]:
-    try:
-        stamp = json.loads(text)
-    except ValueError as exc:
-        raise ValueError(f"{path}: corrupt mjtrial provenance stamp: {exc}") from exc
-    if not isinstance(stamp, dict) or "mjtrial_stamp" not in stamp:
-        raise ValueError(f"{path}: corrupt mjtrial provenance stamp (not a stamp object)")
-    return stamp
-
-
-def _missing(path: Path) -> MissingStampError:
-    return MissingStampError(f"{path}: no mjtrial provenance stamp")
-
-
-# --- Parquet ---------------------------------------------------------------------------------
-
-
-def stamp_parquet_metadata(table: pyarrow.Table, stamp: Mapping[str, Any]) -> pyarrow.Table:
-    """Return ``table`` with the stamp added to its schema metadata (other keys kept)."""
-    metadata = dict(table.schema.metadata or {})
-    metadata[_PARQUET_KEY] = _stamp_json(stamp).encode("utf-8")
-    return table.replace_schema_metadata(metadata)
-
-
-def write_parquet(
-    table: pyarrow.Table, path: str | os.PathLike[str], stamp: Mapping[str, Any], **kwargs: Any
-) -> None:
-    """Atomically write ``table`` (stamped) to ``path``; kwargs go to ``pq.write_table``."""
-    import pyarrow.parquet as pq
-
-    stamped = stamp_parquet_metadata(table, stamp)
-    with atomic_path(path) as tmp:
-        pq.write_table(stamped, tmp, **kwargs)
-
-
-def _read_parquet_stamp(path: Path) -> dict[str, Any]:
-    import pyarrow.parquet as pq
-
-    metadata = pq.read_schema(path).metadata or {}
-    raw = metadata.get(_PARQUET_KEY)
-    if raw is None:
-        raise _missing(path)
-    return _parse_stamp(raw, path)
-
-
-# --- JSON ------------------------------------------------------------------------------------
-
-
-def write_json(
-    obj: Mapping[str, Any], path: str | os.PathLike[str], stamp: Mapping[str, Any]
-) -> None:
-    """Atomically write ``obj`` with the stamp under top-level key ``"provenance"``.
-
-    ``obj`` is not modified; an existing ``"provenance"`` entry is replaced.
-    """
-    if not isinstance(obj, Mapping):
-        raise TypeError(f"write_json needs a dict-like object, got {type(obj).__name__}")
-    _stamp_json(stamp)  # validate
-    out = {k: v for k, v in obj.items() if k != "provenance"}
-    out["provenance"] = dict(stamp)
-    write_json_atomic(path, out)
-
-
-def _read_json_stamp(path: Path) -> dict[str, Any]:
-    with open(path, encoding="utf-8") as fh:
-        obj = json.load(fh)
-    stamp = obj.get("provenance") if isinstance(obj, dict) else None
-    if not isinstance(stamp, dict) or "mjtrial_stamp" not in stamp:
-        raise _missing(path)
-    return stamp
-
-
-# --- Markdown --------------------------------------------------------------------------------
-
-_FRONT = "---"
-_MD_PREFIX = "provenance:"
-
-
-def _split_front_matter(text: str) -> tuple[list[str] | None, str]:
-    """(front matter lines, body) when ``text`` starts with a ``---`` block, else (None, text)."""
-    if text.startswith("\ufeff"):
-        text = text[1:]
-    lines = text.splitlines(keepends=True)
-    if not lines or lines[0].rstrip("\r\n") != _FRONT:
-        return None, text
-    for i in range(1, len(lines)):
-        if lines[i].rstrip("\r\n") == _FRONT:
-            front = [ln.rstrip("\r\n") for ln in lines[1:i]]
-            return front, "".join(lines[i + 1 :])
-    return None, text
-
-
-def markdown_with_stamp(text: str, stamp: Mapping[str, Any]) -> str:
-    """``text`` with a front matter block holding the stamp (merged into existing front matter,
-    replacing any previous ``provenance:`` line)."""
-    line = f"{_MD_PREFIX} {_stamp_json(stamp, ascii_only=True)}"
-    front, body = _split_front_matter(text)
-    kept = [ln for ln in (front or []) if not ln.startswith(_MD_PREFIX)]
-    return "\n".join([_FRONT, line, *kept, _FRONT]) + "\n" + body
-
-
-def write_markdown(text: str, path: str | os.PathLike[str], stamp: Mapping[str, Any]) -> None:
-    """Atomically write Markdown ``text`` preceded by ``---\\nprovenance: <json>\\n---\\n``."""
-    write_text_atomic(path, markdown_with_stamp(text, stamp))
-
-
-def _read_markdown_stamp(path: Path) -> dict[str, Any]:
-    front, _ = _split_front_matter(path.read_text(encoding="utf-8"))
-    for ln in front or []:
-        if ln.startswith(_MD_PREFIX):
-            return _parse_stamp(ln[len(_MD_PREFIX) :].strip(), path)
-    raise _missing(path)
-
-
-# --- PNG -------------------------------------------------------------------------------------
-
-
-def _png_chunks(png: bytes) -> list[tuple[bytes, bytes, int, int]]:
-    """Parse PNG chunks as (type, data, start, end) with CRC checks; raise ValueError if bad."""
-    if not png.startswith(_PNG_SIGNATURE):
-        raise ValueError("not a PNG file (bad signature)")
-    chunks = []
-    pos = len(_PNG_SIGNATURE)
-    while True:
-        if pos + 12 > len(png):
-            raise ValueError("truncated PNG (no IEND chunk)")
-        (length,) = struct.unpack(">I", png[pos : pos + 4])
-        ctype = png[pos + 4 : pos + 8]
-        end = pos + 12 + length
-        if end > len(png):
-            raise ValueError(f"truncated PNG chunk {ctype!r}")
-        data = png[pos + 8 : pos + 8 + length]
-        (crc,) = struct.unpack(">I", png[pos + 8 + length : end])
-        if zlib.crc32(ctype + data) & 0xFFFFFFFF != crc:
-            raise ValueError(f"PNG chunk {ctype!r} has a bad CRC")
-        chunks.append((ctype, data, pos, end))
-        pos = end
-        if ctype == b"IEND":
-            return chunks
-
-
-def _png_chunk(ctype: bytes, data: bytes) -> bytes:
-    crc = zlib.crc32(ctype + data) & 0xFFFFFFFF
-    return struct.pack(">I", len(data)) + ctype + data + struct.pack(">I", crc)
-
-
-def _png_text_keyword(ctype: bytes, data: bytes) -> bytes | None:
-    if ctype in (b"tEXt", b"zTXt", b"iTXt"):
-        return data.split(b"\0", 1)[0]
-    return None
-
-
-def stamp_png_bytes(png: bytes, stamp: Mapping[str, Any]) -> bytes:
-    """Return ``png`` with a ``tEXt`` chunk ``mjtrial.provenance`` inserted before ``IEND``.
-
-    Any previous ``mjtrial.provenance`` text chunk is removed.  The input is validated (chunk
-    CRCs, IEND present); bytes after IEND are kept as they were.
-    """
-    text = _stamp_json(stamp, ascii_only=True).encode("latin-1")
-    chunks = _png_chunks(bytes(png))
-    out = [_PNG_SIGNATURE]
-    for ctype, data, start, end in chunks:
-        if ctype == b"IEND":
-            out.append(_png_chunk(b"tEXt", _PNG_KEYWORD + b"\0" + text))
-        elif _png_text_keyword(ctype, data) == _PNG_KEYWORD:
-            continue
-        out.append(png[start:end])
-    out.append(png[chunks[-1][3] :])
-    return b"".join(out)
-
-
-def write_png(png_bytes: bytes, path: str | os.PathLike[str], stamp: Mapping[str, Any]) -> None:
-    """Atomically write the PNG ``png_bytes`` to ``path`` with the stamp embedded."""
-    write_bytes_atomic(path, stamp_png_bytes(png_bytes, stamp))
-
-
-def _png_text_value(ctype: bytes, data: bytes) -> str:
-    _, rest = data.split(b"\0", 1)
-    if ctype == b"tEXt":
-        return rest.decode("latin-1")
-    if ctype == b"zTXt":
-        return zlib.decompress(rest[1:]).decode("latin-1")
-    # iTXt: compression flag, method, language tag \0, translated keyword \0, text
-    flag, rest = rest[0], rest[2:]
-    _, _, rest = rest.split(b"\0", 2)
-    return (zlib.decompress(rest) if flag else rest).decode("utf-8")
-
-
-def _read_png_stamp(path: Path) -> dict[str, Any]:
-    try:
-        chunks = _png_chunks(path.read_bytes())
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from exc
-    for ctype, data, _, _ in chunks:
-        if _png_text_keyword(ctype, data) == _PNG_KEYWORD:
-            return _parse_stamp(_png_text_value(ctype, data), path)
-    raise _missing(path)
-
-
-# --- SVG -------------------------------------------------------------------------------------
-
-# An element rather than an XML comment: JSON may contain "--", which a comment cannot hold.
-_SVG_STAMP_RE = re.compile(
-    r'\s*<metadata id="' + re.escape(STAMP_KEY) + r'">[^<]*</metadata>', re.DOTALL
-)
-# The root start tag; quoted attribute values may contain ">".
-_SVG_ROOT_RE = re.compile(r"""<svg\b(?:[^>"']|"[^"]*"|'[^']*')*>""")
-_SVG_NS = "{http://www.w3.org/2000/svg}"
-
-
-def _svg_root(svg: bytes) -> Any:
-    """The parsed root element of an SVG document; ValueError when it is not one."""
-    import xml.etree.ElementTree as ET
-
-    try:
-        root = ET.fromstring(svg)
-    except ET.ParseError as exc:
-        raise ValueError(f"not an SVG file (XML parse error: {exc})") from exc
-    if root.tag not in ("svg", f"{_SVG_NS}svg"):
-        raise ValueError(f"not an SVG file (root element {root.tag!r})")
-    return root
-
-
-def stamp_svg_text(svg: str | bytes, stamp: Mapping[str, Any]) -> str:
-    """Return ``svg`` with ``<metadata id="mjtrial.provenance">`` as the root's first child.
-
-    Any previous stamp element is removed; the rest of the document is kept byte for byte.  The
-    input must parse as XML with an ``<svg>`` root (a bytes input is decoded as UTF-8).
-    """
-    text = svg.decode("utf-8") if isinstance(svg, bytes) else str(svg)
-    _svg_root(text.encode("utf-8"))
-    body = _stamp_json(stamp, ascii_only=True)
-    text = _SVG_STAMP_RE.sub("", text)
-    match = _SVG_ROOT_RE.search(text)
-    if match is None or match.group(0).endswith("/>"):
-        raise ValueError("SVG has no root <svg> start tag to hold a stamp")
-    element = f'\n <metadata id="{STAMP_KEY}">{xml_escape(body)}</metadata>'
-    return text[: match.end()] + element + text[match.end() :]
-
-
-def write_svg(svg: str | bytes, path: str | os.PathLike[str], stamp: Mapping[str, Any]) -> None:
-    """Atomically write the SVG document ``svg`` to ``path`` (UTF-8) with the stamp embedded."""
-    write_text_atomic(path, stamp_svg_text(svg, stamp))
-
-
-def _read_svg_stamp(path: Path) -> dict[str, Any]:
-    try:
-        root = _svg_root(path.read_bytes())
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from exc
-    for element in root:
-        if element.tag in ("metadata", f"{_SVG_NS}metadata") and element.get("id") == STAMP_KEY:
-            return _parse_stamp(element.text or "", path)
-    raise _missing(path)
-
-
-# --- Rerun -----------------------------------------------------------------------------------
-
-
-def _read_rrd_stamp(path: Path) -> dict[str, Any]:
-    try:
-        from mjtrial.recording import read_rrd_stamp
-    except ImportError as exc:
-        raise ImportError(
-            f"{path}: reading a stamp from a .rrd file needs mjtrial.recording.read_rrd_stamp, "
-            f"which could not be imported ({exc})"
-        ) from exc
-    stamp = read_rrd_stamp(path)
-    if stamp is None:
-        raise _missing(path)
-    return stamp
-
-
-# --- Dispatch --------------------------------------------------------------------------------
-
-_READERS = {
-    ".parquet": _read_parquet_stamp,
-    ".json": _read_json_stamp,
-    ".md": _read_markdown_stamp,
-    ".png": _read_png_stamp,
-    ".svg": _read_svg_stamp,
-    ".rrd": _read_rrd_stamp,
-}
-
-
-def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read the stamp embedded in an output file, dispatching on its suffix.
-
-    Raises :class:`MissingStampError` when the file has no stamp, ``ValueError`` for an
-    unsupported suffix or a corrupt file/stamp, ``FileNotFoundError`` when it does not exist.
-    """
-    path = Path(path)
-    if path.is_dir():  # a folder of recordings: each holds the same stamp
-        return _read_rrd_stamp(path)
-    reader = _READERS.get(path.suffix.lower())
-    if reader is None:
-        raise ValueError(
-            f"{path}: cannot read a provenance stamp from {path.suffix or 'suffix-less'} files "
-            f"(supported: {', '.join(sorted(_READERS))})"
-        )
-    return reader(path)
+def is_stamp(obj: Any) -> bool:
+    """Whether ``obj`` is a stamp as :func:`make_stamp` builds them (a dict with its version)."""
+    return isinstance(obj, Mapping) and _VERSION_FIELD in obj
