@@ -6,6 +6,7 @@ any work starts, so a typo never costs a run or touches an earlier result.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -14,48 +15,58 @@ import jsonschema
 import yaml
 
 from mjtrial import REPO_ROOT
+from mjtrial.layout import CONFIG_FILE, Layout
+from mjtrial.model_spec import ModelError
+from mjtrial.provenance import git_state
+from mjtrial.simulate import load_model
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
-DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
 
 
 class ConfigError(ValueError):
     """The config does not describe a runnable experiment; the message is one line."""
 
 
-def _key(path: Any) -> str:
-    parts = [str(p) if not isinstance(p, int) else f"[{p}]" for p in path]
-    return ".".join(parts).replace(".[", "[") or "(top level)"
+# What each schema keyword expects, in the config's words; `s` is the keyword's value.
+_EXPECTATIONS = {
+    "type": "expected {s}",
+    "minimum": "expected >= {s}",
+    "maximum": "expected <= {s}",
+    "exclusiveMinimum": "expected > {s}",
+    "exclusiveMaximum": "expected < {s}",
+    "enum": "expected one of {s}",
+    "minItems": "expected at least {s} items",
+    "maxItems": "expected at most {s} items",
+    "minLength": "expected a non-empty string",
+    "minProperties": "expected at least {s} entries",
+    "pattern": "expected a name matching {s}",
+}
 
 
-def _describe(error: jsonschema.ValidationError) -> tuple[str, str]:
-    """(key, expectation) for one schema error, in the config's own words."""
-    key = _key(error.absolute_path)
-    v, s, got = error.validator, error.validator_value, error.instance
-    if v == "additionalProperties":
+def _key(error: jsonschema.ValidationError, child: Any = None) -> str:
+    """The key an error is about, from jsonschema's path (`$.states.ranges.mass[0]` ->
+    `states.ranges.mass[0]`), optionally one level further down, at `child`."""
+    key = error.json_path.removeprefix("$").removeprefix(".")
+    if child is not None:
+        key = f"{key}.{child}" if key else str(child)
+    return key or "(top level)"
+
+
+def _schema_message(error: jsonschema.ValidationError) -> str:
+    """`key: expectation` for one schema error, naming the offending key itself."""
+    keyword, value, got = error.validator, error.validator_value, error.instance
+    if keyword == "additionalProperties":
         allowed = sorted(error.schema.get("properties", {}))
-        extra = sorted(set(got) - set(allowed)) if isinstance(got, dict) else []
-        name = f"{key}.{extra[0]}" if key != "(top level)" and extra else (extra or [key])[0]
+        unknown = min(set(got) - set(allowed), key=str)
         hint = f"one of {allowed}" if allowed else "no other keys"
-        return name, f"unknown key; expected {hint}"
-    if v == "required":
-        missing = [k for k in s if k not in got]
-        name = f"{key}.{missing[0]}" if key != "(top level)" else missing[0]
-        return name, "missing; this key is required"
-    expect = {
-        "type": f"expected {s}",
-        "minimum": f"expected >= {s}",
-        "maximum": f"expected <= {s}",
-        "exclusiveMinimum": f"expected > {s}",
-        "exclusiveMaximum": f"expected < {s}",
-        "enum": f"expected one of {s}",
-        "minItems": f"expected at least {s} items",
-        "maxItems": f"expected at most {s} items",
-        "minLength": "expected a non-empty string",
-        "minProperties": f"expected at least {s} entries",
-        "pattern": f"expected a name matching {s}",
-    }.get(v, error.message)
-    return key, f"{expect}, got {got!r}"
+        return f"{_key(error, unknown)}: unknown key; expected {hint}"
+    if keyword == "required":
+        missing = next(k for k in value if k not in got)
+        return f"{_key(error, missing)}: missing; this key is required"
+    template = _EXPECTATIONS.get(keyword)
+    expectation = template.format(s=value) if template else error.message
+    return f"{_key(error)}: {expectation}, got {got!r}"
 
 
 def _duplicate_key(node: yaml.Node, path: tuple[str, ...] = ()) -> tuple[str, int] | None:
@@ -121,12 +132,8 @@ def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
     repository when `provenance.require_clean` is set; a dirty repository otherwise gives one
     warning, since every output will be stamped dirty.
     """
-    import json
-
-    from mjtrial.provenance import git_state
-
-    results = Path("results") / config["experiment"]
-    manifest = repo_root / results / "manifest.json"
+    layout = Layout.of(config["experiment"])
+    manifest = repo_root / layout.manifest
     if manifest.is_file():
         try:
             recorded = json.loads(manifest.read_text()).get("experiment")
@@ -134,7 +141,7 @@ def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
             recorded = None
         if recorded != config["experiment"]:
             raise ConfigError(
-                f"{results}/: written by experiment {recorded!r} (manifest.json); expected "
+                f"{layout.root}/: written by experiment {recorded!r} (manifest.json); expected "
                 f"{config['experiment']!r}: choose another experiment name or move the folder"
             )
     git = git_state(repo_root)
@@ -168,8 +175,7 @@ def check_config(
     validator = jsonschema.Draft202012Validator(schema)
     error = jsonschema.exceptions.best_match(validator.iter_errors(dict(config)))
     if error is not None:
-        key, expectation = _describe(error)
-        raise ConfigError(f"{source}: {key}: {expectation}")
+        raise ConfigError(f"{source}: {_schema_message(error)}")
 
     def fail(key: str, expectation: str) -> None:
         raise ConfigError(f"{source}: {key}: {expectation}")
@@ -208,8 +214,6 @@ def check_config(
     model_file = repo_root / config["model"]
     if not model_file.is_file():
         fail("model", f"expected an existing model file, got {config['model']!r} (not found)")
-    from mjtrial.simulate import ModelError, load_model
-
     try:
         load_model(model_file)
     except ModelError as err:

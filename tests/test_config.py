@@ -1,0 +1,147 @@
+"""Config errors are one line naming the file, the key and the expectation (unit level; the
+pipeline's end-to-end cases are in test_trust.py)."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import yaml
+from conftest import REPO_ROOT
+
+from mjtrial.config import ConfigError, check_config, read_config_file
+
+SOURCE = "config/config.yaml"
+BASE = yaml.safe_load((REPO_ROOT / SOURCE).read_text())
+
+
+def edited(edit) -> dict:
+    config = copy.deepcopy(BASE)
+    edit(config)
+    return config
+
+
+# (case, edit of the committed config, the whole message after "config/config.yaml: ")
+SCHEMA_CASES = [
+    (
+        "missing top-level key",
+        lambda c: c.pop("recording"),
+        "recording: missing; this key is required",
+    ),
+    (
+        "missing nested key",
+        lambda c: c["conditions"]["fast"].pop("lift_time"),
+        "conditions.fast.lift_time: missing; this key is required",
+    ),
+    (
+        "misspelled nested key",
+        lambda c: c["states"].update(seeed=1),
+        "states.seeed: unknown key; expected one of ['development_seed', 'n', 'ranges', 'seed']",
+    ),
+    (
+        "wrong type",
+        lambda c: c["states"].update(n="many"),
+        "states.n: expected integer, got 'many'",
+    ),
+    ("below minimum", lambda c: c["states"].update(n=0), "states.n: expected >= 1, got 0"),
+    (
+        "at exclusive minimum",
+        lambda c: c["analysis"].update(confidence=0),
+        "analysis.confidence: expected > 0, got 0",
+    ),
+    (
+        "above exclusive maximum",
+        lambda c: c["analysis"].update(confidence=1.5),
+        "analysis.confidence: expected < 1, got 1.5",
+    ),
+    (
+        "array item",
+        lambda c: c["states"]["ranges"].update(mass=[-0.1, 0.6]),
+        "states.ranges.mass[0]: expected > 0, got -0.1",
+    ),
+    (
+        "too few items",
+        lambda c: c["analysis"]["bands"].update(mass=[0.05]),
+        "analysis.bands.mass: expected at least 2 items, got [0.05]",
+    ),
+    (
+        "not in enum",
+        lambda c: c["design"]["falsifier"].update(statistic="median"),
+        "design.falsifier.statistic: expected one of ['paired_difference'], got 'median'",
+    ),
+    (
+        "empty string",
+        lambda c: c["design"].update(question=""),
+        "design.question: expected a non-empty string, got ''",
+    ),
+    (
+        "badly named condition",
+        lambda c: c["conditions"].update({"very-slow": {"lift_time": 3.0}}),
+        "conditions: expected a name matching ^[A-Za-z][A-Za-z0-9_]*$, got 'very-slow'",
+    ),
+]
+
+# Checks a schema cannot express.
+SEMANTIC_CASES = [
+    (
+        "falsifier names an unknown condition",
+        lambda c: c["design"]["falsifier"].update(baseline="medium"),
+        "design.falsifier.baseline: expected one of the conditions ['fast', 'slow'], got 'medium'",
+    ),
+    (
+        "falsifier compares a condition with itself",
+        lambda c: c["design"]["falsifier"].update(baseline="slow"),
+        "design.falsifier.baseline: expected a condition other than the treatment",
+    ),
+    (
+        "inverted range",
+        lambda c: c["states"]["ranges"].update(yaw=[0.6, -0.6]),
+        "states.ranges.yaw: expected [low, high] with low < high, got [0.6, -0.6]",
+    ),
+    (
+        "same development and evaluation seed",
+        lambda c: c["states"].update(development_seed=c["states"]["seed"]),
+        "states.development_seed: expected a seed other than states.seed (development and "
+        "evaluation states must be disjoint)",
+    ),
+    (
+        "bands not covering the range",
+        lambda c: c["analysis"]["bands"].update(mass=[0.1, 0.3, 0.6]),
+        "analysis.bands.mass: expected edges covering the range of mass [0.05, 0.6], "
+        "got [0.1, 0.3, 0.6]",
+    ),
+    (
+        "missing model file",
+        lambda c: c.update(model="models/nowhere/scene.xml"),
+        "model: expected an existing model file, got 'models/nowhere/scene.xml' (not found)",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("case", "edit", "message"),
+    SCHEMA_CASES + SEMANTIC_CASES,
+    ids=[c[0] for c in SCHEMA_CASES + SEMANTIC_CASES],
+)
+def test_bad_config_is_one_line_naming_file_key_and_expectation(case, edit, message):
+    with pytest.raises(ConfigError) as err:
+        check_config(edited(edit), source=SOURCE, repo_root=REPO_ROOT)
+    assert str(err.value) == f"{SOURCE}: {message}"
+
+
+def test_unknown_top_level_key_lists_the_known_ones():
+    with pytest.raises(ConfigError) as err:
+        check_config(edited(lambda c: c.update(experimnt="x")), source=SOURCE)
+    assert str(err.value).startswith(f"{SOURCE}: experimnt: unknown key; expected one of [")
+    assert "'experiment'" in str(err.value)
+
+
+def test_committed_config_passes():
+    check_config(copy.deepcopy(BASE), source=SOURCE, repo_root=REPO_ROOT)
+
+
+def test_duplicate_key_is_named_with_its_line(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("conditions:\n  slow: {lift_time: 1.5}\n  slow: {lift_time: 3.0}\n")
+    with pytest.raises(ConfigError, match=r"conditions\.slow: duplicate key \(line 3\)"):
+        read_config_file(path)
