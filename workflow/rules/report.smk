@@ -2,8 +2,8 @@ rule report:
     input:
         summary=LAYOUT.summary,
         manifest=LAYOUT.manifest,
-        states=LAYOUT.states,
         rollouts=per_condition(LAYOUT.rollout_table),
+        recordings=per_condition(LAYOUT.recordings),
         model=config["model"],
     output:
         **figure_outputs(),

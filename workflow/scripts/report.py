@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+from mjtrial.layout import FIGURES
 from mjtrial.stages.report import write_report_stage
 from mjtrial.workflow_script import setup_logging
 
@@ -12,12 +13,12 @@ write_report_stage(
     config=config,
     summary_path=Path(snakemake.input.summary),
     manifest_path=Path(snakemake.input.manifest),
-    states_path=Path(snakemake.input.states),
     rollout_tables=dict(
         zip(config["conditions"], map(Path, snakemake.input.rollouts), strict=True)
     ),
+    recordings=dict(zip(config["conditions"], map(Path, snakemake.input.recordings), strict=True)),
     model_file=Path(snakemake.input.model),
-    figures_dir=Path(snakemake.output.report).parent / "figures",
+    figures_dir=Path(snakemake.output[FIGURES[0]]).parent,
     output=Path(snakemake.output.report),
     repo_root=Path.cwd(),
 )

@@ -19,29 +19,33 @@ def write_report_stage(
     config: Mapping[str, Any],
     summary_path: Path,
     manifest_path: Path,
-    states_path: Path,
     rollout_tables: Mapping[str, Path],
+    recordings: Mapping[str, Path],
     model_file: Path,
     figures_dir: Path,
     output: Path,
     repo_root: Path = REPO_ROOT,
 ) -> list[Path]:
-    """Draw the figures and write `report.md`; every number in them comes from the inputs."""
+    """Draw the figures and write `report.md`; every number in them comes from the inputs.
+
+    `recordings` (condition -> its folder of recordings) hold the cube-height traces drawn;
+    `model_file` is the model the report describes (checked against the manifest's hash).
+    """
     inputs = {
         "summary": summary_path,
         "manifest": manifest_path,
-        "states": states_path,
         **model_inputs(model_file),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
+        **{f"recordings:{k}": v for k, v in recordings.items()},
     }
     stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
     summary = json.loads(Path(summary_path).read_text())
+    manifest = json.loads(Path(manifest_path).read_text())
     figures = report.write_figures(
         summary=summary,
-        states_path=states_path,
         rollout_tables=rollout_tables,
-        model_file=model_file,
-        lift_times={name: float(c["lift_time"]) for name, c in config["conditions"].items()},
+        recordings=recordings,
+        timestep=manifest["model"]["timestep"],
         out_dir=figures_dir,
         stamp=stamp,
     )
