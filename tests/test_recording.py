@@ -1,4 +1,4 @@
-"""Tests for mjtrial.recording: rerun recordings of episodes, written and read back."""
+"""Tests for mjtrial.recording: recordings of real episodes, written and read back."""
 
 from __future__ import annotations
 
@@ -13,25 +13,21 @@ import pytest
 import rerun as rr
 
 from mjtrial import model_path
-from mjtrial import recording as rec_mod
 from mjtrial.protocol import control_sequence
 from mjtrial.provenance import read_stamp
 from mjtrial.recording import (
     EpisodeRecord,
-    body_poses,
     list_recordings,
-    log_episode,
-    log_model_geometry,
     logged_steps,
-    mujoco_to_rerun_quat,
     read_episode,
     read_rrd_stamp,
     recording_files,
-    rerun_to_mujoco_quat,
     write_condition_recordings,
     write_episode_recording,
     write_failures_rrd,
 )
+from mjtrial.recording import route as route_mod
+from mjtrial.recording import write as write_mod
 from mjtrial.simulate import InitialState, iter_episode_batches, load_model
 
 LIFT_TIME = 0.15
@@ -64,7 +60,7 @@ def _no_home_writes(monkeypatch: pytest.MonkeyPatch, tmp_path_factory: pytest.Te
 
 def _rerun_cli() -> str:
     cli = Path(sys.executable).parent / "rerun"
-    return str(cli) if cli.exists() else rec_mod._rerun_cli()
+    return str(cli) if cli.exists() else route_mod.rerun_cli()
 
 
 def _verify(*paths: Path) -> subprocess.CompletedProcess[str]:
@@ -139,130 +135,6 @@ def condition_rrd(
         mp.undo()
     assert n == len(episodes)
     return path
-
-
-# --------------------------------------------------------------------------------------------
-# Quaternions and kinematics
-# --------------------------------------------------------------------------------------------
-
-
-def test_quaternion_90_degrees_about_z() -> None:
-    c = s = np.sqrt(0.5)
-    np.testing.assert_array_equal(mujoco_to_rerun_quat(np.array([c, 0, 0, s])), [0, 0, s, c])
-    np.testing.assert_array_equal(rerun_to_mujoco_quat(np.array([0, 0, s, c])), [c, 0, 0, s])
-
-
-def test_quaternion_matches_mujoco_rotation() -> None:
-    # the converted quaternion rotates x onto y, as MuJoCo's does
-    q = np.empty(4)
-    mujoco.mju_axisAngle2Quat(q, np.array([0.0, 0.0, 1.0]), np.pi / 2)
-    x, y, z, w = mujoco_to_rerun_quat(q)
-    v = np.array([1.0, 0.0, 0.0])
-    u = np.array([x, y, z])
-    rotated = v + 2 * w * np.cross(u, v) + 2 * np.cross(u, np.cross(u, v))
-    np.testing.assert_allclose(rotated, [0.0, 1.0, 0.0], atol=1e-15)
-
-
-def test_quaternion_round_trip_vectorised() -> None:
-    q = np.random.default_rng(0).normal(size=(5, 7, 4))
-    xyzw = mujoco_to_rerun_quat(q)
-    assert xyzw.shape == q.shape
-    np.testing.assert_array_equal(xyzw[..., 3], q[..., 0])
-    np.testing.assert_array_equal(rerun_to_mujoco_quat(xyzw), q)
-    with pytest.raises(ValueError, match=r"\(\.\.\., 4\)"):
-        mujoco_to_rerun_quat(np.zeros((3, 3)))
-
-
-def _mj_kinematics(model: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    data = mujoco.MjData(model)
-    xpos, xquat = [], []
-    for row in qpos:
-        data.qpos[:] = row
-        mujoco.mj_kinematics(model, data)
-        xpos.append(data.xpos.copy())
-        xquat.append(data.xquat.copy())
-    return np.array(xpos), np.array(xquat)
-
-
-def test_body_poses_match_mj_kinematics_on_episode(
-    model: mujoco.MjModel, episodes: list[EpisodeRecord]
-) -> None:
-    physics = episodes[1].physics
-    qpos = physics[[0, 400, 800, 1100, len(physics) - 1], 1 : 1 + model.nq]
-    xpos, xquat = body_poses(model, qpos)
-    ref_pos, ref_quat = _mj_kinematics(model, qpos)
-    np.testing.assert_allclose(xpos, ref_pos, rtol=0, atol=1e-14)
-    np.testing.assert_allclose(xquat, ref_quat, rtol=0, atol=1e-14)
-
-
-ARTICULATED = """
-<mujoco>
-  <worldbody>
-    <body name="base" pos="0.1 0.2 0.3" quat="0.9 0.1 0.3 0.2">
-      <joint name="slide" type="slide" axis="1 1 0" ref="0.05"/>
-      <geom type="sphere" size="0.05"/>
-      <body name="arm" pos="0 0.1 0" euler="0.3 0 0.5">
-        <joint name="hinge" type="hinge" axis="0 1 1" pos="0.02 0 0.01" ref="0.4"/>
-        <geom type="capsule" size="0.01 0.05"/>
-        <body name="wrist" pos="0.1 0 0">
-          <joint name="ball" type="ball" pos="0 0.01 0"/>
-          <joint name="slide2" type="slide" axis="0 0 1"/>
-          <geom type="box" size="0.01 0.02 0.03"/>
-        </body>
-      </body>
-    </body>
-    <body name="free" pos="1 0 0">
-      <freejoint/>
-      <geom type="box" size="0.1 0.1 0.1"/>
-    </body>
-  </worldbody>
-</mujoco>
-"""
-
-
-def test_body_poses_match_mj_kinematics_for_all_joint_types() -> None:
-    model = mujoco.MjModel.from_xml_string(ARTICULATED)
-    rng = np.random.default_rng(1)
-    qpos = rng.normal(size=(6, model.nq))  # quaternions unnormalised on purpose
-    xpos, xquat = body_poses(model, qpos)
-    ref_pos, ref_quat = _mj_kinematics(model, qpos)
-    np.testing.assert_allclose(xpos, ref_pos, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(xquat, ref_quat, rtol=0, atol=1e-12)
-
-
-def test_pose_in_parent_composes_back_to_the_world_pose() -> None:
-    # child bodies are logged in their parent's frame: parent pose * relative pose = world pose
-    model = mujoco.MjModel.from_xml_string(ARTICULATED)
-    qpos = np.random.default_rng(2).normal(size=(5, model.nq))
-    xpos, xquat = body_poses(model, qpos)
-    for body in range(1, model.nbody):
-        parent = model.body_parentid[body]
-        pos, quat = rec_mod._in_parent(
-            xpos[:, body], xquat[:, body], xpos[:, parent], xquat[:, parent]
-        )
-        for row in range(len(qpos)):
-            world_pos, world_quat = np.zeros(3), np.zeros(4)
-            mujoco.mju_rotVecQuat(world_pos, pos[row], xquat[row, parent])
-            mujoco.mju_mulQuat(world_quat, xquat[row, parent], quat[row])
-            np.testing.assert_allclose(world_pos + xpos[row, parent], xpos[row, body], atol=1e-12)
-            np.testing.assert_allclose(world_quat, xquat[row, body], atol=1e-12)
-
-
-def test_body_poses_rejects_wrong_width(model: mujoco.MjModel) -> None:
-    with pytest.raises(ValueError, match="qpos"):
-        body_poses(model, np.zeros((2, model.nq + 1)))
-
-
-def test_logged_steps() -> None:
-    np.testing.assert_array_equal(logged_steps(4, 1), [0, 1, 2, 3])
-    np.testing.assert_array_equal(logged_steps(10, 5), [4, 9])
-    np.testing.assert_array_equal(logged_steps(12, 5), [4, 9, 11])  # the last step always
-    np.testing.assert_array_equal(logged_steps(3, 5), [2])
-    assert len(logged_steps(1425, 5)) == 285
-    with pytest.raises(ValueError, match="log_every"):
-        logged_steps(10, 0)
-    with pytest.raises(TypeError, match="log_every"):
-        logged_steps(10, 2.0)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------------------------
@@ -460,7 +332,13 @@ def test_child_bodies_carry_their_pose_in_the_parent(
 ) -> None:
     ep = episodes[0]
     steps = logged_steps(len(ctrl), 5)
-    xpos, _ = body_poses(model, ep.physics[steps, 1 : 1 + model.nq])
+    data = mujoco.MjData(model)
+    xpos = []
+    for row in ep.physics[steps]:  # the reference: MuJoCo's world poses
+        data.qpos[:] = row[1 : 1 + model.nq]
+        mujoco.mj_kinematics(model, data)
+        xpos.append(data.xpos.copy())
+    xpos = np.array(xpos)
     poses = {}
     for chunk in _store(condition_rrd, f"{CONDITION}-state-000000").stream():
         if not chunk.is_static:
@@ -656,7 +534,7 @@ def test_every_episode_is_written_whatever_the_group_size(
     episodes: list[EpisodeRecord],
     group: int,
 ) -> None:
-    monkeypatch.setattr(rec_mod, "_GROUP", group)  # 3 episodes: full groups, and a remainder
+    monkeypatch.setattr(write_mod, "_GROUP", group)  # 3 episodes: full groups, and a remainder
     path = tmp_path / "c"
     n = write_condition_recordings(
         path, model=model, condition="c", episodes=episodes, ctrl=ctrl, stamp=STAMP, log_every=5
@@ -673,7 +551,7 @@ def test_every_episode_is_written_whatever_the_group_size(
 def test_failures_without_a_path_to_the_pipe_go_through_a_scratch_file(
     condition_rrd: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(rec_mod, "_fd_path", lambda fd: None)  # as on Windows
+    monkeypatch.setattr(route_mod, "_fd_path", lambda fd: None)  # as on Windows
     path = tmp_path / "failures.rrd"
     assert write_failures_rrd(path, [condition_rrd], stamp=STAMP) == 1
     result = _verify(path)
@@ -725,7 +603,7 @@ def test_a_failing_route_raises_and_leaves_nothing(
     fake = tmp_path / "fake-rerun"
     fake.write_text(f"#!/bin/sh\n{route}\n")
     fake.chmod(0o755)
-    monkeypatch.setattr(rec_mod, "_rerun_cli", lambda: str(fake))
+    monkeypatch.setattr(route_mod, "rerun_cli", lambda: str(fake))
     out = tmp_path / "out"
     out.mkdir()
     with pytest.raises(RuntimeError, match="route (stopped early|failed).*out of disk"):
@@ -760,99 +638,10 @@ def test_writing_leaves_the_home_folder_alone(
     assert not home_dir.exists() or list(home_dir.rglob("*")) == []
 
 
-# --------------------------------------------------------------------------------------------
-# Logging to a live recording
-# --------------------------------------------------------------------------------------------
-
-
-def test_live_logging_writes_the_same_layout(
-    tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
-) -> None:
-    path = tmp_path / "live.rrd"
-    rec = rr.RecordingStream("mjtrial", recording_id="live", send_properties=False)
-    rec.save(path)
-    log_model_geometry(rec, model)
-    ep = episodes[0]
-    log_episode(rec, model, physics=ep.physics, sensordata=ep.sensordata, ctrl=ctrl, log_every=5)
-    rec.disconnect()
-    lines = _store(path, "live").summary().splitlines()
+def test_a_recording_holds_one_time_series_chunk_per_moving_body(condition_rrd: Path) -> None:
+    lines = _store(condition_rrd, f"{CONDITION}-state-000000").summary().splitlines()
     for entity in ("/world/cube", "/world/carriage/left_finger"):
         [series] = [line for line in lines if line.startswith(f"{entity} rows=285 static=False")]
         assert "Scalars:scalars" in series and "Transform3D:translation" in series
     static = [line for line in lines if line.startswith("/world/cube rows=1 static=True")]
-    assert len(static) == 2  # its geometry (log_model_geometry), its series names (log_episode)
-
-
-PRIMITIVES = """
-<mujoco>
-  <asset>
-    <material name="red" rgba="1 0 0 1"/>
-    <mesh name="tet" vertex="0 0 0  1 0 0  0 1 0  0 0 1"/>
-  </asset>
-  <worldbody>
-    <geom name="ground" type="plane" size="0 0 1" material="red"/>
-    <body name="b">
-      <freejoint/>
-      <geom name="ball" type="sphere" size="0.1" material="red" rgba="0 1 0 1"/>
-      <geom name="capsule" type="capsule" size="0.05 0.2" pos="0 0 1" euler="60 0 0"/>
-      <geom type="cylinder" size="0.05 0.2"/>
-      <geom type="ellipsoid" size="0.1 0.2 0.3"/>
-      <geom name="tetrahedron" type="mesh" mesh="tet" pos="0 0 2" euler="0 30 0"/>
-      <geom name="hidden" type="box" size="1 1 1" group="3"/>
-    </body>
-    <body name="post" pos="1 2 0" euler="0 0 0.5">
-      <geom type="box" size="0.1 0.1 0.5" pos="0 0 0.5"/>
-    </body>
-  </worldbody>
-</mujoco>
-"""
-
-
-def test_every_primitive_type_is_drawn(tmp_path: Path) -> None:
-    model = mujoco.MjModel.from_xml_string(PRIMITIVES)
-    path = tmp_path / "shapes.rrd"
-    rec = rr.RecordingStream("mjtrial", recording_id="shapes", send_properties=False)
-    rec.save(path)
-    log_model_geometry(rec, model)
-    rec.disconnect()
-    static = _static_batches(path, "shapes")
-    assert set(static) == {"/world", "/world/b", "/world/post"}
-    world, b, post = static["/world"], static["/world/b"], static["/world/post"]
-    # the world body's plane: a flat box on ``world``, in the material's colour
-    assert _column(world, "Boxes3D:colors") == [[0xFF0000FF]]
-    assert _column(world, "Boxes3D:half_sizes") == [[pytest.approx([5.0, 5.0, 5e-4])]]
-    # one archetype per geom type on the body, each geom an instance; group 3 is not drawn
-    assert not any(name.startswith("Boxes3D:") for name in b.schema.names)
-    assert _column(b, "Ellipsoids3D:half_sizes") == [
-        [pytest.approx([0.1] * 3), pytest.approx([0.1, 0.2, 0.3])]
-    ]
-    assert _column(b, "Ellipsoids3D:colors")[0][0] == 0x00FF00FF  # the geom's own rgba wins
-    assert _column(b, "Cylinders3D:lengths") == [[pytest.approx(0.4)]]
-    # a capsule runs from its start, MuJoCo's centre minus its half-length along its axis
-    capsule = model.geom("capsule")
-    axis = np.zeros(3)
-    mujoco.mju_rotVecQuat(axis, np.array([0.0, 0.0, 1.0]), capsule.quat)
-    [[start]] = _column(b, "Capsules3D:translations")
-    np.testing.assert_allclose(start, capsule.pos - 0.2 * axis, atol=1e-6)
-    [[quat]] = _column(b, "Capsules3D:quaternions")
-    np.testing.assert_allclose(quat, mujoco_to_rerun_quat(capsule.quat), atol=1e-6)
-    # meshes: vertices moved into the body frame
-    [vertices] = _column(b, "Mesh3D:vertex_positions")
-    mesh = model.geom("tetrahedron")
-    v0, nv = model.mesh_vertadr[0], model.mesh_vertnum[0]
-    expected = np.array([mesh.pos + _rotate(mesh.quat, v) for v in model.mesh_vert[v0 : v0 + nv]])
-    np.testing.assert_allclose(vertices, expected, atol=1e-6)
-    assert len(_column(b, "Mesh3D:triangle_indices")[0]) == model.mesh_facenum[0]
-    # a body without joints gets its pose in the parent once, static
-    [[translation]] = _column(post, "Transform3D:translation")
-    np.testing.assert_allclose(translation, model.body("post").pos, atol=1e-6)
-    [[rotation]] = _column(post, "Transform3D:quaternion")
-    np.testing.assert_allclose(rotation, mujoco_to_rerun_quat(model.body("post").quat), atol=1e-6)
-    [[center]] = _column(post, "Boxes3D:centers")
-    np.testing.assert_allclose(center, [0.0, 0.0, 0.5], atol=1e-6)
-
-
-def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
-    out = np.zeros(3)
-    mujoco.mju_rotVecQuat(out, np.asarray(v, dtype=np.float64), quat)
-    return out
+    assert len(static) == 1  # its geometry and its series names, in one chunk

@@ -1,0 +1,135 @@
+"""``failures.rrd``: the failed episodes of every condition, gathered in one file."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import rerun as rr
+from rerun.chunk import Chunk, RrdReader, StoreEntry
+
+from mjtrial.atomic import atomic_path
+from mjtrial.recording.arrow import archetype_columns, chunks, strict
+from mjtrial.recording.names import (
+    APPLICATION_ID,
+    FAILURE_PREFIX,
+    FAILURES_PROPERTY,
+    FAILURES_SUMMARY,
+    JSON_FIELD,
+    PROPERTIES,
+    PROVENANCE_PROPERTY,
+    SOURCE_PROVENANCE_PROPERTY,
+    default_blueprint,
+)
+from mjtrial.recording.read import open_rrd, properties, recorded_signals, recording_files
+from mjtrial.recording.route import rrd_output, write_recording
+from mjtrial.recording.write import stamp_json
+
+
+def _static_chunk(entity: str, archetypes: list[Any]) -> Chunk:
+    """One static row holding all components of `archetypes`, as `rec.log(static=True)` would."""
+    return chunks(archetype_columns(entity, archetypes))[0]
+
+
+def _property_chunk(name: str, fields: Mapping[str, Any]) -> Chunk:
+    """What `rr.send_property(name, rr.AnyValues(**fields))` logs."""
+    # One-element lists: rerun converts bare Python scalars ~10x slower (exception paths).
+    values = {k: v if isinstance(v, list) else [v] for k, v in fields.items()}
+    with strict():
+        return Chunk.from_property(name, rr.AnyValues(**values))
+
+
+def write_failures_rrd(
+    path: str | os.PathLike[str],
+    sources: Sequence[str | os.PathLike[str]],
+    *,
+    stamp: Mapping[str, Any],
+    only_failures: bool = False,
+    application_id: str = APPLICATION_ID,
+) -> int:
+    """Atomically gather the failed episodes (property success False) of .rrd files or folders.
+
+    With `only_failures`, every recording of `sources` must be a failed episode (the caller
+    chose them from the rollout tables): one that is not is an error, raised before writing.
+
+    The file starts with a summary recording (id ``failures``: the count, the source file names
+    and a table of the failures), so it carries its stamp even when nothing failed. Each failed
+    recording is copied chunk for chunk under the id ``failures-<original id>`` (so both files
+    can be open in one viewer); its `provenance` becomes `stamp`, the original stamp is kept as
+    `source_provenance`. Memory holds one recording at a time.
+
+    Returns:
+      the number of failed episodes written.
+    """
+    path = Path(path)
+    stamp_text = stamp_json(stamp)
+    readers: dict[Path, RrdReader] = {}
+    failures: list[tuple[Path, StoreEntry, dict[str, Any]]] = []
+    files = [f for source in sources for f in recording_files(source)]
+    for source in files:
+        reader = open_rrd(source)
+        for entry in reader.recordings():
+            props = properties(reader, entry)
+            if props.get("success") is False:
+                failures.append((source, entry, props))
+                readers[source] = reader  # only files with failures stay open
+            elif only_failures:
+                raise ValueError(
+                    f"{source}: recording {entry.recording_id!r} is not a failed episode "
+                    f"(success {props.get('success')!r})"
+                )
+    ids = [entry.recording_id for _, entry, _ in failures]
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    if duplicates:
+        raise ValueError(f"the same episode appears in several sources: {duplicates[:5]}")
+
+    signals: Sequence[tuple[str, Sequence[str]]] = []  # no sources: plots without contents
+    for source in files[:1]:  # the sources' signals, all recorded alike
+        reader = readers.get(source) or open_rrd(source)
+        if recordings := reader.recordings():
+            signals = list(recorded_signals(reader, recordings[0]).items())
+    blueprint = default_blueprint(signals)
+    with atomic_path(path) as tmp, rrd_output(tmp, application_id, blueprint) as out:
+        names = [Path(s).name for s in sources]  # names only: no private paths in outputs
+        title = f"failures: {len(failures)} episode(s) from {len(names)} file(s)"
+        summary = [
+            _static_chunk(PROPERTIES, [rr.archetypes.RecordingInfo(name=title)]),
+            _property_chunk(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
+            _property_chunk(
+                FAILURES_PROPERTY, {"n_failures": len(failures), "sources": json.dumps(names)}
+            ),
+            _static_chunk(FAILURES_SUMMARY, [_failures_table(failures)]),
+        ]
+        write_recording(out, summary, application_id=application_id, recording_id=FAILURES_SUMMARY)
+        replaced = [
+            f"{PROPERTIES}/{PROVENANCE_PROPERTY}",
+            f"{PROPERTIES}/{SOURCE_PROVENANCE_PROPERTY}",
+        ]
+        for source, entry, props in failures:
+            copied = list(readers[source].store(store=entry).stream().drop(content=replaced))
+            copied.append(_property_chunk(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}))
+            original = props.get(PROVENANCE_PROPERTY)
+            if original is not None:
+                fields = {JSON_FIELD: json.dumps(original, allow_nan=False)}
+                copied.append(_property_chunk(SOURCE_PROVENANCE_PROPERTY, fields))
+            rid = FAILURE_PREFIX + entry.recording_id
+            write_recording(out, copied, application_id=application_id, recording_id=rid)
+    return len(failures)
+
+
+def _failures_table(failures: Sequence[tuple[Path, Any, Mapping[str, Any]]]) -> rr.TextDocument:
+    lines = [
+        "| source | condition | state | failure | final height (m) |",
+        "|---|---|---|---|---|",
+    ]
+    for source, _, p in failures:
+        lines.append(
+            f"| {source.name} | {p.get('condition')} | {p.get('state_id')} "
+            f"| {p.get('failure_category') or '-'} | {p.get('final_height', float('nan')):.4f} |"
+        )
+    if not failures:
+        lines.append("| - | - | - | - | - |")
+    return rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN)

@@ -1,0 +1,133 @@
+"""Names in a recording: entity paths, series and property names, recording ids, file names.
+
+Every one of them is spelled here, and the viewer's layout (`default_blueprint`) too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from mjtrial.protocol import CTRL_GRIPPER, CTRL_X, CTRL_Y, CTRL_Z
+from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
+
+APPLICATION_ID = "mjtrial"
+TIMELINE = "sim_time"  # the one timeline: simulated seconds, stored as integer nanoseconds
+PROPERTIES = "/" + rr.RECORDING_PROPERTIES_PATH.strip("/")  # entity of recording properties
+WORLD = "world"  # entity of MuJoCo's world body: the root of the body tree
+
+# Signals, logged on the entity of the body they belong to, so they share its time-series chunk
+# (an entity of their own would cost every recording a chunk of row ids and timestamps): the
+# cube's height on the cube; the mean finger opening and the control targets on the fingers'
+# parent (the carriage); each pad's normal force on the pad's body (the fingers).
+CUBE_SERIES = ("cube_height",)
+CTRL_SERIES = ("ctrl_x", "ctrl_y", "ctrl_z", "ctrl_gripper")
+CTRL_COLUMNS = (CTRL_X, CTRL_Y, CTRL_Z, CTRL_GRIPPER)  # of CTRL_SERIES, in ctrl
+GRIPPER_SERIES = ("finger_opening", *CTRL_SERIES)
+CONTACT_SERIES = ("left_normal_force", "right_normal_force")
+SIGNALS = (*CUBE_SERIES, *GRIPPER_SERIES, *CONTACT_SERIES)
+
+# Recording properties.
+EPISODE_PROPERTY = "episode"
+EPISODE_COMPONENT = "fields"  # the episode property's one component: a struct
+PROVENANCE_PROPERTY = "provenance"
+SOURCE_PROVENANCE_PROPERTY = "source_provenance"
+FAILURES_PROPERTY = "failures"
+JSON_FIELD = "json"  # the component of a property held as JSON text
+
+FAILURES_SUMMARY = "failures"  # recording id and entity of failures.rrd's summary
+FAILURE_PREFIX = "failures-"  # recording ids of episodes copied into failures.rrd
+FOLDER_BLUEPRINT = RECORDING_FOLDER_BLUEPRINT  # the blueprint file of a condition's folder
+
+
+def body_entity(model: mujoco.MjModel, body_id: int) -> str:
+    """Entity path of a body: its parent's path, then its name (or ``body_<i>``).
+
+    MuJoCo's world body is ``world``, so the gantry's fingers are ``world/carriage/left_finger``.
+    """
+    parts = []
+    while body_id != 0:
+        name = model.body(body_id).name or f"body_{body_id}"
+        parts.append(rr.escape_entity_path_part(name))
+        body_id = int(model.body_parentid[body_id])
+    return "/".join([WORLD, *reversed(parts)])
+
+
+def top_level_entity(body_name: str) -> str:
+    """Entity path of a child of the world body, by its name (the cube, with its free joint)."""
+    return f"{WORLD}/{rr.escape_entity_path_part(body_name)}"
+
+
+def episode_recording_id(condition: str, state_id: int) -> str:
+    """Deterministic recording id, so reruns of the same episode are comparable."""
+    return f"{condition}-state-{int(state_id):06d}"
+
+
+def episode_recording_name(condition: str, state_id: int) -> str:
+    """Recording name shown in the viewer."""
+    return f"{condition} / state {int(state_id)}"
+
+
+def file_name(recording_id: str) -> str:
+    """The file of a recording in its condition's folder: named by its recording id."""
+    return f"{recording_id}.rrd"
+
+
+def episode_file_name(condition: str, state_id: int) -> str:
+    """The file of an episode's recording in its condition's folder."""
+    return file_name(episode_recording_id(condition, state_id))
+
+
+def logged_steps(nstep: int, log_every: int) -> np.ndarray:
+    """Steps that are logged: every `log_every`-th (1-based), and always the last one."""
+    if isinstance(log_every, bool) or not isinstance(log_every, (int, np.integer)):
+        raise TypeError(f"log_every: expected an integer, got {log_every!r}")
+    if log_every < 1:
+        raise ValueError(f"log_every: expected >= 1, got {log_every}")
+    if nstep < 1:
+        raise ValueError(f"expected at least one step, got {nstep}")
+    steps = np.arange(log_every - 1, nstep, log_every)
+    if steps.size == 0 or steps[-1] != nstep - 1:
+        steps = np.append(steps, nstep - 1)
+    return steps
+
+
+# Shapes drawn solid, as in MuJoCo's viewer. Set as defaults of the 3D view rather than logged
+# with the shapes: a component logged costs every recording ~0.5 kB in the file's footer.
+SOLID_SHAPES = (rr.Boxes3D, rr.Ellipsoids3D, rr.Capsules3D, rr.Cylinders3D)
+
+
+def default_blueprint(signals: Sequence[tuple[str, Sequence[str]]]) -> rrb.Blueprint:
+    """Viewer layout: the scene on the left, cube height and contact forces on the right.
+
+    Args:
+      signals: (entity, series names) of the logged signals. The upper plot shows the entities
+        of the cube's height, the finger opening and the control targets (m); the lower one
+        those of the pads' normal forces (N). The scene's view draws shapes solid (rerun's
+        default for boxes is a wireframe).
+    """
+    force = [e for e, names in signals if set(names) & set(CONTACT_SERIES)]
+    lift = [e for e, names in signals if e not in force]
+    solid = [shape.from_fields(fill_mode=rr.components.FillMode.Solid) for shape in SOLID_SHAPES]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin=WORLD, name="scene", defaults=solid),
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    origin=WORLD,
+                    contents=[f"+ /{e.strip('/')}" for e in lift],
+                    name="cube height, finger opening, ctrl (m)",
+                ),
+                rrb.TimeSeriesView(
+                    origin=WORLD,
+                    contents=[f"+ /{e.strip('/')}" for e in force],
+                    name="pad-cube normal force (N)",
+                ),
+            ),
+            column_shares=[3, 2],
+        )
+    )

@@ -1,0 +1,152 @@
+"""An episode's time series as Arrow columns: the bodies' poses and the gantry's signals.
+
+Everything runs once over the logged rows of many episodes: numpy's and pyarrow's cost per
+call, not per row, dominates at a few hundred rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+
+from mjtrial.model_spec import FULLPHYSICS, STATE_QPOS, STATE_TIME, ModelSpec
+from mjtrial.recording.arrow import (
+    QUATERNION,
+    SCALARS,
+    TIME_FIELD,
+    TRANSLATION,
+    Column,
+    archetype_columns,
+    record_batch,
+    series_fields,
+    strict,
+    tag,
+)
+from mjtrial.recording.names import (
+    CTRL_COLUMNS,
+    CUBE_SERIES,
+    GRIPPER_SERIES,
+    SIGNALS,
+    body_entity,
+)
+from mjtrial.recording.scene import BodyPoses, mujoco_to_rerun_quat, static_scene
+
+# (entity, series names, their columns in SIGNALS) of an entity holding signals
+Signals = tuple[str, tuple[str, ...], tuple[int, ...]]
+
+
+def _signals(model: mujoco.MjModel, spec: ModelSpec) -> tuple[Signals, ...]:
+    """Where each signal is logged: on the entity of the body it belongs to, in body order."""
+    owners = [
+        *[spec.cube_body] * len(CUBE_SERIES),
+        *[spec.carriage_body] * len(GRIPPER_SERIES),
+        *spec.pad_bodies,  # CONTACT_SERIES
+    ]
+    columns: dict[str, list[int]] = {}
+    for column, body in sorted(enumerate(owners), key=lambda c: c[1]):
+        columns.setdefault(body_entity(model, body), []).append(column)
+    return tuple((e, tuple(SIGNALS[c] for c in cs), tuple(cs)) for e, cs in columns.items())
+
+
+class Chunker:
+    """A model's recordings as Arrow columns, built fast: the column layouts are prepared once.
+
+    `geometry` and `styles` are the static columns every recording shares (geoms, static poses,
+    series names); `series` builds the time series of many episodes at once.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.spec = ModelSpec.of(model)
+        self.nstate = mujoco.mj_stateSize(model, FULLPHYSICS)
+        self.nsensordata, self.nu, self.nq = model.nsensordata, model.nu, model.nq
+        self.signals = _signals(model, self.spec)
+        self.poses = BodyPoses(model)
+        self.geometry = [c for e, a in static_scene(model) for c in archetype_columns(e, a)]
+        with strict():
+            styles = [(e, [rr.SeriesLines(names=list(names))]) for e, names, _ in self.signals]
+        self.styles = [c for e, a in styles for c in archetype_columns(e, a)]
+        fields = series_fields()
+        self._pose_fields = [
+            (tag(fields[TRANSLATION], m.entity), tag(fields[QUATERNION], m.entity))
+            for m in self.poses.moving
+        ]
+        self._signal_fields = [tag(fields[SCALARS], e) for e, _, _ in self.signals]
+        self._offsets: dict[tuple[int, int], pa.Array] = {}
+
+    def _list_offsets(self, n: int, width: int) -> pa.Array:
+        key = (n, width)
+        if key not in self._offsets:
+            self._offsets[key] = pa.array(np.arange(0, n * width + 1, width, dtype=np.int32))
+        return self._offsets[key]
+
+    def _list(self, field: pa.Field, values: np.ndarray) -> pa.Array:
+        """(n, width) values as a list column of `field`'s type: one row of `width` per step."""
+        n, width = values.shape
+        item = field.type.value_type
+        if pa.types.is_fixed_size_list(item):
+            dtype = item.value_type.to_pandas_dtype()
+            flat = pa.array(np.ascontiguousarray(values, dtype=dtype).ravel())
+            inner = pa.FixedSizeListArray.from_arrays(flat, type=item)
+            return pa.ListArray.from_arrays(self._list_offsets(n, 1), inner, type=field.type)
+        flat = pa.array(np.ascontiguousarray(values, dtype=np.float64).ravel())
+        return pa.ListArray.from_arrays(self._list_offsets(n, width), flat, type=field.type)
+
+    def series(
+        self, episodes: Sequence[tuple[np.ndarray, np.ndarray]], ctrl: np.ndarray
+    ) -> pa.RecordBatch:
+        """Time series of episodes, from each one's logged rows of physics and sensors.
+
+        Args:
+          episodes: (rows, sensors) per episode: (n, nstate) physics and (n, nsensordata)
+            sensors at the n logged steps, the same n for all.
+          ctrl: (n, nu) the ctrl at the logged steps.
+
+        Returns:
+          the columns of all episodes, one after another: episode i's are rows i*n to (i+1)*n
+          (zero-copy slices). A moving body's pose is in its parent body, whose entity holds
+          the parent's pose; the time is `physics[:, 0]` in integer nanoseconds.
+        """
+        spec = self.spec
+        n, k = ctrl.shape[0], len(episodes)
+        rows = np.concatenate([r for r, _ in episodes])
+        sensors = np.concatenate([s for _, s in episodes])
+        time_ns = np.rint(rows[:, STATE_TIME] * 1e9).astype(np.int64).astype("timedelta64[ns]")
+        columns: list[Column] = [(TIME_FIELD, pa.array(time_ns))]
+        poses = self.poses(rows[:, STATE_QPOS : STATE_QPOS + self.nq])
+        for (pos, quat), (t_field, q_field) in zip(poses, self._pose_fields, strict=True):
+            columns.append((t_field, self._list(t_field, pos)))
+            if quat is not None:
+                columns.append((q_field, self._list(q_field, mujoco_to_rerun_quat(quat))))
+        signals = np.empty((n * k, len(SIGNALS)))  # columns: SIGNALS
+        signals[:, 0] = rows[:, spec.state_cube_z]
+        signals[:, 1] = rows[:, list(spec.state_fingers)].mean(axis=1)
+        signals[:, 2:6] = np.tile(ctrl[:, list(CTRL_COLUMNS)], (k, 1))
+        signals[:, 6:] = np.abs(sensors[:, list(spec.pad_normal_forces)])
+        for field, (_, _, indices) in zip(self._signal_fields, self.signals, strict=True):
+            columns.append((field, self._list(field, signals[:, list(indices)])))
+        return record_batch(columns)
+
+    def trajectory(
+        self, physics: np.ndarray, sensordata: np.ndarray, ctrl: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """An episode's arrays as float64, checked: `(n_steps, nstate)`, `(n_steps,
+        nsensordata)` and `(n_steps, nu)`, n_steps from `ctrl`."""
+        ctrl = np.asarray(ctrl, dtype=np.float64)
+        physics = np.asarray(physics, dtype=np.float64)
+        sensordata = np.asarray(sensordata, dtype=np.float64)
+        nstep = ctrl.shape[0] if ctrl.ndim == 2 and ctrl.shape[0] > 0 else 0
+        expected = {
+            "ctrl": (ctrl, (nstep, self.nu)),
+            "physics": (physics, (nstep, self.nstate)),
+            "sensordata": (sensordata, (nstep, self.nsensordata)),
+        }
+        for name, (array, shape) in expected.items():
+            if nstep == 0 or array.shape != shape:
+                raise ValueError(
+                    f"{name}: expected shape {shape} (n_steps from ctrl), got {array.shape}"
+                )
+        return physics, sensordata, ctrl

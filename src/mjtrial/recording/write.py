@@ -1,0 +1,365 @@
+"""Writing episodes' recordings: a condition's folder, or one episode's file.
+
+The main thread only keeps each episode's logged rows; a writer thread builds the recordings
+of `_GROUP` episodes at once, straight from Arrow columns (the chunks every recording shares are
+built once and given a fresh chunk id per recording), and writes each with
+``ChunkStore.write_rrd`` while the main thread runs the next rollouts (``mujoco.rollout``
+releases the GIL); a third thread fsyncs the files.
+
+Why this shape: size, and the time it takes to write. In a file, every entity costs each
+recording a chunk of its own (~1-2 kB of schema even for one box), and every time-series chunk
+16 bytes of row id and 8 of timestamp per row; every (entity, component) pair costs each
+recording ~0.5 kB of index in the file's footer, which ``ChunkStore.write_rrd`` builds for every
+recording. So geoms are instances of one archetype on their body's entity, not entities of their
+own; the signals share their body's time-series chunk; the episode's fields are one struct;
+solid shapes are a default of the 3D view rather than a component of each shape; and a child
+body's pose in its parent keeps its constant components constant (the fingers only slide along
+y), which compresses well.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import threading
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+from rerun.chunk import ChunkStore
+
+from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
+from mjtrial.recording.arrow import (
+    chunks,
+    component_field,
+    property_columns,
+    record_batch,
+    recording_name_field,
+    strict,
+)
+from mjtrial.recording.names import (
+    APPLICATION_ID,
+    EPISODE_COMPONENT,
+    EPISODE_PROPERTY,
+    FOLDER_BLUEPRINT,
+    JSON_FIELD,
+    PROPERTIES,
+    PROVENANCE_PROPERTY,
+    default_blueprint,
+    episode_recording_id,
+    episode_recording_name,
+    file_name,
+    logged_steps,
+)
+from mjtrial.recording.route import rrd_output, save_blueprint, write_store
+from mjtrial.recording.series import Chunker
+from mjtrial.simulate import InitialState
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodeRecord:
+    """One episode to record: its initial state, trajectories and outcome."""
+
+    state: InitialState
+    physics: np.ndarray  # (n_steps, nstate) mjSTATE_FULLPHYSICS after each step
+    sensordata: np.ndarray  # (n_steps, nsensordata)
+    success: bool
+    final_height: float
+    failure_category: str | None = None
+
+
+def stamp_json(stamp: Mapping[str, Any]) -> str:
+    """A provenance stamp as the JSON text of a recording's `provenance` property."""
+    if not isinstance(stamp, Mapping) or "mjtrial_stamp" not in stamp:
+        raise ValueError(
+            "not an mjtrial provenance stamp (missing 'mjtrial_stamp'); use make_stamp"
+        )
+    return json.dumps(dict(stamp), allow_nan=False)
+
+
+# The `episode` property is one component holding a struct, not one component per field: every
+# component costs each recording ~0.5 kB of index in the file's footer. The struct keeps the
+# names and types (failure_category is null when the episode did not fail).
+_EPISODE_TYPE = pa.struct(
+    [
+        pa.field("condition", pa.string(), nullable=False),
+        pa.field("state_id", pa.int64(), nullable=False),
+        pa.field("dx", pa.float64(), nullable=False),
+        pa.field("dy", pa.float64(), nullable=False),
+        pa.field("yaw", pa.float64(), nullable=False),
+        pa.field("mass", pa.float64(), nullable=False),
+        pa.field("success", pa.bool_(), nullable=False),
+        pa.field("final_height", pa.float64(), nullable=False),
+        pa.field("failure_category", pa.string()),
+        pa.field("log_every", pa.int64(), nullable=False),
+        pa.field("n_steps", pa.int64(), nullable=False),
+    ]
+)
+_EPISODE_FIELD = component_field(
+    EPISODE_COMPONENT, _EPISODE_TYPE, f"{PROPERTIES}/{EPISODE_PROPERTY}"
+)
+
+
+def _episode_fields(ep: EpisodeRecord, condition: str, n_steps: int, log_every: int) -> dict:
+    s = ep.state
+    return {
+        "condition": str(condition),
+        "state_id": int(s.state_id),
+        "dx": float(s.dx),
+        "dy": float(s.dy),
+        "yaw": float(s.yaw),
+        "mass": float(s.mass),
+        "success": bool(ep.success),
+        "final_height": float(ep.final_height),
+        "failure_category": None if ep.failure_category is None else str(ep.failure_category),
+        "log_every": int(log_every),
+        "n_steps": int(n_steps),
+    }
+
+
+class _Worker:
+    """Runs `job(item)` on each put item, in order, in a thread of its own.
+
+    At most `maxsize` items wait. The first error stops the work and is raised in the caller's
+    thread by the next `put` or by `finish`.
+
+    The thread runs at the caller's priority, not below it: building a recording holds the GIL,
+    and a thread that holds the GIL at a lower priority, while the simulation's threads fill the
+    cores, keeps the caller (which drives the simulation) waiting for it: a priority inversion.
+    """
+
+    _STOP = object()
+
+    def __init__(self, job: Callable[[Any], None], *, maxsize: int, name: str) -> None:
+        self._job = job
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=maxsize)
+        self._error: BaseException | None = None
+        self._cancelled = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while (item := self._queue.get()) is not self._STOP:
+            if self._error is not None or self._cancelled:
+                continue  # keep draining, so the producer never blocks on a full queue
+            try:
+                self._job(item)
+            except BaseException as exc:  # raised in the caller's thread
+                self._error = exc
+
+    def put(self, item: Any) -> None:
+        self._raise()
+        self._queue.put(item)
+
+    def finish(self) -> None:
+        self._queue.put(self._STOP)
+        self._thread.join()
+        self._raise()
+
+    def cancel(self) -> None:
+        self._cancelled = True
+        self._queue.put(self._STOP)
+        self._thread.join()
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """An episode waiting for its recording to be built: its logged rows and properties."""
+
+    recording_id: str
+    name: str
+    fields: dict[str, Any]
+    rows: np.ndarray  # logged rows of the physics state
+    sensors: np.ndarray  # logged rows of sensordata
+
+
+_GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
+_QUEUE = 128  # episodes waiting for the writer thread, at most
+
+
+class EpisodeStores:
+    """Builds each episode's recording (a `ChunkStore`) for a model, condition and stamp.
+
+    `groups(episodes)` consumes the episodes one at a time (a generator over rollout batches
+    will do) and keeps their logged rows until `_GROUP` have come; `build(group)` then builds
+    those recordings at once (numpy's and pyarrow's cost is per call).
+    """
+
+    def __init__(
+        self,
+        *,
+        model: mujoco.MjModel,
+        condition: str,
+        ctrl: np.ndarray,
+        stamp: Mapping[str, Any],
+        log_every: int,
+    ) -> None:
+        stamp_text = stamp_json(stamp)
+        ctrl = np.asarray(ctrl, dtype=np.float64)
+        if ctrl.ndim != 2 or ctrl.shape[1] != model.nu:
+            raise ValueError(f"ctrl: expected shape (n_steps, {model.nu}), got {ctrl.shape}")
+        self.condition, self.ctrl, self.log_every = condition, ctrl, log_every
+        self.steps = logged_steps(ctrl.shape[0], log_every)  # validate before any work
+        self.chunker = chunker = Chunker(model)
+        # the same in every recording: geometry, static poses, series names and the stamp
+        self.constant = chunks(
+            [
+                *chunker.geometry,
+                *chunker.styles,
+                *property_columns(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
+            ]
+        )
+        self.blueprint = default_blueprint([(e, names) for e, names, _ in chunker.signals])
+
+    def build(self, group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
+        """(recording id, store) of each episode of a group from `groups`."""
+        n = len(self.steps)
+        series = self.chunker.series([(p.rows, p.sensors) for p in group], self.ctrl[self.steps])
+        name_field = recording_name_field()
+        properties = record_batch(
+            [
+                (name_field, pa.array([[p.name] for p in group], type=name_field.type)),
+                (_EPISODE_FIELD, pa.array([[p.fields] for p in group], type=_EPISODE_FIELD.type)),
+            ]
+        )
+        for i, ep in enumerate(group):
+            with strict():
+                recording = [
+                    *chunks(properties.slice(i, 1)),
+                    # the same data in every recording, each time under a fresh chunk id
+                    *(c.with_entity_path(c.entity_path) for c in self.constant),
+                    *chunks(series.slice(i * n, n), temporal=True),
+                ]
+                store = ChunkStore.from_chunks(recording)
+            yield ep.recording_id, store
+
+    def groups(self, episodes: Iterable[EpisodeRecord]) -> Iterator[list[_Pending]]:
+        """The episodes' logged rows and properties, `_GROUP` episodes at a time."""
+        condition, seen = self.condition, set()
+        group: list[_Pending] = []
+        for ep in episodes:
+            sid = int(ep.state.state_id)
+            if sid in seen:
+                raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
+            physics, sensordata, _ = self.chunker.trajectory(ep.physics, ep.sensordata, self.ctrl)
+            group.append(
+                _Pending(
+                    recording_id=episode_recording_id(condition, sid),
+                    name=episode_recording_name(condition, sid),
+                    fields=_episode_fields(ep, condition, len(self.ctrl), self.log_every),
+                    rows=physics[self.steps],
+                    sensors=sensordata[self.steps],
+                )
+            )
+            seen.add(sid)
+            if len(group) == _GROUP:
+                yield group
+                group = []
+        if not seen:
+            raise ValueError(f"{condition}: no episodes to record")
+        if group:
+            yield group
+
+
+def write_condition_recordings(
+    path: str | os.PathLike[str],
+    *,
+    model: mujoco.MjModel,
+    condition: str,
+    episodes: Iterable[EpisodeRecord],
+    ctrl: np.ndarray,
+    stamp: Mapping[str, Any],
+    log_every: int,
+    application_id: str = APPLICATION_ID,
+) -> int:
+    """Atomically write the folder `path`: one .rrd per episode of a condition, and a blueprint.
+
+    Each episode's recording goes to `episode_file_name` (its recording id, e.g.
+    ``fast-state-000017.rrd``) and carries the properties `episode` and `provenance`, the
+    model's geometry and the episode's series (every `log_every`-th step, and the last); the
+    folder's
+    ``blueprint.rbl`` is `default_blueprint`, so ``rerun <folder>/*`` opens them all in its
+    layout. Episodes are consumed one at a time, so `episodes` may be a generator over rollout
+    batches (see `EpisodeStores`); a writer thread writes and fsyncs the recordings (at most
+    `_QUEUE` wait) while the caller runs the next rollouts.
+
+    Why a file per episode (not one file per condition): rerun 0.41 can put many recordings in
+    one file only by streaming them through ``rerun rrd route``, which merges their indexes
+    after the last one, single-threaded (0.6 ms a recording, half the cost of logging), and
+    holds them in memory (~0.3 MB a recording). A file per episode costs one `write_rrd` call,
+    scales to any number of episodes, and opens or travels on its own.
+
+    Returns:
+      the number of recordings written (no episodes is an error).
+    """
+    builder = EpisodeStores(
+        model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
+    )
+    count = 0
+    with atomic_directory(Path(path)) as folder:
+        save_blueprint(builder.blueprint, application_id, str(folder / FOLDER_BLUEPRINT))
+
+        # fsync in a thread of its own: the disk's writeback then overlaps the rollouts (an fsync
+        # after each write, or of every file at the end, cost the rollout stage more)
+        syncer = _Worker(fsync_file, maxsize=0, name="mjtrial-rrd-syncer")
+
+        def write(group: list[_Pending]) -> None:
+            """Build and write a group's recordings, while the caller runs the next rollouts."""
+            for recording_id, store in builder.build(group):
+                target = folder / file_name(recording_id)
+                with strict():
+                    store.write_rrd(
+                        target,
+                        application_id=application_id,
+                        recording_id=recording_id,
+                    )
+                syncer.put(target)
+
+        worker = _Worker(write, maxsize=max(1, _QUEUE // _GROUP), name="mjtrial-rrd-writer")
+        try:
+            for group in builder.groups(episodes):
+                worker.put(group)
+                count += len(group)
+            worker.finish()
+        except BaseException:
+            worker.cancel()
+            syncer.cancel()
+            raise
+        syncer.put(folder / FOLDER_BLUEPRINT)
+        syncer.finish()
+    return count
+
+
+def write_episode_recording(
+    path: str | os.PathLike[str],
+    *,
+    model: mujoco.MjModel,
+    condition: str,
+    episode: EpisodeRecord,
+    ctrl: np.ndarray,
+    stamp: Mapping[str, Any],
+    log_every: int,
+    application_id: str = APPLICATION_ID,
+) -> None:
+    """Atomically write one episode's recording, and `default_blueprint`, to the file `path`.
+
+    The recording is the one `write_condition_recordings` makes; the blueprint travels in the
+    same file (through ``rerun rrd route``), so ``rerun <path>`` opens it in its layout.
+    """
+    builder = EpisodeStores(
+        model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
+    )
+    path = Path(path)
+    [group] = builder.groups([episode])
+    [(recording_id, store)] = builder.build(group)
+    with atomic_path(path) as tmp, rrd_output(tmp, application_id, builder.blueprint) as out:
+        write_store(out, store, application_id=application_id, recording_id=recording_id)
