@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import subprocess
+import sys
 from fractions import Fraction
 from statistics import NormalDist
 
@@ -594,3 +596,10 @@ def test_mcnemar_pairs_needed_hand_value():
 def test_mcnemar_pairs_needed_bad_arguments(args, name):
     with pytest.raises(ValueError, match=name):
         mcnemar_pairs_needed(*args)
+
+
+def test_importing_stats_does_not_import_scipy():
+    # scipy.stats costs about a second at start-up; only the Wilson and McNemar functions need it.
+    code = "import sys, mjtrial.stats; print('scipy' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "False"
