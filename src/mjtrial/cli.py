@@ -12,6 +12,9 @@ from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 
 
 def _provenance(args: argparse.Namespace) -> int:
+    # Imported here: rerun-sdk takes about 0.5 s to import, which `mjtrial plan` need not pay.
+    from mjtrial import recording  # noqa: F401 - registers the .rrd stamp reader
+
     try:
         stamp = provenance.read_stamp(args.file)
     except (OSError, ValueError) as err:
@@ -54,6 +57,7 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
+    # Imported here (mujoco, rerun-sdk): a second or so that the other commands need not pay.
     from mjtrial.replay import ReplayMismatch, open_viewer, replay_episode
 
     try:
@@ -82,6 +86,7 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 def _verify(args: argparse.Namespace) -> int:
+    # Imported here (mujoco, rerun-sdk, jsonschema): `mjtrial plan` need not pay for them.
     from mjtrial.config import ConfigError
     from mjtrial.verify import load_checked_config, verify_results
 

@@ -33,7 +33,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from mjtrial import codehash, provenance
+from mjtrial import codehash, provenance, recording  # noqa: F401 - reads .rrd stamps
 from mjtrial.config import check_config, read_config_file
 from mjtrial.layout import STAGES, Layout
 from mjtrial.stages.stamping import config_slice, stage_code

@@ -10,7 +10,7 @@ from typing import Any
 
 import mujoco
 
-from mjtrial import REPO_ROOT, provenance
+from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd stamps
 from mjtrial.protocol import PROTOCOL
 from mjtrial.simulate import load_model
 from mjtrial.stages.stamping import make_stage_stamp
