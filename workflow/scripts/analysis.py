@@ -3,12 +3,14 @@
 from pathlib import Path
 
 from mjtrial.stages.analysis import run_analysis
-from mjtrial.workflow_script import setup_logging
+from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
-setup_logging(snakemake.log[0])
 conditions = list(snakemake.params.slice["conditions"])
-run_analysis(
+run_job(
+    snakemake,
+    run_analysis,
+    rule="analysis",
     states_path=Path(snakemake.input.states),
     rollout_tables=dict(zip(conditions, map(Path, snakemake.input.rollouts), strict=True)),
     nominal_files=dict(zip(conditions, map(Path, snakemake.input.nominals), strict=True)),

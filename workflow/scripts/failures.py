@@ -3,11 +3,13 @@
 from pathlib import Path
 
 from mjtrial.stages.failures import gather_failures
-from mjtrial.workflow_script import setup_logging
+from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
-setup_logging(snakemake.log[0])
-gather_failures(
+run_job(
+    snakemake,
+    gather_failures,
+    rule="failures",
     recordings=[Path(p) for p in snakemake.input.recordings],
     tables=[Path(p) for p in snakemake.input.tables],
     output=Path(snakemake.output.failures),

@@ -3,11 +3,13 @@
 from pathlib import Path
 
 from mjtrial.stages.manifest import write_manifest
-from mjtrial.workflow_script import setup_logging
+from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
-setup_logging(snakemake.log[0])
-write_manifest(
+run_job(
+    snakemake,
+    write_manifest,
+    rule="manifest",
     config=snakemake.params.slice,
     summary_path=Path(snakemake.input.summary),
     outputs=[

@@ -4,12 +4,14 @@ from pathlib import Path
 
 from mjtrial.layout import FIGURES
 from mjtrial.stages.report import write_report_stage
-from mjtrial.workflow_script import setup_logging
+from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
-setup_logging(snakemake.log[0])
 config = snakemake.params.slice
-write_report_stage(
+run_job(
+    snakemake,
+    write_report_stage,
+    rule="report",
     config=config,
     summary_path=Path(snakemake.input.summary),
     manifest_path=Path(snakemake.input.manifest),

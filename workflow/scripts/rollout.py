@@ -3,11 +3,13 @@
 from pathlib import Path
 
 from mjtrial.stages.rollout import run_condition
-from mjtrial.workflow_script import setup_logging
+from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
-setup_logging(snakemake.log[0])
-run_condition(
+run_job(
+    snakemake,
+    run_condition,
+    rule=f"rollout:{snakemake.wildcards.condition}",
     condition_slice=snakemake.params.slice,
     states_path=Path(snakemake.input.states),
     model_file=Path(snakemake.input.model),

@@ -3,11 +3,13 @@
 from pathlib import Path
 
 from mjtrial.stages.states import build_states
-from mjtrial.workflow_script import setup_logging
+from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
-setup_logging(snakemake.log[0])
-build_states(
+run_job(
+    snakemake,
+    build_states,
+    rule="states:development" if snakemake.params.development else "states",
     states_slice=snakemake.params.slice,
     development=snakemake.params.development,
     output=Path(snakemake.output.states),

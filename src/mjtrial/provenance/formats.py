@@ -9,6 +9,7 @@ Every output format carries its stamp in-band:
   ``savefig(metadata=...)``, read with Pillow).
 * SVG: a ``<metadata id="mjtrial.provenance">`` element (the JSON as escaped text), first child
   of the root ``<svg>``.
+* A job's log (``.log``): its first line, ``# mjtrial.provenance: <single-line JSON>``.
 * Rerun ``.rrd``, a file or a folder of them: a recording property. Its reader lives in
   :mod:`mjtrial.recording`, which registers it here when imported (:func:`register_reader`).
 
@@ -37,6 +38,7 @@ __all__ = [
     "STAMP_KEY",
     "MissingStampError",
     "StampReader",
+    "log_stamp_line",
     "markdown_with_stamp",
     "read_stamp",
     "register_reader",
@@ -289,6 +291,26 @@ def _read_svg_stamp(path: Path) -> dict[str, Any] | None:
     return None
 
 
+# --- Logs --------------------------------------------------------------------------------------
+
+_LOG_PREFIX = f"# {STAMP_KEY}: "
+
+
+def log_stamp_line(stamp: Mapping[str, Any]) -> str:
+    """The first line of a job's log: its stamp, so a log says what produced it too."""
+    return _LOG_PREFIX + _stamp_json(stamp, ascii_only=True)
+
+
+def _read_log_stamp(path: Path) -> dict[str, Any] | None:
+    with open(path, encoding="utf-8", errors="replace") as f:
+        first = f.readline().rstrip("\n")
+    return (
+        _parse_stamp(first.removeprefix(_LOG_PREFIX), path)
+        if first.startswith(_LOG_PREFIX)
+        else None
+    )
+
+
 # --- Reading any of them ---------------------------------------------------------------------
 
 _READERS: dict[str, StampReader] = {
@@ -297,6 +319,7 @@ _READERS: dict[str, StampReader] = {
     ".md": _read_markdown_stamp,
     ".png": _read_png_stamp,
     ".svg": _read_svg_stamp,
+    ".log": _read_log_stamp,
 }
 
 # Formats whose reader lives in a module that imports this one, and registers itself.
