@@ -29,10 +29,15 @@ import pyarrow as pa
 import yaml
 from rerun.chunk import ChunkStore
 
-from mjtrial import REPO_ROOT, pipeline, recording, taxonomy
+from mjtrial import REPO_ROOT, recording, taxonomy
 from mjtrial.atomic import fsync_file
 from mjtrial.protocol import control_sequence
+from mjtrial.recording.arrow import chunks as recording_chunks
+from mjtrial.recording.write import EpisodeStores
 from mjtrial.simulate import load_model
+from mjtrial.stages.rollout import condition_outcomes, episode_records, log_every, read_states
+from mjtrial.stages.stamping import config_slice, make_stage_stamp, model_inputs
+from mjtrial.stages.states import build_states
 
 
 def main() -> None:
@@ -44,39 +49,37 @@ def main() -> None:
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     if args.rate_hz:
         config["recording"]["rate_hz"] = args.rate_hz
-    cond = pipeline.config_slice("rollout", config, condition=args.condition)
+    cond = config_slice("rollout", config, condition=args.condition)
     model_file = REPO_ROOT / config["model"]
     model = load_model(model_file)
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         states_path = tmp / "states.parquet"
-        pipeline.build_states(
-            states_slice=config["states"], output=states_path, repo_root=REPO_ROOT
-        )
+        build_states(states_slice=config["states"], output=states_path, repo_root=REPO_ROOT)
         episodes = [
             ep
-            for batch, outcome in pipeline.condition_outcomes(
+            for batch, outcome in condition_outcomes(
                 model,
-                pipeline.read_states(states_path),
+                read_states(states_path),
                 lift_time=cond["lift_time"],
                 thresholds=taxonomy.Thresholds.from_config(cond["failure_taxonomy"]),
                 nthread=2,
             )
-            for ep in pipeline.episode_records(batch, outcome)
+            for ep in episode_records(batch, outcome)
         ]
-        stamp = pipeline._stamp(
+        stamp = make_stage_stamp(
             f"rollout:{args.condition}",
             dict(cond),
-            {"states": states_path, **pipeline.model_inputs(model_file)},
+            {"states": states_path, **model_inputs(model_file)},
             repo_root=REPO_ROOT,
         )
-        builder = recording._EpisodeStores(
+        builder = EpisodeStores(
             model=model,
             condition=args.condition,
             ctrl=control_sequence(cond["lift_time"], timestep=model.opt.timestep)[0],
             stamp=stamp,
-            log_every=pipeline.log_every(cond["recording"]["rate_hz"], model.opt.timestep),
+            log_every=log_every(cond["recording"]["rate_hz"], model.opt.timestep),
         )
         n_rows = len(builder.steps)
         out = tmp / "out"
@@ -105,7 +108,7 @@ def main() -> None:
             columns = [pa.array(t.astype("timedelta64[ns]")), *series.columns[1:]]
             series = pa.RecordBatch.from_arrays(columns, schema=series.schema)
             chunks = [c.with_entity_path(c.entity_path) for c in builder.constant]
-            chunks += recording._chunks(series, temporal=True)
+            chunks += recording_chunks(series, temporal=True)
             target = out / f"{args.condition}.rrd"
             ChunkStore.from_chunks(chunks).write_rrd(
                 target, application_id="bench", recording_id=args.condition
