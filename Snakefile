@@ -36,6 +36,7 @@ include: "workflow/rules/failures.smk"
 include: "workflow/rules/analysis.smk"
 include: "workflow/rules/manifest.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/seal.smk"
 
 
 report: "workflow/report/workflow.rst"
@@ -47,6 +48,7 @@ rule all:
         manifest=LAYOUT.manifest,
         failures=LAYOUT.failures,
         report=LAYOUT.report,
+        seal=LAYOUT.seal,
 
 
 # No good result is lost (mjtrial.safekeeping): the results are snapshot before any job runs,

@@ -28,7 +28,8 @@ from mjtrial.recording import (
 )
 from mjtrial.recording import route as route_mod
 from mjtrial.recording import write as write_mod
-from mjtrial.simulate import InitialState, iter_episode_batches, load_model
+from mjtrial.simulate import iter_episode_batches, load_model
+from mjtrial.states import InitialState
 
 LIFT_TIME = 0.15
 CONDITION = "baseline"

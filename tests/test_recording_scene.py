@@ -12,7 +12,8 @@ from mjtrial.protocol import control_sequence
 from mjtrial.recording import logged_steps, mujoco_to_rerun_quat, rerun_to_mujoco_quat
 from mjtrial.recording.arrow import archetype_columns, check_rerun_version, chunks
 from mjtrial.recording.scene import BodyPoses, static_scene
-from mjtrial.simulate import InitialState, iter_episode_batches, load_model
+from mjtrial.simulate import iter_episode_batches, load_model
+from mjtrial.states import InitialState
 
 # --------------------------------------------------------------------------------------------
 # Quaternions

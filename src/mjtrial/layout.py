@@ -56,6 +56,7 @@ STAGES: dict[str, Stage] = {
         Stage("analysis", "analysis"),
         Stage("manifest", "manifest"),
         Stage("report", "report"),
+        Stage("seal", "seal"),
     )
 }
 
@@ -123,6 +124,11 @@ class Layout:
         return self.root / "report.md"
 
     @property
+    def seal(self) -> Path:
+        """The sha256 of every output, stamped: what `mjtrial verify` checks content against."""
+        return self.root / "seal.json"
+
+    @property
     def figures_dir(self) -> Path:
         return self.root / "figures"
 
@@ -147,3 +153,15 @@ class Layout:
 
     def figure_files(self) -> list[Path]:
         return [self.figure(name, fmt) for name in FIGURES for fmt in FIGURE_FORMATS]
+
+    def sealed_outputs(self, conditions: list[str]) -> list[Path]:
+        """Every output of the built-in experiment, in pipeline order: what the seal covers."""
+        return [
+            self.states,
+            *self.rollout_outputs(conditions),
+            self.failures,
+            self.summary,
+            self.manifest,
+            self.report,
+            *self.figure_files(),
+        ]

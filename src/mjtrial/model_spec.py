@@ -113,7 +113,8 @@ class ModelSpec:
         if model.body_jntnum[cube] != 1 or model.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_FREE:
             raise ModelError(f"{source}: body {CUBE!r}: expected exactly one free joint")
         if model.nu != N_CTRL:
-            raise ModelError(f"{source}: expected {N_CTRL} actuators {ACTUATORS}, found {model.nu}")
+            names = ", ".join(ACTUATORS)
+            raise ModelError(f"{source}: expected {N_CTRL} actuators ({names}), found {model.nu}")
         for index, name in enumerate(ACTUATORS):
             if find(mujoco.mjtObj.mjOBJ_ACTUATOR, name) != index:
                 raise ModelError(

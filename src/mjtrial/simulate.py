@@ -28,17 +28,7 @@ from mjtrial.model_spec import (
     steps_simulated,
 )
 from mjtrial.protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, Protocol, control_sequence, hold_steps
-
-
-@dataclass(frozen=True)
-class InitialState:
-    """One randomized initial state: cube offset (m), yaw (rad) and mass (kg)."""
-
-    state_id: int
-    dx: float
-    dy: float
-    yaw: float
-    mass: float
+from mjtrial.states import InitialState
 
 
 def load_model(path: str | Path) -> mujoco.MjModel:

@@ -3,15 +3,25 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
 
-from mjtrial.simulate import InitialState
-
 # Draw order is part of the experiment's definition: changing it changes every state.
 STATE_PARAMETERS = ("dx", "dy", "yaw", "mass")
 STATE_COLUMNS = ("state_id", *STATE_PARAMETERS)
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """One randomized initial state: cube offset (m), yaw (rad) and mass (kg)."""
+
+    state_id: int
+    dx: float
+    dy: float
+    yaw: float
+    mass: float
 
 
 def generate_initial_states(

@@ -14,8 +14,9 @@ files, the config, the model and the code as they are now.  Each output gets one
   its own stamp says nothing rebuilt it after that record; or it has no readable stamp.
 * ``MISSING``: the manifest (or another output's stamp) names it, but it is not there.
 
-An output's own sha256 can only be recorded by the outputs built from it, so the leaves of the
-pipeline (``report.md`` and the figures) are only checked for a readable, current stamp.
+An output's own sha256 can only be recorded by the outputs built from it; the last rule, the
+seal (``seal.json``), is built from every output, so the report and the figures are checked
+too. Only the seal itself is checked for a readable, current stamp alone.
 
 :func:`check_stamps` holds all the logic on stamps already read; :func:`verify_results` does the
 reading and hashing.
@@ -394,6 +395,7 @@ def check_stamps(
     unreadable: Mapping[str, str] | None = None,
     manifest: Mapping[str, Any] | None = None,
     manifest_path: str | None = None,
+    seal_path: str | None = None,
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -402,7 +404,9 @@ def check_stamps(
     gives the sha256 of a repository-relative path now, None when it does not exist.  Recorded
     inputs under ``outputs_prefix`` (e.g. ``"results/research_mode/"``) are outputs; the others
     (the model) are source files.  ``manifest`` is the parsed ``manifest.json`` (its ``stamps``
-    name the outputs expected besides ``manifest_path`` itself).
+    name the outputs expected besides ``manifest_path`` itself). ``seal_path`` is the seal,
+    whose stamp records the sha256 of every output, report and figures included: an edit to
+    any of them is seen there.
     """
     unreadable = dict(unreadable or {})
     prefix = outputs_prefix.rstrip("/") + "/"
@@ -428,8 +432,7 @@ def check_stamps(
     found = set(pipeline_stamps) | set(unreadable)
     expected: set[str] = set()
     manifest_rules: dict[str, Any] = {}
-    if manifest_path is not None:
-        expected.add(manifest_path)
+    expected.update(p for p in (manifest_path, seal_path) if p is not None)
     recorded = manifest.get("stamps") if isinstance(manifest, Mapping) else None
     if isinstance(recorded, Mapping):
         for path, stamp in recorded.items():
@@ -670,7 +673,8 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
             if file.exists():
                 unreadable[rel] = _why_unreadable(err, file)
 
-    manifest_file = Layout(results_dir).manifest
+    layout = Layout(results_dir)
+    manifest_file = layout.manifest
     manifest: dict[str, Any] | None = None
     try:
         loaded = json.loads(manifest_file.read_text(encoding="utf-8"))
@@ -694,4 +698,5 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         unreadable=unreadable,
         manifest=manifest,
         manifest_path=_relative(manifest_file, repo_root),
+        seal_path=_relative(layout.seal, repo_root),
     )

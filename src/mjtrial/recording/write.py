@@ -58,7 +58,7 @@ from mjtrial.recording.names import (
 )
 from mjtrial.recording.route import rrd_output, save_blueprint, write_store
 from mjtrial.recording.series import Chunker
-from mjtrial.simulate import InitialState
+from mjtrial.states import InitialState
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,13 +17,12 @@ from mjtrial.protocol import PROTOCOL, control_sequence
 from mjtrial.simulate import (
     EPISODE_COLUMNS,
     EpisodeBatch,
-    InitialState,
     episode_outcomes,
     iter_episode_batches,
     load_model,
 )
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs
-from mjtrial.states import states_from_table
+from mjtrial.states import InitialState, states_from_table
 
 log = logging.getLogger("mjtrial")
 

@@ -17,7 +17,7 @@ def config_slice(
     """The part of the config a stage depends on: its rule's params and its stamp's record.
 
     Changing a value outside a stage's slice never reruns that stage. The failures stage
-    depends on no config value.
+    and the seal depend on no config value.
     """
     if stage == "states":
         return dict(config["states"])
@@ -35,7 +35,7 @@ def config_slice(
             "sample_size": dict(config["design"]["sample_size"]),
             "analysis": dict(config["analysis"]),
         }
-    if stage == "failures":
+    if stage in ("failures", "seal"):
         return {}
     if stage in ("manifest", "report"):
         return dict(config)

@@ -1,0 +1,13 @@
+# The last rule: the sha256 of every output, report and figures included, so that
+# `mjtrial verify` sees an edit to any of them.
+rule seal:
+    input:
+        LAYOUT.sealed_outputs(CONDITIONS),
+    output:
+        seal=LAYOUT.seal,
+    log:
+        LAYOUT.log("seal"),
+    params:
+        code=stage_code_hash("seal"),
+    script:
+        "../scripts/seal.py"

@@ -1,0 +1,16 @@
+"""Snakemake adapter: seal every output (mjtrial.stages.seal.seal_outputs)."""
+
+from pathlib import Path
+
+from mjtrial.stages.seal import seal_outputs
+from mjtrial.workflow_script import run_job
+
+snakemake = globals()["snakemake"]
+run_job(
+    snakemake,
+    seal_outputs,
+    rule="seal",
+    outputs=[Path(p) for p in snakemake.input],
+    output=Path(snakemake.output.seal),
+    repo_root=Path.cwd(),
+)
