@@ -13,7 +13,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from mjtrial.protocol import CTRL_GRIPPER, CTRL_X, CTRL_Y, CTRL_Z
-from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
 
 APPLICATION_ID = "mjtrial"
 TIMELINE = "sim_time"  # the one timeline: simulated seconds, stored as integer nanoseconds
@@ -41,7 +40,6 @@ JSON_FIELD = "json"  # the component of a property held as JSON text
 
 FAILURES_SUMMARY = "failures"  # recording id and entity of failures.rrd's summary
 FAILURE_PREFIX = "failures-"  # recording ids of episodes copied into failures.rrd
-FOLDER_BLUEPRINT = RECORDING_FOLDER_BLUEPRINT  # the blueprint file of a condition's folder
 
 
 def body_entity(model: mujoco.MjModel, body_id: int) -> str:

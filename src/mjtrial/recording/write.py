@@ -34,6 +34,7 @@ import pyarrow as pa
 from rerun.chunk import ChunkStore
 
 from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
+from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
 from mjtrial.recording.arrow import (
     chunks,
     component_field,
@@ -46,7 +47,6 @@ from mjtrial.recording.names import (
     APPLICATION_ID,
     EPISODE_COMPONENT,
     EPISODE_PROPERTY,
-    FOLDER_BLUEPRINT,
     JSON_FIELD,
     PROPERTIES,
     PROVENANCE_PROPERTY,
@@ -306,7 +306,7 @@ def write_condition_recordings(
     )
     count = 0
     with atomic_directory(Path(path)) as folder:
-        save_blueprint(builder.blueprint, application_id, str(folder / FOLDER_BLUEPRINT))
+        save_blueprint(builder.blueprint, application_id, str(folder / RECORDING_FOLDER_BLUEPRINT))
 
         # fsync in a thread of its own: the disk's writeback then overlaps the rollouts (an fsync
         # after each write, or of every file at the end, cost the rollout stage more)
@@ -334,7 +334,7 @@ def write_condition_recordings(
             worker.cancel()
             syncer.cancel()
             raise
-        syncer.put(folder / FOLDER_BLUEPRINT)
+        syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
         syncer.finish()
     return count
 
