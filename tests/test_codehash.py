@@ -101,12 +101,13 @@ def test_digest_changes_with_any_file_and_names_it():
 
 # Rules whose inputs come from each stage, directly or not (workflow/rules/*.smk).
 DOWNSTREAM = {
-    "states": {"rollout", "failures", "analysis", "manifest", "report"},
-    "rollout": {"failures", "analysis", "manifest", "report"},
-    "failures": {"manifest", "report"},
-    "analysis": {"manifest", "report"},
-    "manifest": {"report"},
-    "report": set(),
+    "states": {"rollout", "failures", "analysis", "manifest", "report", "seal"},
+    "rollout": {"failures", "analysis", "manifest", "report", "seal"},
+    "failures": {"manifest", "report", "seal"},
+    "analysis": {"manifest", "report", "seal"},
+    "manifest": {"report", "seal"},
+    "report": {"seal"},
+    "seal": set(),
 }
 
 
@@ -174,4 +175,6 @@ def _stage_of(path: str) -> str:
         return "manifest"
     if rel == "states.parquet":
         return "states"
+    if rel == "seal.json":
+        return "seal"
     return "report"

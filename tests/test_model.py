@@ -60,22 +60,30 @@ def test_model_path_names_unknown_model():
 
 
 @pytest.mark.parametrize(
-    ("old", "new", "missing"),
+    ("renames", "missing"),
     [
-        ('name="left_pad_cube"', 'name="renamed_sensor"', "sensor named 'left_pad_cube'"),
-        ('name="gantry_z"', 'name="lift"', "joint named 'gantry_z'"),
-        ('<geom name="right_pad"', '<geom name="other_pad"', "geom named 'right_pad'"),
+        ({'name="left_pad_cube"': 'name="renamed_sensor"'}, "sensor named 'left_pad_cube'"),
+        (
+            {'name="gantry_z"': 'name="lift"', 'joint="gantry_z"': 'joint="lift"'},
+            "joint named 'gantry_z'",
+        ),
+        (
+            {'name="right_pad"': 'name="other_pad"', '"right_pad"': '"other_pad"'},
+            "geom named 'right_pad'",
+        ),
     ],
 )
-def test_model_spec_names_the_missing_element(tmp_path, old, new, missing):
+def test_model_spec_names_the_missing_element(tmp_path, renames, missing):
     """A model without an element the protocol reads fails at load, naming file and element."""
     src = model_path("gantry_gripper").parent
     for f in src.iterdir():
         (tmp_path / f.name).write_bytes(f.read_bytes())
     model = tmp_path / "gantry_gripper.xml"
     text = model.read_text()
-    assert old in text
-    model.write_text(text.replace(old, new, 1).replace('geom1="right_pad"', 'geom1="other_pad"'))
+    for old, new in renames.items():
+        assert old in text
+        text = text.replace(old, new)
+    model.write_text(text)
     with pytest.raises(ModelError, match=f"scene.xml: expected a {missing}"):
         load_model(tmp_path / "scene.xml")
 

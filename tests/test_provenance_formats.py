@@ -377,7 +377,7 @@ def test_unregistered_suffixes_are_clear_errors(readers: dict, tmp_path: Path) -
     with pytest.raises(ValueError, match=r"\.rrd files \(mjtrial\.recording registers"):
         read_stamp(tmp_path / "run.rrd")
     (tmp_path / "x.csv").write_text("a\n")
-    with pytest.raises(ValueError, match=r"\.csv files \(supported: \.json, \.md, \.parquet"):
+    with pytest.raises(ValueError, match=r"\.csv files \(supported: \.json, \.log, \.md"):
         read_stamp(tmp_path / "x.csv")
     with pytest.raises(FileNotFoundError):
         read_stamp(tmp_path / "absent.json")
