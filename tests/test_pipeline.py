@@ -64,8 +64,8 @@ def test_every_output_is_stamped_with_commit_state_and_versions(built):
         for p in results.rglob("*")
         if (p.is_file() and "logs" not in p.parts and p.parent not in folders) or p in folders
     ]
-    # 8 data files, 2 folders of recordings, report.md, 5 figures as PNG and SVG
-    assert len(outputs) == 21
+    # 8 data files, 2 folders of recordings, report.md, 5 figures as PNG and SVG, the seal
+    assert len(outputs) == 22
     for path in [*outputs, *(p for f in folders for p in f.glob("*.rrd"))]:
         stamp = provenance.read_stamp(path)
         assert stamp["versions"]["mujoco"] == "3.14.0"
@@ -95,7 +95,13 @@ def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_p
     workdir = tmp_path / "copy"
     shutil.copytree(built, workdir, symlinks=True)
     edit_config(workdir, lambda c: c["analysis"].update(n_resamples=600))
-    assert planned_jobs(workdir) == {"all": 1, "analysis": 1, "manifest": 1, "report": 1}
+    assert planned_jobs(workdir) == {
+        "all": 1,
+        "analysis": 1,
+        "manifest": 1,
+        "report": 1,
+        "seal": 1,
+    }
 
 
 def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
@@ -110,6 +116,7 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
         "manifest": 1,
         "report": 1,
         "rollout": 1,
+        "seal": 1,
     }
     assert "wildcards: condition=fast" in out and "condition=slow" not in out
 

@@ -127,7 +127,5 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
         table.replace_schema_metadata(None), edited, provenance.read_stamp(tables[1])
     )
     with pytest.raises(ValueError, match=f"slow-state-{first_success:06d}.*not a failed episode"):
-        gather_failures(
-            recordings=folders, tables=[tables[0], edited], output=tmp_path / "bad.rrd"
-        )
+        gather_failures(recordings=folders, tables=[tables[0], edited], output=tmp_path / "bad.rrd")
     assert not (tmp_path / "bad.rrd").exists()
