@@ -1,0 +1,166 @@
+"""Check a results folder against its stamps: is every output still what the pipeline would build?
+
+Every output carries a provenance stamp (:mod:`mjtrial.provenance`) recording the sha256 of the
+files it was made from, its config slice's hash and the hash of the package code its stage runs.
+:func:`verify_results` reads every stamp in a results folder and checks that chain against the
+files, the config, the model and the code as they are now.  Each output gets one
+:class:`Status`:
+
+* ``OK``: its inputs, config slice, model, code and library versions are unchanged.
+* ``STALE``: something it was built from changed since (a config value, the model, a package
+  module, a library version, or an input that was legitimately rebuilt after it), or one of its
+  inputs is itself stale, tampered or missing.  A rebuild fixes it.
+* ``TAMPERED``: its bytes no longer match the sha256 that a later output recorded for it, while
+  its own stamp says nothing rebuilt it after that record; or it has no readable stamp.
+* ``MISSING``: the manifest (or another output's stamp) names it, but it is not there.
+
+An output's own sha256 can only be recorded by the outputs built from it; the last rule, the
+seal (``seal.json``), is built from every output, so the report and the figures are checked
+too. Only the seal itself is checked for a readable, current stamp alone.
+
+:func:`check_stamps` holds all the logic on stamps already read; :func:`verify_results` does the
+reading and hashing.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from mjtrial import provenance, recording  # noqa: F401 - recording registers the .rrd reader
+from mjtrial.config import check_config, read_config_file
+from mjtrial.layout import Layout
+from mjtrial.verify.chain import (
+    STAMPED_SUFFIXES,
+    Current,
+    OutputResult,
+    Skipped,
+    Status,
+    VerifyReport,
+    check_stamps,
+    parse_rule,
+)
+
+__all__ = [
+    "STAMPED_SUFFIXES",
+    "Current",
+    "OutputResult",
+    "Skipped",
+    "Status",
+    "VerifyReport",
+    "check_stamps",
+    "load_checked_config",
+    "parse_rule",
+    "verify_results",
+]
+
+
+# --------------------------------------------------------------------------------------------
+# Reading a results folder
+# --------------------------------------------------------------------------------------------
+
+
+def load_checked_config(config_path: Path, *, repo_root: Path) -> dict[str, Any]:
+    """Read and check the config as the Snakefile does, the model resolved in ``repo_root``."""
+    config = read_config_file(config_path)
+    check_config(config, source=str(config_path), repo_root=repo_root)
+    return config
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return path.relative_to(root).as_posix()
+    except ValueError:
+        return path.as_posix()
+
+
+def _stamped_files(results_dir: Path) -> list[Path]:
+    """Outputs under ``results_dir`` that should carry a stamp (hidden temp files excluded).
+
+    A folder of recordings (`provenance.is_recording_folder`) is one output, not its files.
+    """
+    if not results_dir.is_dir():
+        return []
+    visible = [
+        p
+        for p in results_dir.rglob("*")
+        if not any(part.startswith(".") for part in p.relative_to(results_dir).parts)
+    ]
+    folders = {p for p in visible if provenance.is_recording_folder(p)}
+    return sorted(
+        p
+        for p in visible
+        if p in folders
+        or (
+            p.is_file()
+            and p.suffix.lower() in STAMPED_SUFFIXES
+            and not any(parent in folders for parent in p.parents)
+        )
+    )
+
+
+def _why_unreadable(err: BaseException, path: Path) -> str:
+    if isinstance(err, provenance.MissingStampError):
+        return "no stamp"
+    text = " ".join(str(err).split()).replace(str(path), path.name)
+    text = text.removeprefix(f"{path.name}: ")
+    return f"{type(err).__name__}: {text}"[:120]
+
+
+def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> VerifyReport:
+    """Read every stamp under ``results_dir`` and check the chain (see :func:`check_stamps`).
+
+    ``repo_root`` is the folder Snakemake ran in: stamps record paths relative to it, and the
+    model path in the config is resolved in it.  ``results_dir`` must lie inside it.  Raises
+    ``mjtrial.config.ConfigError`` for a config the pipeline would refuse.
+    """
+    repo_root = Path(repo_root).resolve()
+    results_dir = Path(results_dir).resolve()
+    if results_dir != repo_root and repo_root not in results_dir.parents:
+        raise ValueError(
+            f"{results_dir}: not inside the repository root {repo_root}; stamps record paths "
+            "relative to it (pass --repo-root)"
+        )
+    config = load_checked_config(Path(config_path), repo_root=repo_root)
+    current = Current.of_environment(config)
+
+    stamps: dict[str, dict[str, Any]] = {}
+    unreadable: dict[str, str] = {}
+    for file in _stamped_files(results_dir):
+        rel = _relative(file, repo_root)
+        try:
+            stamps[rel] = provenance.read_stamp(file)
+        except FileNotFoundError:
+            continue  # removed while we looked: missing if anything expects it
+        except Exception as err:  # noqa: BLE001 - any failure to read it is "no readable stamp"
+            if file.exists():
+                unreadable[rel] = _why_unreadable(err, file)
+
+    layout = Layout(results_dir)
+    manifest_file = layout.manifest
+    manifest: dict[str, Any] | None = None
+    try:
+        loaded = json.loads(manifest_file.read_text(encoding="utf-8"))
+        manifest = loaded if isinstance(loaded, dict) else None
+    except (OSError, ValueError):
+        manifest = None
+
+    def current_sha256(rel: str) -> str | None:
+        p = Path(rel)
+        p = p if p.is_absolute() else repo_root / p
+        try:
+            return provenance.file_sha256(p) if p.is_file() or p.is_dir() else None
+        except OSError:
+            return None
+
+    return check_stamps(
+        stamps,
+        current=current,
+        current_sha256=current_sha256,
+        outputs_prefix=_relative(results_dir, repo_root),
+        unreadable=unreadable,
+        manifest=manifest,
+        manifest_path=_relative(manifest_file, repo_root),
+        seal_path=_relative(layout.seal, repo_root),
+    )
