@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -155,8 +156,6 @@ def replay_episode(
 
 def open_viewer(path: Path) -> subprocess.Popen | None:
     """Spawn the Rerun viewer on `path` (the `rerun` command installed with rerun-sdk)."""
-    import sys
-
     exe = Path(sys.executable).parent / "rerun"
     command = str(exe) if exe.exists() else shutil.which("rerun")
     if command is None:

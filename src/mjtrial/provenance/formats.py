@@ -22,6 +22,7 @@ import io
 import json
 import os
 import re
+import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -247,8 +248,6 @@ _SVG_NS = "{http://www.w3.org/2000/svg}"
 
 def _svg_root(svg: bytes) -> Any:
     """The parsed root element of an SVG document; ValueError when it is not one."""
-    import xml.etree.ElementTree as ET
-
     try:
         root = ET.fromstring(svg)
     except ET.ParseError as exc:

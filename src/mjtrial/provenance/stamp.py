@@ -233,7 +233,7 @@ def git_state(repo_dir: str | os.PathLike[str]) -> dict[str, Any]:
     When there is no usable repository (not a repo, path missing, git not installed, no commits
     yet, bare repo, any git failure) returns ``{"available": False, "reason": "<one line>"}``.
     """
-    try:
+    try:  # imported here: GitPython raises ImportError when no git executable is installed
         import git
     except ImportError as exc:  # GitPython missing, or it found no git executable at import
         return _unavailable(f"gitpython/git unavailable: {type(exc).__name__}")

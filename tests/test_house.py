@@ -1,0 +1,108 @@
+"""The package stays easy to live in: no import cycle, no module over 700 lines, imports inside
+functions only with a comment saying why, no path to a file outside the repository."""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+
+from conftest import REPO_ROOT
+
+from mjtrial import codehash
+
+PACKAGE = REPO_ROOT / "src" / "mjtrial"
+MAX_LINES = 700
+
+
+def module_name(path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+MODULES = {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """A cycle of `graph` (a list that starts and ends on the same node), or None."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return stack[stack.index(nxt) :] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for name in sorted(graph):
+        if name not in state and (cycle := visit(name)):
+            return cycle
+    return None
+
+
+def test_no_import_cycle():
+    graph = {
+        name: codehash.imported_modules(path.read_text(), module=name) - {name}
+        for name, path in MODULES.items()
+    }
+    assert find_cycle(graph) is None
+
+
+def test_cycle_search_finds_a_cycle():
+    """The search on hand-made sources: a cycle through a module imported inside a function."""
+    sources = {
+        "mjtrial.stats": "import numpy",
+        "mjtrial.verify": "from mjtrial import stats\ndef f():\n    from mjtrial import states",
+        "mjtrial.states": "from mjtrial.verify import check_stamps",
+    }
+    graph = {k: codehash.imported_modules(v, module=k) for k, v in sources.items()}
+    assert find_cycle(graph) == ["mjtrial.states", "mjtrial.verify", "mjtrial.states"]
+    del sources["mjtrial.states"]
+    graph = {k: codehash.imported_modules(v, module=k) for k, v in sources.items()}
+    assert find_cycle(graph) is None
+
+
+def test_no_module_over_700_lines():
+    long = {n: len(p.read_text().splitlines()) for n, p in MODULES.items()}
+    assert {n: c for n, c in long.items() if c > MAX_LINES} == {}
+
+
+def test_imports_inside_functions_say_why():
+    silent = []
+    for name, path in MODULES.items():
+        lines = path.read_text().splitlines()
+        tree = ast.parse("\n".join(lines))
+        functions = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)]
+        for function in functions:
+            for node in ast.walk(function):
+                if isinstance(node, ast.Import | ast.ImportFrom):
+                    # The comment stands on the line, or above the block of imports it is in.
+                    first = node.lineno - 1
+                    while lines[first - 1].strip().startswith(("import ", "from ")):
+                        first -= 1
+                    if "#" not in "".join(lines[first - 1 : node.lineno]):
+                        silent.append(f"{name}:{node.lineno}")
+    assert silent == []
+
+
+def test_nothing_refers_to_files_outside_the_repository():
+    tracked = subprocess.run(
+        ["git", "ls-files"], cwd=REPO_ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
+    outside = re.compile(r"DESIGN\.md|\.\./shared")
+    hits = [
+        f
+        for f in tracked
+        if not f.endswith((".png", ".rrd"))
+        and f != "tests/test_house.py"
+        and (REPO_ROOT / f).is_file()
+        and outside.search((REPO_ROOT / f).read_text(errors="replace"))
+    ]
+    assert hits == []
