@@ -27,6 +27,7 @@ import yaml
 from mujoco import rollout
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 from mjtrial.protocol import control_sequence
 from mjtrial.replay import replay_episode
 from mjtrial.simulate import episode_model, initial_physics_state, load_model, reference_episode
@@ -52,7 +53,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     os.environ.setdefault("CI", "1")  # rerun's CLI: no analytics files in the home folder
-    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    config = yaml.safe_load((REPO_ROOT / CONFIG_FILE).read_text())
     if args.rate_hz:
         config["recording"]["rate_hz"] = args.rate_hz
     print(f"replay logging at {config['recording']['rate_hz']:g} Hz")
@@ -149,10 +150,10 @@ def main() -> None:
             src = REPO_ROOT / name
             (shutil.copytree if src.is_dir() else shutil.copy)(src, work / name)
         if args.n or args.rate_hz:
-            cfg = yaml.safe_load((work / "config" / "config.yaml").read_text())
+            cfg = yaml.safe_load((work / CONFIG_FILE).read_text())
             cfg["states"]["n"] = n
             cfg["recording"]["rate_hz"] = config["recording"]["rate_hz"]
-            (work / "config" / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+            (work / CONFIG_FILE).write_text(yaml.safe_dump(cfg, sort_keys=False))
         snakemake = str(Path(sys.executable).parent / "snakemake")
         t_smk, proc = timed(
             lambda: subprocess.run(
@@ -164,7 +165,8 @@ def main() -> None:
         )
         if proc.returncode:
             sys.exit(f"snakemake failed:\n{proc.stderr[-2000:]}")
-        results = work / "results" / config["experiment"]
+        layout = Layout.of(config["experiment"], base=work / RESULTS_DIR)
+        results = layout.root
         rrd_sizes: dict[str, int] = {}  # a folder of recordings counts as one
         for p in results.rglob("*.rrd"):
             rel = p.relative_to(results)
@@ -174,7 +176,7 @@ def main() -> None:
         failed = [
             (name, row["state_id"])
             for name in conditions
-            for row in pq.read_table(results / "rollouts" / f"{name}.parquet").to_pylist()
+            for row in pq.read_table(layout.rollout_table(name)).to_pylist()
             if not row["success"]
         ]
 

@@ -31,6 +31,7 @@ from rerun.chunk import ChunkStore
 
 from mjtrial import REPO_ROOT, recording, taxonomy
 from mjtrial.atomic import fsync_file
+from mjtrial.layout import CONFIG_FILE
 from mjtrial.protocol import control_sequence
 from mjtrial.recording.arrow import chunks as recording_chunks
 from mjtrial.recording.write import EpisodeStores
@@ -46,7 +47,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--rate-hz", type=float, help="default: the config's rate_hz")
     args = parser.parse_args()
-    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    config = yaml.safe_load((REPO_ROOT / CONFIG_FILE).read_text())
     if args.rate_hz:
         config["recording"]["rate_hz"] = args.rate_hz
     cond = config_slice("rollout", config, condition=args.condition)
