@@ -12,7 +12,6 @@ import re
 import shutil
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import pyarrow as pa
@@ -20,7 +19,6 @@ import pytest
 
 import mjtrial.provenance.stamp as building
 from mjtrial.provenance import (
-    code_hash,
     config_hash,
     file_sha256,
     git_state,
@@ -94,50 +92,6 @@ def stamp(repo: Path, tmp_path: Path) -> dict:
 # --------------------------------------------------------------------------------------------
 # Hashes
 # --------------------------------------------------------------------------------------------
-
-FAKE_PKG = "mjtrial_fake_codehash_pkg"
-
-
-@pytest.fixture
-def fake_pkg(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    root = tmp_path / "site"
-    pkg = root / FAKE_PKG
-    pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "alpha.py").write_text("X = 1\n")
-    (pkg / "beta.py").write_text("raise RuntimeError('must not be imported')\n")
-    monkeypatch.syspath_prepend(str(root))
-    yield pkg
-    for name in [m for m in sys.modules if m == FAKE_PKG or m.startswith(FAKE_PKG + ".")]:
-        del sys.modules[name]
-
-
-def test_code_hash_changes_with_module_source(fake_pkg: Path) -> None:
-    mods = [f"{FAKE_PKG}.alpha", f"{FAKE_PKG}.beta"]
-    h1 = code_hash(mods)
-    assert re.fullmatch(r"[0-9a-f]{64}", h1)
-    assert code_hash(list(reversed(mods))) == h1  # order irrelevant
-    assert code_hash(mods + mods[:1]) == h1  # duplicates irrelevant
-    assert f"{FAKE_PKG}.beta" not in sys.modules  # located, not imported
-    assert code_hash(mods) == h1  # stable
-
-    (fake_pkg / "alpha.py").write_text("X = 2\n")
-    h2 = code_hash(mods)
-    assert h2 != h1
-    assert code_hash([f"{FAKE_PKG}.alpha"]) != code_hash([f"{FAKE_PKG}.beta"])
-
-    (fake_pkg / "alpha.py").write_text("X = 1\n")
-    assert code_hash(mods) == h1
-
-
-def test_code_hash_unknown_module(fake_pkg: Path) -> None:
-    with pytest.raises(ModuleNotFoundError):
-        code_hash([f"{FAKE_PKG}.does_not_exist"])
-
-
-def test_code_hash_of_real_modules() -> None:
-    h = code_hash(["mjtrial.provenance", "mjtrial.atomic"])
-    assert re.fullmatch(r"[0-9a-f]{64}", h)
 
 
 def test_config_hash_independent_of_key_order() -> None:

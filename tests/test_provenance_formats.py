@@ -11,12 +11,10 @@ import zlib
 from pathlib import Path
 
 import matplotlib
-import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from matplotlib.figure import Figure
-from PIL import Image
 
 from mjtrial.provenance import (
     MissingStampError,
@@ -27,7 +25,6 @@ from mjtrial.provenance import (
     write_json,
     write_markdown,
     write_parquet,
-    write_png,
     write_svg,
 )
 
@@ -191,25 +188,6 @@ def test_figure_png_long_stamp_roundtrip(tmp_path: Path) -> None:
     assert read_stamp(path) == stamp
 
 
-def test_write_png_stamps_rendered_bytes_and_restamps(tmp_path: Path) -> None:
-    rendered = io.BytesIO()
-    _figure().savefig(rendered, format="png", dpi=40, metadata={"Title": "heights"})
-    path = tmp_path / "plot.png"
-    write_png(rendered.getvalue(), path, STAMP)
-    assert read_stamp(path) == STAMP
-    assert _text_chunks(path.read_bytes())[b"Title"] == (b"tEXt", b"heights")
-    with Image.open(io.BytesIO(rendered.getvalue())) as before, Image.open(path) as after:
-        assert np.array_equal(np.asarray(before), np.asarray(after))  # the same pixels
-    resolution = [body for ctype, body in _parse_png(rendered.getvalue()) if ctype == b"pHYs"]
-    assert resolution and resolution == [
-        b for c, b in _parse_png(path.read_bytes()) if c == b"pHYs"
-    ]
-
-    write_png(path.read_bytes(), path, {**STAMP, "rule": "other"})  # replaces, not adds
-    assert read_stamp(path)["rule"] == "other"
-    assert list(_text_chunks(path.read_bytes())).count(b"mjtrial.provenance") == 1
-
-
 def test_png_stamped_after_the_image_data_reads(tmp_path: Path) -> None:
     # Figures stamped before matplotlib wrote the stamp: a tEXt chunk just before IEND.
     text = json.dumps(STAMP, ensure_ascii=True).encode("ascii")
@@ -320,7 +298,6 @@ def test_writers_reject_non_stamps(tmp_path: Path) -> None:
         "a.md": lambda p: write_markdown("# x\n", p, not_a_stamp),
         "a.parquet": lambda p: write_parquet(pa.table({"a": [1]}), p, not_a_stamp),
         "a.svg": lambda p: write_svg(_SVG, p, not_a_stamp),
-        "a.png": lambda p: write_png(_tiny_png(), p, not_a_stamp),
         "b.png": lambda p: write_figure(_figure(), p, not_a_stamp),
     }
     for name, write in writers.items():

@@ -18,14 +18,12 @@ from mjtrial.provenance.formats import (
     write_json,
     write_markdown,
     write_parquet,
-    write_png,
     write_svg,
 )
 from mjtrial.provenance.stamp import (
     MODEL_FILE_SUFFIXES,
     RECORDING_FOLDER_BLUEPRINT,
     STAMP_VERSION,
-    code_hash,
     config_hash,
     file_sha256,
     git_state,
@@ -46,7 +44,6 @@ __all__ = [
     "MissingStampError",
     "StampReader",
     "log_stamp_line",
-    "code_hash",
     "config_hash",
     "file_sha256",
     "git_state",
@@ -64,6 +61,5 @@ __all__ = [
     "write_json",
     "write_markdown",
     "write_parquet",
-    "write_png",
     "write_svg",
 ]

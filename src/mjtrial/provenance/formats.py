@@ -47,7 +47,6 @@ __all__ = [
     "write_json",
     "write_markdown",
     "write_parquet",
-    "write_png",
     "write_svg",
 ]
 
@@ -203,29 +202,9 @@ def write_figure(
         raise ValueError(f"{path}: write_figure writes .png or .svg files")
 
 
-def write_png(png_bytes: bytes, path: str | os.PathLike[str], stamp: Mapping[str, Any]) -> None:
-    """Atomically write the PNG ``png_bytes`` to ``path`` with the stamp embedded.
-
-    Pillow decodes and encodes the image again (the same pixels; resolution and the other text
-    chunks kept). :func:`write_figure` is cheaper: it stamps while matplotlib saves.
-    """
-    # Pillow takes ~50 ms to import; only the writers and readers of PNG stamps pay it.
-    from PIL import Image, PngImagePlugin
-
-    text = _stamp_json(stamp, ascii_only=True)
-    with Image.open(io.BytesIO(png_bytes), formats=["PNG"]) as image:
-        info = PngImagePlugin.PngInfo()
-        for key, value in image.text.items():
-            if key != STAMP_KEY:
-                info.add_text(key, value)
-        info.add_text(STAMP_KEY, text)
-        resolution = {"dpi": image.info["dpi"]} if "dpi" in image.info else {}
-        with atomic_path(path) as tmp:
-            image.save(tmp, format="PNG", pnginfo=info, **resolution)
-
-
 def _read_png_stamp(path: Path) -> dict[str, Any] | None:
-    from PIL import Image  # slow import, see write_png
+    # Pillow takes ~50 ms to import; only the readers of PNG stamps pay it.
+    from PIL import Image
 
     try:
         with Image.open(path, formats=["PNG"]) as image:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.metadata
-import importlib.util
 import json
 import os
 import platform
@@ -24,7 +23,6 @@ __all__ = [
     "MODEL_FILE_SUFFIXES",
     "RECORDING_FOLDER_BLUEPRINT",
     "STAMP_VERSION",
-    "code_hash",
     "config_hash",
     "file_sha256",
     "git_state",
@@ -80,38 +78,6 @@ _IGNORED_UNTRACKED_DIRS = ("results", ".snakemake")
 # --------------------------------------------------------------------------------------------
 # Hashes
 # --------------------------------------------------------------------------------------------
-
-
-def code_hash(modules: Iterable[str]) -> str:
-    """sha256 over the source files of the named modules (order and duplicates irrelevant).
-
-    Modules are located with :func:`importlib.util.find_spec`, which does not execute the module
-    itself (it does import its parent packages).  Each module contributes its name and its
-    source bytes, so renaming or editing a module changes the hash.  Meant for Snakemake
-    ``params`` so that a real code change reruns a stage.
-    """
-    if isinstance(modules, str):
-        modules = [modules]
-    names = sorted(set(modules))
-    if not names:
-        raise ValueError("code_hash needs at least one module name")
-    h = hashlib.sha256()
-    for name in names:
-        try:
-            spec = importlib.util.find_spec(name)
-        except (ImportError, ValueError) as exc:
-            raise ModuleNotFoundError(f"code_hash: cannot locate module {name!r}: {exc}") from exc
-        if spec is None:
-            raise ModuleNotFoundError(f"code_hash: no module named {name!r}")
-        if not spec.has_location or not spec.origin:
-            raise ValueError(
-                f"code_hash: module {name!r} has no source file (origin={spec.origin})"
-            )
-        data = Path(spec.origin).read_bytes()
-        h.update(name.encode("utf-8") + b"\0")
-        h.update(len(data).to_bytes(8, "big"))
-        h.update(data)
-    return h.hexdigest()
 
 
 def _canonical_json(obj: Any) -> bytes:
