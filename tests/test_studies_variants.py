@@ -1,0 +1,130 @@
+"""Variants edit exactly the attribute they name, checked on the compiled model."""
+
+from __future__ import annotations
+
+import hashlib
+
+import mujoco
+import numpy as np
+import pytest
+
+from mjtrial import model_path
+from mjtrial.studies.variants import check_overrides, nominal_model_hash, variant_model
+
+MODEL = model_path("gantry_gripper")
+FRICTION = [0.6, 0.003, 0.0001]
+
+
+def _fields(model: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """Every array of the model and of its options, by name."""
+    out = {}
+    for owner, prefix in ((model, ""), (model.opt, "opt.")):
+        for name in dir(owner):
+            value = getattr(owner, name) if not name.startswith("_") else None
+            if isinstance(value, np.ndarray | float | int) and not isinstance(value, bool):
+                out[prefix + name] = np.array(value, copy=True)
+    return out
+
+
+@pytest.fixture(scope="module")
+def nominal() -> dict[str, np.ndarray]:
+    return _fields(mujoco.MjModel.from_xml_path(str(MODEL)))
+
+
+def _element_id(kind: mujoco.mjtObj, name: str) -> int:
+    return mujoco.mj_name2id(mujoco.MjModel.from_xml_path(str(MODEL)), kind, name)
+
+
+CASES = [
+    ({"option": {"timestep": 0.001}}, "opt.timestep", None, 0.001),
+    (
+        {"option": {"integrator": "RK4"}},
+        "opt.integrator",
+        None,
+        int(mujoco.mjtIntegrator.mjINT_RK4),
+    ),
+    (
+        {"option": {"cone": "pyramidal"}},
+        "opt.cone",
+        None,
+        int(mujoco.mjtCone.mjCONE_PYRAMIDAL),
+    ),
+    ({"option": {"impratio": 1}}, "opt.impratio", None, 1.0),
+    (
+        {"geom": {"left_pad": {"friction": FRICTION}}},
+        "geom_friction",
+        ("geom", "left_pad"),
+        FRICTION,
+    ),
+    (
+        {"actuator": {"gripper": {"forcerange": [-15, 15]}}},
+        "actuator_forcerange",
+        ("actuator", "gripper"),
+        [-15.0, 15.0],
+    ),
+    (
+        {"body": {"carriage": {"gravcomp": 0.5}}},
+        "body_gravcomp",
+        ("body", "carriage"),
+        0.5,
+    ),
+]
+
+
+@pytest.mark.parametrize(("overrides", "field", "element", "expected"), CASES)
+def test_variant_edits_exactly_the_named_attribute(nominal, overrides, field, element, expected):
+    model, _ = variant_model(MODEL, overrides)
+    changed = _fields(model)
+    assert changed.keys() == nominal.keys()
+    different = [k for k in nominal if not np.array_equal(nominal[k], changed[k], equal_nan=True)]
+    assert different == [field]
+    if element is None:
+        assert changed[field] == pytest.approx(expected)
+        return
+    kind = {"geom": mujoco.mjtObj.mjOBJ_GEOM, "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR}.get(
+        element[0], mujoco.mjtObj.mjOBJ_BODY
+    )
+    row = _element_id(kind, element[1])
+    rows = np.flatnonzero(
+        (nominal[field] != changed[field]).reshape(len(nominal[field]), -1).any(axis=1)
+    )
+    assert rows.tolist() == [row]
+    np.testing.assert_array_equal(changed[field][row], expected)
+
+
+def test_no_overrides_is_the_committed_model_and_its_hash(nominal):
+    model, digest = variant_model(MODEL, {})
+    assert all(np.array_equal(v, _fields(model)[k], equal_nan=True) for k, v in nominal.items())
+    xml = mujoco.MjSpec.from_file(str(MODEL)).to_xml()
+    assert digest == hashlib.sha256(xml.encode()).hexdigest() == nominal_model_hash(MODEL)
+    assert variant_model(MODEL, {"option": {"timestep": 0.001}})[1] != digest
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (
+            {"geom": {"left_pad": {"friction": [0.6, 0.003]}}},
+            "v.x.geom.left_pad.friction: expected 3 numbers, got 2",
+        ),
+        ({"option": {"timestepp": 0.001}}, "v.x.option.timestepp: unknown option; expected one"),
+        (
+            {"option": {"integrator": "rk4"}},
+            "v.x.option.integrator: expected one of Euler, RK4, implicit, implicitfast, got 'rk4'",
+        ),
+        ({"option": {"cone": "round"}}, "v.x.option.cone: expected one of pyramidal, elliptic"),
+        ({"option": {"timestep": 0}}, "v.x.option.timestep: expected a positive number, got 0"),
+        ({"option": {"timestep": -1e-3}}, "v.x.option.timestep: expected a positive number"),
+        ({"geom": {"thumb": {"friction": FRICTION}}}, "v.x.geom.thumb: the model has no geom"),
+        ({"actuator": {"gripper": {"forcerange": "15"}}}, "v.x.actuator.gripper.forcerange:"),
+        ({"actuator": {"gripper": {"kp": 1}}}, "v.x.actuator.gripper.kp: unknown or not"),
+        ({"body": {"cube": {"mass": 1.0}}}, "v.x.body.cube.mass: unknown or not overridable"),
+        ({"joint": {"gantry_z": {"damping": 1}}}, "v.x.joint: unknown override kind"),
+        ({"geom": {"left_pad": {"condim": 3.5}}}, "v.x.geom.left_pad.condim: expected an integer"),
+    ],
+)
+def test_bad_overrides_name_the_key(overrides, message):
+    with pytest.raises(ValueError) as err:
+        check_overrides(overrides, model_file=MODEL, key_prefix="v.x")
+    assert str(err.value).startswith(message)
+    assert "\n" not in str(err.value)
