@@ -1,0 +1,133 @@
+"""The sensitivity record on hand-built rollout tables, against closed forms."""
+
+from __future__ import annotations
+
+import math
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+
+from mjtrial.studies.sensitivity import NOMINAL, summarize_sensitivity, variant_record
+
+FALSIFIER = {
+    "treatment": "slow",
+    "baseline": "fast",
+    "statistic": "paired_difference",
+    "threshold": 0.0,
+}
+ANALYSIS = {"confidence": 0.95, "n_resamples": 200, "seed": 3}
+
+
+def table(success, *, warning=None, nonfinite=None, category=None, ids=None):
+    success = np.asarray(success, dtype=bool)
+    n = success.size
+    return {
+        "state_id": np.arange(n) if ids is None else np.asarray(ids),
+        "success": success,
+        "nonfinite": np.zeros(n, bool) if nonfinite is None else np.asarray(nonfinite),
+        "warning": np.array([""] * n if warning is None else warning, dtype=object),
+        "failure_category": np.array(
+            [None if s else "slipped during the lift" for s in success]
+            if category is None
+            else category,
+            dtype=object,
+        ),
+    }
+
+
+def wilson(k, n, confidence=0.95):
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return centre - half, centre + half
+
+
+def record(slow, fast, **kwargs):
+    return variant_record(
+        {"fast": fast, "slow": slow},
+        overrides={"option": {"timestep": 0.001}},
+        model_sha256="ab" * 32,
+        falsifier=FALSIFIER,
+        analysis=ANALYSIS,
+        **kwargs,
+    )
+
+
+def test_rates_wilson_and_a_difference_every_resample_agrees_on():
+    # Every pair differs by +1 or every pair by 0: each bootstrap mean equals the estimate.
+    slow = table([1] * 8 + [0] * 2)
+    fast = table([0] * 8 + [0] * 2)
+    rec = record(slow, fast)
+    assert rec["conditions"]["slow"]["successes"] == 8
+    assert rec["conditions"]["slow"]["rate"] == 0.8
+    assert rec["conditions"]["slow"]["wilson_low"] == pytest.approx(wilson(8, 10)[0], abs=1e-12)
+    assert rec["conditions"]["slow"]["wilson_high"] == pytest.approx(wilson(8, 10)[1], abs=1e-12)
+    assert rec["conditions"]["fast"]["wilson_low"] == 0.0
+    # differences: eight +1, two 0; a resample's mean lies in [0, 1]; estimate 0.8
+    assert rec["paired_difference"]["estimate"] == pytest.approx(0.8)
+    assert 0.0 <= rec["paired_difference"]["low"] <= 0.8 <= rec["paired_difference"]["high"]
+    assert rec["verdict"] == "survives" and rec["unhealthy"] == 0
+    assert rec["model_sha256"] == "ab" * 32
+    assert rec["overrides"] == {"option": {"timestep": 0.001}}
+
+
+def test_all_differences_positive_survive_and_none_refute():
+    ones = table([1] * 6)
+    zeros = table([0] * 6)
+    up = record(ones, zeros)["paired_difference"]
+    assert (up["estimate"], up["low"], up["high"]) == (1.0, 1.0, 1.0)
+    same = record(ones, ones)
+    assert same["paired_difference"]["low"] == 0.0
+    assert same["verdict"] == "refuted"  # lower bound at the threshold 0
+
+
+def test_pairs_are_aligned_by_state_id():
+    slow = table([1, 1, 0, 0], ids=[3, 2, 1, 0])  # states 3, 2 succeed
+    fast = table([0, 0, 1, 1], ids=[0, 1, 2, 3])  # states 2, 3 succeed
+    assert record(slow, fast)["paired_difference"]["estimate"] == 0.0
+    with pytest.raises(ValueError, match="state ids differ"):
+        record(table([1, 1]), table([0, 0], ids=[0, 5]))
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        {"warning": ["", "mjWARN_BADQACC", "", "", "", ""]},
+        {"nonfinite": [False, True, False, False, False, False]},
+        {"category": [None, "simulation unhealthy", None, None, None, None]},
+    ],
+)
+def test_an_unhealthy_variant_is_invalid_never_refuted(kind):
+    # Without the unhealthy episode this would be refuted (no difference at all).
+    slow = table([1] * 6, **kind)
+    fast = table([1] * 6)
+    rec = record(slow, fast)
+    assert rec["verdict"] == "invalid"
+    assert rec["unhealthy"] == 1
+    assert rec["conditions"]["slow"]["unhealthy"] == 1
+    assert rec["reason"].startswith("1 of 12 episodes unhealthy")
+
+
+def test_summary_counts_verdicts_without_the_nominal_row():
+    good, bad = table([1] * 6), table([0] * 6)
+    sick = table([1] * 6, warning=["mjWARN_BADQACC"] + [""] * 5)
+
+    def variant(slow, fast):
+        return {"tables": {"fast": fast, "slow": slow}, "overrides": {}, "model_sha256": "0"}
+
+    summary = summarize_sensitivity(
+        {
+            NOMINAL: variant(good, bad),
+            "a": variant(good, bad),
+            "b": variant(good, good),
+            "c": variant(sick, bad),
+        },
+        falsifier=FALSIFIER,
+        analysis=ANALYSIS,
+    )
+    assert list(summary["variants"]) == [NOMINAL, "a", "b", "c"]
+    assert summary["n_variants"] == 3
+    assert summary["verdicts"] == {"survives": 1, "refuted": 1, "invalid": 1}
+    assert summary["survives_in"] == 1
