@@ -1,0 +1,195 @@
+"""Dose-response: success against one protocol parameter (the lift time), on the same states.
+
+Every swept value runs on the same initial states, so the outcomes are paired (clustered by
+state) and every comparison here respects that: the trend's standard errors are clustered by
+state, and each value is compared with the reference by paired difference and McNemar's test.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import statsmodels.api as sm
+from statsmodels.stats.multitest import multipletests
+
+from mjtrial import stats
+from mjtrial.analysis import band_index, band_labels, rate_record
+from mjtrial.studies.sensitivity import paired_success
+
+TREND_METHOD = (
+    "logistic regression of success on log(value) (statsmodels GLM, Binomial, logit link) with "
+    "state-clustered sandwich standard errors (small-sample factor G/(G-1) (N-1)/(N-K)), "
+    "normal-theory interval"
+)
+HOLM_METHOD = "Holm step-down over the non-reference values (statsmodels multipletests)"
+
+
+def trend(
+    value: np.ndarray, success: np.ndarray, groups: np.ndarray, *, confidence: float
+) -> dict[str, Any]:
+    """Slope of the log-odds of success per unit log(value), with its clustered interval.
+
+    Args:
+      value: the swept value of each episode, `(N,)`, positive.
+      success: each episode's outcome, `(N,)` booleans.
+      groups: each episode's state id (the cluster), `(N,)`.
+      confidence: two-sided confidence of the interval.
+
+    Returns slope, its standard error, interval and p-value (Wald, two-sided), the odds ratio
+    per doubling of the value (exp(slope ln 2)) with its interval, and the method.
+    """
+    x = sm.add_constant(np.log(np.asarray(value, dtype=float)))
+    fit = sm.GLM(np.asarray(success, dtype=float), x, family=sm.families.Binomial()).fit(
+        cov_type="cluster", cov_kwds={"groups": np.asarray(groups)}
+    )
+    low, high = fit.conf_int(alpha=1.0 - confidence)[1]
+    slope = float(fit.params[1])
+    return {
+        "slope_log_odds_per_log_value": slope,
+        "standard_error": float(fit.bse[1]),
+        "low": float(low),
+        "high": float(high),
+        "p_value": float(fit.pvalues[1]),
+        "intercept": float(fit.params[0]),
+        "odds_ratio_per_doubling": float(np.exp(slope * np.log(2))),
+        "odds_ratio_per_doubling_low": float(np.exp(low * np.log(2))),
+        "odds_ratio_per_doubling_high": float(np.exp(high * np.log(2))),
+        "n_episodes": int(x.shape[0]),
+        "n_clusters": int(np.unique(groups).size),
+        "method": TREND_METHOD,
+    }
+
+
+def summarize_dose_response(
+    tables: Mapping[float, Mapping[str, np.ndarray]],
+    *,
+    parameter: str,
+    states: Mapping[str, np.ndarray],
+    mass_edges: Sequence[float],
+    analysis: Mapping[str, Any],
+    margin: float,
+    reference: float | None = None,
+) -> dict[str, Any]:
+    """The content of `analysis/dose_response.json`.
+
+    Args:
+      tables: per swept value (e.g. lift time, s), the columns of its rollout table
+        (`ROLLOUT_COLUMNS`), each `(n,)`, all on the same states.
+      parameter: the swept protocol parameter's name (e.g. "lift_time"), recorded.
+      states: the states table's columns (state_id, mass), each `(n,)`.
+      mass_edges: mass band edges, kg (`analysis.bands.mass`).
+      analysis: confidence, n_resamples and seed (the main result's).
+      margin: the success margin of `shortest_within_margin`, in (0, 1).
+      reference: the value every other is compared with; the largest (slowest lift) if None.
+
+    `shortest_within_margin` is the smallest swept value v whose paired difference
+    success(v) - success(reference) has its bootstrap interval's lower bound at or above
+    -margin: its success is shown, at the stated confidence, to be at most `margin` below the
+    reference's (a non-inferiority criterion; the reference itself always qualifies). It does
+    not require every larger value to qualify too.
+    """
+    values = sorted(float(v) for v in tables)
+    if len(values) < 3:
+        raise ValueError(f"sweep of {parameter}: expected at least 3 values, got {len(values)}")
+    if not 0.0 < margin < 1.0:
+        raise ValueError(f"margin: expected a number in (0, 1), got {margin}")
+    reference = max(values) if reference is None else float(reference)
+    if reference not in values:
+        raise ValueError(f"reference: {reference:g} is not a swept value of {parameter}")
+    confidence = float(analysis["confidence"])
+    by_value = {float(v): t for v, t in tables.items()}
+    success = paired_success(
+        {f"{v:g}": by_value[v] for v in values}, source=f"sweep of {parameter}"
+    )
+    state_ids = np.sort(np.asarray(next(iter(by_value.values()))["state_id"]))
+    order = np.argsort(np.asarray(states["state_id"]), kind="stable")
+    if not np.array_equal(np.asarray(states["state_id"])[order], state_ids):
+        raise ValueError(f"sweep of {parameter}: state ids differ from the states table")
+    band = band_index(np.asarray(states["mass"], dtype=float)[order], mass_edges)
+    labels = band_labels(mass_edges)
+
+    rows = []
+    for v in values:
+        s = success[f"{v:g}"]
+        rows.append(
+            {
+                parameter: v,
+                **rate_record(s, confidence=confidence),
+                "mass_bands": [
+                    {
+                        "band": label,
+                        "low": mass_edges[i],
+                        "high": mass_edges[i + 1],
+                        **rate_record(s[band == i], confidence=confidence),
+                    }
+                    for i, label in enumerate(labels)
+                ],
+            }
+        )
+
+    ref = success[f"{reference:g}"]
+    comparisons = []
+    for v in values:
+        if v == reference:
+            continue
+        s = success[f"{v:g}"]
+        estimate, low, high = stats.paired_difference_ci(
+            s.astype(float),
+            ref.astype(float),
+            n_resamples=int(analysis["n_resamples"]),
+            confidence=confidence,
+            seed=int(analysis["seed"]),
+        )
+        test = stats.mcnemar(s, ref)
+        comparisons.append(
+            {
+                parameter: v,
+                "estimate": estimate,
+                "low": low,
+                "high": high,
+                f"only_{parameter}": test.only_a,
+                "only_reference": test.only_b,
+                "p_value": test.p_value,
+                "within_margin": low >= -margin,
+            }
+        )
+    _, adjusted, _, _ = multipletests(
+        [c["p_value"] for c in comparisons], alpha=1.0 - confidence, method="holm"
+    )
+    for c, p in zip(comparisons, adjusted, strict=True):
+        c["p_holm"] = float(p)
+        c["significant"] = bool(p <= 1.0 - confidence)
+
+    qualifying = [c[parameter] for c in comparisons if c["within_margin"]] + [reference]
+    n = len(state_ids)
+    return {
+        "parameter": parameter,
+        "values": values,
+        "n_states": n,
+        "confidence": confidence,
+        "mass_edges": list(mass_edges),
+        "per_value": rows,
+        "trend": trend(
+            np.repeat(values, n),
+            np.concatenate([success[f"{v:g}"] for v in values]),
+            np.tile(state_ids, len(values)),
+            confidence=confidence,
+        ),
+        "reference": reference,
+        "comparisons": comparisons,
+        "comparison_method": {
+            "difference": f"{stats.BOOTSTRAP_METHOD} over pairs, value minus reference",
+            "test": stats.MCNEMAR_METHOD,
+            "adjustment": HOLM_METHOD,
+            "n_resamples": int(analysis["n_resamples"]),
+            "seed": int(analysis["seed"]),
+        },
+        "margin": margin,
+        "shortest_within_margin": min(qualifying),
+        "within_margin_criterion": (
+            f"smallest {parameter} whose paired difference to {reference:g} has its "
+            f"{confidence:.0%} interval's lower bound at or above -{margin:g}"
+        ),
+    }
