@@ -7,6 +7,7 @@ from mjtrial.config import (
     ConfigError,
     check_config,
     merge_config,
+    parse_config_args,
     preflight,
     read_config_file,
 )
@@ -16,12 +17,17 @@ from mjtrial.layout import CONFIG_FILE
 # duplicated key is one line too; --configfile and --config values still take precedence.
 # Then it is validated before any work, with one line naming the file, the key and the
 # expectation (snakemake's validate() prints a multi-line jsonschema dump instead).
+# Values given with --config are read as YAML again: Snakemake leaves nested ones as strings.
 try:
-    config.update(merge_config(read_config_file(CONFIG_FILE), config))
+    overrides = merge_config(
+        config, parse_config_args(workflow.config_settings.config_args)
+    )
+    config.update(merge_config(read_config_file(CONFIG_FILE), overrides))
     check_config(
         config,
         source=", ".join(map(str, [CONFIG_FILE, *workflow.configfiles])),
         repo_root=Path.cwd(),
+        overrides=overrides,
     )
     for warning in preflight(config, repo_root=Path.cwd()):
         print(warning, file=sys.stderr)

@@ -62,6 +62,28 @@ def _foreign_results(workdir: Path) -> None:
     manifest.write_text(json.dumps(data))
 
 
+def _model_outside(workdir: Path) -> None:
+    outside = workdir.parent / "elsewhere"
+    shutil.copytree(workdir / MODEL.parent, outside)
+    edit_config(workdir, lambda c: c.update(model=str(outside / "scene.xml")))
+
+
+def _yaml_bomb(workdir: Path) -> None:
+    """Nine levels of nine aliases: a billion values once expanded, a few lines of text."""
+    lines = ['a0: &a0 ["lol"]']
+    for i in range(1, 10):
+        lines.append(f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]")
+    path = workdir / "config" / "config.yaml"
+    path.write_text(path.read_text() + "\n".join(["bomb:", *("  " + s for s in lines)]) + "\n")
+
+
+def _not_utf8(workdir: Path) -> None:
+    path = workdir / "config" / "config.yaml"
+    lines = path.read_bytes().split(b"\n")
+    lines[2] = b"# caf\xff"
+    path.write_bytes(b"\n".join(lines))
+
+
 # (case, how to break a good workdir, what the one-line error must say)
 BAD_INPUT = [
     (
@@ -189,6 +211,90 @@ BAD_INPUT = [
         "results of another experiment",
         _foreign_results,
         "written by experiment 'another_experiment'",
+    ),
+    (
+        "NaN lift time",
+        text_case("config/config.yaml", lambda t: t.replace("lift_time: 0.15", "lift_time: .nan")),
+        "conditions.fast.lift_time: expected a finite number, got nan",
+    ),
+    (
+        "infinite confidence",
+        text_case(
+            "config/config.yaml", lambda t: t.replace("confidence: 0.95", "confidence: .inf")
+        ),
+        "analysis.confidence: expected a finite number, got inf",
+    ),
+    (
+        "n written as a float",
+        text_case("config/config.yaml", lambda t: t.replace("  n: 12\n", "  n: 12.0\n")),
+        "states.n: expected integer, got 12.0",
+    ),
+    (
+        "n beyond its bound",
+        config_case(lambda c: c["states"].update(n=1_000_000_000)),
+        "states.n: expected <= 1000000, got 1000000000",
+    ),
+    (
+        "lift time beyond its bound",
+        config_case(lambda c: c["conditions"]["slow"].update(lift_time=100)),
+        "conditions.slow.lift_time: expected <= 10, got 100",
+    ),
+    (
+        "resamples beyond their bound",
+        config_case(lambda c: c["analysis"].update(n_resamples=10**9)),
+        "analysis.n_resamples: expected <= 1000000",
+    ),
+    (
+        "first k beyond n",
+        config_case(lambda c: c["analysis"].update(first_k=13)),
+        "analysis.first_k: expected at most states.n (12)",
+    ),
+    (
+        "experiment '..'",
+        config_case(lambda c: c.update(experiment="..")),
+        "experiment: expected a name matching",
+    ),
+    (
+        "experiment '.'",
+        config_case(lambda c: c.update(experiment=".")),
+        "experiment: expected a name matching",
+    ),
+    (
+        "experiment with a slash",
+        config_case(lambda c: c.update(experiment="a/b")),
+        "experiment: expected a name matching",
+    ),
+    (
+        "model outside the repository",
+        _model_outside,
+        "model: expected a file inside the repository",
+    ),
+    (
+        "model timestep coarser than the protocol's step",
+        text_case(MODEL, lambda t: t.replace('timestep="0.002"', 'timestep="0.1"')),
+        "timestep 0.1 s; expected at most 0.01 s",
+    ),
+    (
+        "unstable model",
+        text_case(
+            MODEL, lambda t: t.replace('impratio="10"/>', 'impratio="10" gravity="0 0 -1e15"/>')
+        ),
+        "unstable: the nominal episode under condition 'fast' stops at step 1 with mjWARN_BADQACC",
+    ),
+    (
+        "unclosed XML tag",
+        text_case(MODEL, lambda t: t.replace("</body>\n", "", 1)),
+        "XML_ERROR_MISMATCHED_ELEMENT ErrorID=14 (0xe) Line number=",
+    ),
+    (
+        "YAML bomb",
+        _yaml_bomb,
+        "config/config.yaml: expands to more than 100000 values through YAML aliases",
+    ),
+    (
+        "config not UTF-8",
+        _not_utf8,
+        "config/config.yaml: not UTF-8 text (byte 0xff on line 3)",
     ),
 ]
 

@@ -7,25 +7,74 @@ any work starts, so a typo never costs a run or touches an earlier result.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import jsonschema
+import mujoco
 import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.layout import CONFIG_FILE, Layout
-from mjtrial.model_spec import ModelError
+from mjtrial.model_spec import ModelError, ModelSpec
+from mjtrial.protocol import PROTOCOL
 from mjtrial.provenance import git_state
-from mjtrial.simulate import load_model
+from mjtrial.simulate import episode_outcomes, iter_episode_batches, load_model
+from mjtrial.states import InitialState
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
+# A config is a few hundred lines; anything far larger is a mistake or an attack (a YAML
+# "billion laughs" document expands a few lines of aliases into billions of values).
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_VALUES = 100_000
 
 
 class ConfigError(ValueError):
     """The config does not describe a runnable experiment; the message is one line."""
+
+
+# JSON Schema counts 200.0 as an integer; a count written as a float is a typo here.
+_Validator = jsonschema.validators.extend(
+    jsonschema.Draft202012Validator,
+    type_checker=jsonschema.Draft202012Validator.TYPE_CHECKER.redefine(
+        "integer", lambda _, value: isinstance(value, int) and not isinstance(value, bool)
+    ),
+)
+
+
+def _non_finite(value: Any, key: str = "") -> tuple[str, float] | None:
+    """The first NaN or infinite number in the config, with its key (JSON Schema's minimum
+    and maximum let NaN through, since every comparison with NaN is false)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return key or "(top level)", value
+    children = (
+        value.items()
+        if isinstance(value, Mapping)
+        else enumerate(value)
+        if isinstance(value, list)
+        else ()
+    )
+    for k, v in children:
+        found = _non_finite(v, f"{key}[{k}]" if isinstance(k, int) else f"{key}.{k}".lstrip("."))
+        if found:
+            return found
+    return None
+
+
+def _has_key(config: Mapping[str, Any] | None, key: str) -> bool:
+    """Whether `config` holds the dotted `key` (`states.n`, `analysis.bands.mass[0]`)."""
+    node: Any = config
+    for part in key.replace("[", ".").replace("]", "").split("."):
+        if isinstance(node, Mapping) and part in node:
+            node = node[part]
+        elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+        else:
+            return False
+    return True
 
 
 # What each schema keyword expects, in the config's words; `s` is the keyword's value.
@@ -90,28 +139,88 @@ def _duplicate_key(node: yaml.Node, path: tuple[str, ...] = ()) -> tuple[str, in
     return None
 
 
-def read_config_file(path: str | Path) -> dict[str, Any]:
-    """Parse a YAML config file strictly (no duplicate keys); no schema check yet."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
+def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
+    """How many values `node` holds once its aliases are expanded, counted once per node
+    (aliases share nodes, so this is linear in the document, not in its expansion)."""
+    key = id(node)
+    if key not in sizes:
+        sizes[key] = 0  # a recursive alias counts as nothing more
+        if isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        elif isinstance(node, yaml.SequenceNode):
+            children = node.value
+        else:
+            children = []
+        sizes[key] = 1 + sum(_expanded_size(c, sizes) for c in children)
+    return sizes[key]
+
+
+def parse_config_text(text: str, *, source: str) -> dict[str, Any]:
+    """Parse YAML config text strictly: no duplicate keys, no alias bombs; no schema check."""
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
-        config = yaml.safe_load(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark else ""
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise ConfigError(f"{path}: not valid YAML{where}: {problem}") from None
+        raise ConfigError(f"{source}: not valid YAML{where}: {problem}") from None
+    if node is not None and _expanded_size(node, {}) > MAX_CONFIG_VALUES:
+        raise ConfigError(
+            f"{source}: expands to more than {MAX_CONFIG_VALUES} values through YAML aliases; "
+            "expected a plain config"
+        )
+    config = yaml.safe_load(text)
     duplicate = _duplicate_key(node) if node is not None else None
     if duplicate:
         key, line = duplicate
-        raise ConfigError(f"{path}: {key}: duplicate key (line {line}); expected each key once")
+        raise ConfigError(f"{source}: {key}: duplicate key (line {line}); expected each key once")
     if not isinstance(config, dict):
-        raise ConfigError(f"{path}: expected a mapping of keys at the top level")
+        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
     return config
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """Read and parse a YAML config file strictly (see `parse_config_text`)."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(
+                f"{path}: {size} bytes; expected a config file of at most {MAX_CONFIG_BYTES}"
+            )
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[: err.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte 0x{data[err.start]:02x} on line {line}); "
+            "expected a UTF-8 YAML file"
+        ) from None
+    return parse_config_text(text, source=str(path))
+
+
+def parse_config_args(args: list[str] | None) -> dict[str, Any]:
+    """The `--config key=value` arguments, each value read as YAML (skipped if it is not).
+
+    Snakemake reads a nested value such as `states={n: 50}` with YAML's base loader, which
+    leaves every scalar a string (`'50'`); reading it as YAML gives what the user typed.
+    """
+    parsed: dict[str, Any] = {}
+    for arg in args or []:
+        key, sep, value = arg.partition("=")
+        if not sep:
+            raise ConfigError(f"--config {arg}: expected key=value")
+        try:
+            node = yaml.compose(value, Loader=yaml.SafeLoader)
+        except yaml.YAMLError:
+            continue  # not YAML: Snakemake's own reading of it stands
+        if node is not None and _expanded_size(node, {}) > MAX_CONFIG_VALUES:
+            raise ConfigError(f"--config {key}: expands to more than {MAX_CONFIG_VALUES} values")
+        parsed[key] = yaml.safe_load(value)
+    return parsed
 
 
 def merge_config(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
@@ -166,19 +275,32 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
 
 
 def check_config(
-    config: Mapping[str, Any], *, source: str = "config/config.yaml", repo_root: Path = REPO_ROOT
+    config: Mapping[str, Any],
+    *,
+    source: str = "config/config.yaml",
+    repo_root: Path = REPO_ROOT,
+    overrides: Mapping[str, Any] | None = None,
 ) -> None:
-    """Raise `ConfigError` (one line: file, key, expectation) unless the config is runnable."""
+    """Raise `ConfigError` (one line: file, key, expectation) unless the config is runnable.
+
+    `overrides` are the values given on the command line (`--config`, `--configfile`): an
+    error about one of them names the command line rather than `source`.
+    """
     if not isinstance(config, Mapping):
         raise ConfigError(f"{source}: expected a mapping of keys at the top level")
-    schema = yaml.safe_load(SCHEMA_PATH.read_text())
-    validator = jsonschema.Draft202012Validator(schema)
-    error = jsonschema.exceptions.best_match(validator.iter_errors(dict(config)))
-    if error is not None:
-        raise ConfigError(f"{source}: {_schema_message(error)}")
 
     def fail(key: str, expectation: str) -> None:
-        raise ConfigError(f"{source}: {key}: {expectation}")
+        where = "--config" if _has_key(overrides, key) else source
+        raise ConfigError(f"{where}: {key}: {expectation}")
+
+    bad = _non_finite(dict(config))
+    if bad:
+        fail(bad[0], f"expected a finite number, got {bad[1]}")
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    error = jsonschema.exceptions.best_match(_Validator(schema).iter_errors(dict(config)))
+    if error is not None:
+        key, _, expectation = _schema_message(error).partition(": ")
+        fail(key, expectation)
 
     conditions = config["conditions"]
     falsifier = config["design"]["falsifier"]
@@ -211,10 +333,51 @@ def check_config(
             low, high = 0.0, max(abs(low), abs(high))
         if edges[0] > low or edges[-1] < high:
             fail(key, f"expected edges covering the range of {name} [{low}, {high}], got {edges}")
-    model_file = repo_root / config["model"]
+    if config["analysis"]["first_k"] > config["states"]["n"]:
+        fail("analysis.first_k", f"expected at most states.n ({config['states']['n']})")
+    model_file = (repo_root / config["model"]).resolve()
+    if not model_file.is_relative_to(Path(repo_root).resolve()):
+        fail(
+            "model",
+            f"expected a file inside the repository, got {config['model']!r} (copy it under "
+            "models/, so that stamps record it and mjtrial verify can check it)",
+        )
     if not model_file.is_file():
         fail("model", f"expected an existing model file, got {config['model']!r} (not found)")
     try:
-        load_model(model_file)
+        model = load_model(model_file)
     except ModelError as err:
         fail("model", str(err).replace(str(model_file), config["model"]))
+    unstable = _unstable(model, config["conditions"])
+    if unstable:
+        fail("model", f"{config['model']}: {unstable}")
+
+
+def _unstable(model: Any, conditions: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """Why the model cannot run the protocol, or None: it steps the nominal episode (no offset,
+    no yaw, the mass as compiled) under every condition, a few thousand steps in all."""
+    timestep = float(model.opt.timestep)
+    if timestep > PROTOCOL.segment_time:
+        return (
+            f"timestep {timestep:g} s; expected at most {PROTOCOL.segment_time:g} s, the "
+            "protocol's control step"
+        )
+    nominal = InitialState(-1, 0.0, 0.0, 0.0, float(model.body_mass[ModelSpec.of(model).cube_body]))
+    for name, condition in conditions.items():
+        lift_time = float(condition["lift_time"])
+        # MuJoCo prints each warning; the one line below says it instead.
+        printer = mujoco.get_mju_user_warning()
+        mujoco.set_mju_user_warning(lambda _: None)
+        try:
+            [batch] = iter_episode_batches(model, [nominal], lift_time=lift_time, nthread=1)
+            outcome = episode_outcomes(model, batch, lift_time=lift_time)
+        finally:
+            mujoco.set_mju_user_warning(printer)
+        if outcome["nonfinite"][0] or outcome["warning"][0]:
+            what = outcome["warning"][0] or "a non-finite state"
+            return (
+                f"unstable: the nominal episode under condition {name!r} stops at step "
+                f"{outcome['steps_simulated'][0]} with {what}; expected a model that runs it "
+                "without a MuJoCo warning"
+            )
+    return None

@@ -39,8 +39,9 @@ def load_model(path: str | Path) -> mujoco.MjModel:
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else "compile error"
-        raise ModelError(f"{path}: MuJoCo could not compile the model: {first}") from None
+        # MuJoCo's message spans lines (an XML error names its line on the second): one line.
+        message = " ".join(str(err).replace("'", "").split()) or "compile error"
+        raise ModelError(f"{path}: MuJoCo could not compile the model: {message}") from None
     ModelSpec.of(model, source=str(path))
     return model
 
