@@ -1,0 +1,272 @@
+"""The studies' figures and report sections, drawn from `sensitivity.json` and
+`dose_response.json` only: every number shown is formatted from them."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from mjtrial.report.figures import (
+    _GREY,
+    _SHADE,
+    CONDITION_PALETTE,
+    DOUBLE_COLUMN,
+    SINGLE_COLUMN,
+    _figure,
+    _save,
+    _styled,
+)
+from mjtrial.report.labels import pct
+
+STUDY_FIGURES = ("sensitivity_forest", "dose_response")
+_VERDICT_STYLE = {  # colour, marker: survives blue, refuted vermillion, invalid hollow grey
+    "survives": (CONDITION_PALETTE[1], "o"),
+    "refuted": (CONDITION_PALETTE[0], "s"),
+    "invalid": (_GREY, "X"),
+}
+
+
+@_styled
+def figure_sensitivity_forest(*, sensitivity: Mapping[str, Any]) -> Figure:
+    """The falsifier's statistic per variant with its interval and the threshold drawn."""
+    variants = sensitivity["variants"]
+    names = list(variants)
+    falsifier = sensitivity["falsifier"]
+    fig = _figure(SINGLE_COLUMN, 0.9 + 0.28 * len(names))
+    ax = fig.add_subplot()
+    y = np.arange(len(names))
+    for i, name in enumerate(names):
+        rec = variants[name]
+        color, marker = _VERDICT_STYLE[rec["verdict"]]
+        p = rec["paired_difference"]
+        ax.errorbar(
+            p["estimate"],
+            i,
+            xerr=[[p["estimate"] - p["low"]], [p["high"] - p["estimate"]]],
+            fmt=marker,
+            color=color,
+            markerfacecolor="white" if rec["verdict"] == "invalid" else color,
+            markersize=5,
+            capsize=3,
+            elinewidth=1.0,
+            zorder=3,
+        )
+    ax.axvline(float(falsifier["threshold"]), color="black", linestyle=(0, (4, 3)), linewidth=0.9)
+    labels = [
+        f"{name}\n(invalid: {variants[name]['unhealthy']} unhealthy)"
+        if variants[name]["verdict"] == "invalid"
+        else name
+        for name in names
+    ]
+    ax.set_yticks(y, labels)
+    ax.invert_yaxis()
+    ax.grid(axis="x", color=_SHADE, linewidth=0.6, zorder=0)
+    ax.set_xlabel(
+        f"{falsifier['treatment']} \u2212 {falsifier['baseline']} success "
+        f"({pct(sensitivity['confidence'])} paired bootstrap CI)"
+    )
+    handles = [
+        ax.plot([], [], _VERDICT_STYLE[v][1], color=_VERDICT_STYLE[v][0], label=v)[0]
+        for v in _VERDICT_STYLE
+        if any(rec["verdict"] == v for rec in variants.values())
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles))
+    fig.suptitle(
+        f"Falsifier under each simulator variant (threshold {float(falsifier['threshold']):g})",
+        fontsize=9,
+    )
+    return fig
+
+
+@_styled
+def figure_dose_response(*, dose_response: Mapping[str, Any]) -> Figure:
+    """Success against the swept value with Wilson bands, pooled and per mass band."""
+    rows = dose_response["per_value"]
+    parameter = dose_response["parameter"]
+    x = np.array([row[parameter] for row in rows])
+    fig = _figure(DOUBLE_COLUMN, 2.8)
+    pooled_ax, band_ax = fig.subplots(1, 2, sharey=True)
+
+    def curve(ax: Any, recs: list[Mapping[str, Any]], color: str, marker: str, label: str) -> None:
+        keep = [i for i, rec in enumerate(recs) if rec["n"]]
+        rate = [recs[i]["rate"] for i in keep]
+        ax.fill_between(
+            x[keep],
+            [recs[i]["wilson_low"] for i in keep],
+            [recs[i]["wilson_high"] for i in keep],
+            color=color,
+            alpha=0.18,
+            linewidth=0,
+        )
+        ax.plot(x[keep], rate, marker=marker, color=color, markersize=4, label=label)
+
+    curve(pooled_ax, rows, "black", "o", f"pooled (n = {dose_response['n_states']})")
+    n_bands = len(rows[0]["mass_bands"])
+    for j in range(n_bands):
+        recs = [row["mass_bands"][j] for row in rows]
+        band = recs[0]
+        curve(
+            band_ax,
+            recs,
+            CONDITION_PALETTE[j % len(CONDITION_PALETTE)],
+            "osD^v"[j % 5],
+            f"{band['low']:g}\u2013{band['high']:g} kg (n = {band['n']})",
+        )
+    shortest = dose_response["shortest_within_margin"]
+    for ax in (pooled_ax, band_ax):
+        ax.set_xscale("log")
+        ax.set_xticks(x, [f"{v:g}" for v in x])
+        ax.minorticks_off()
+        ax.set_xlabel(f"{parameter.replace('_', ' ')} (s, log scale)")
+        ax.grid(axis="y", color=_SHADE, linewidth=0.6, zorder=0)
+        ax.axvline(shortest, color=_GREY, linestyle=":", linewidth=0.9)
+        ax.legend(loc="lower right")
+    pooled_ax.text(
+        shortest,
+        0.02,
+        f" shortest within {dose_response['margin']:g}\n of {dose_response['reference']:g} s",
+        color=_GREY,
+        va="bottom",
+        ha="left",
+    )
+    pooled_ax.set_ylim(0, 1.04)
+    pooled_ax.set_ylabel(f"Success rate ({pct(dose_response['confidence'])} Wilson band)")
+    pooled_ax.set_title("Pooled")
+    band_ax.set_title("Per cube mass band")
+    fig.suptitle(f"Success against {parameter.replace('_', ' ')}", fontsize=9)
+    return fig
+
+
+def write_study_figures(
+    *,
+    sensitivity: Mapping[str, Any] | None,
+    dose_response: Mapping[str, Any] | None,
+    out_dir: Path,
+    stamp: Mapping[str, Any],
+) -> list[Path]:
+    """Write the studies' figures present (`STUDY_FIGURES`) as stamped PNG and SVG."""
+    paths: list[Path] = []
+    if sensitivity is not None:
+        fig = figure_sensitivity_forest(sensitivity=sensitivity)
+        paths += _save(fig, out_dir=Path(out_dir), name=STUDY_FIGURES[0], stamp=stamp)
+    if dose_response is not None:
+        fig = figure_dose_response(dose_response=dose_response)
+        paths += _save(fig, out_dir=Path(out_dir), name=STUDY_FIGURES[1], stamp=stamp)
+    return paths
+
+
+def _rate(rec: Mapping[str, Any]) -> str:
+    if not rec["n"]:
+        return "(no states)"
+    return (
+        f"{rec['successes']}/{rec['n']} = {rec['rate']:.3f} "
+        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
+    )
+
+
+def _overrides(overrides: Mapping[str, Any]) -> str:
+    """`option.timestep=0.001; geom.left_pad.friction=[0.6, 0.003, 0.0001]`, or `none`."""
+    parts = []
+    for kind, entries in overrides.items():
+        for name, value in entries.items():
+            if kind == "option":
+                parts.append(f"{kind}.{name}={value}")
+            else:
+                parts += [f"{kind}.{name}.{a}={v}" for a, v in value.items()]
+    return "; ".join(parts) or "none (as committed)"
+
+
+def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -> str:
+    """The report's "Sensitivity" section; `figure` is the forest plot's path for the link."""
+    f = sensitivity["falsifier"]
+    conf = pct(sensitivity["confidence"])
+    names = list(next(iter(sensitivity["variants"].values()))["conditions"])
+    head = "| variant | " + " | ".join(names) + " | difference [CI] | verdict | model sha256 |"
+    lines = [
+        "## Sensitivity",
+        "",
+        f"The falsifier ({f['statistic']}, {f['treatment']} \u2212 {f['baseline']}, refuted when "
+        f"the {conf} interval's lower bound is at or below {float(f['threshold']):g}) judged "
+        f"again on the same states under each simulator variant. Success with {conf} Wilson "
+        f"intervals; the difference with a {sensitivity['paired_difference_method']} "
+        f"({sensitivity['n_resamples']} resamples, seed {sensitivity['seed']}). A variant is "
+        f"invalid when any episode is unhealthy ({sensitivity['unhealthy_definition']}).",
+        "",
+        head,
+        "| " + " | ".join(["---"] * (len(names) + 4)) + " |",
+    ]
+    for name, rec in sensitivity["variants"].items():
+        p = rec["paired_difference"]
+        verdict = rec["verdict"] + (f" ({rec['unhealthy']} unhealthy)" if rec["unhealthy"] else "")
+        cells = [_rate(rec["conditions"][c]) for c in names]
+        lines.append(
+            f"| {name} | " + " | ".join(cells) + f" | {p['estimate']:+.3f} "
+            f"[{p['low']:+.3f}, {p['high']:+.3f}] | {verdict} | `{rec['model_sha256'][:12]}` |"
+        )
+    lines += ["", "Overrides of each variant:", ""]
+    lines += [
+        f"- {name}: {_overrides(rec['overrides'])}" for name, rec in sensitivity["variants"].items()
+    ]
+    v = sensitivity["verdicts"]
+    lines += [
+        "",
+        f"The conclusion survives {sensitivity['survives_in']} of {sensitivity['n_variants']} "
+        f"variants (refuted in {v['refuted']}, invalid in {v['invalid']}).",
+        "",
+        f"![The falsifier's statistic per variant]({figure})",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: str) -> str:
+    """The report's "Dose-response" section; `figure` is the curve's path for the link."""
+    d = dose_response
+    parameter = d["parameter"]
+    conf = pct(d["confidence"])
+    bands = [b["band"] for b in d["per_value"][0]["mass_bands"]]
+    comparisons = {c[parameter]: c for c in d["comparisons"]}
+    lines = [
+        "## Dose-response",
+        "",
+        f"Success against {parameter} on the same {d['n_states']} states; rates with {conf} "
+        f"Wilson intervals, pooled and per mass band (kg). Each value is compared with "
+        f"{d['reference']:g} by paired difference ({d['comparison_method']['difference']}, "
+        f"{d['comparison_method']['n_resamples']} resamples) and "
+        f"{d['comparison_method']['test']}, p adjusted by "
+        f"{d['comparison_method']['adjustment']}.",
+        "",
+        f"| {parameter} | pooled | " + " | ".join(bands) + " | vs reference [CI] | p (Holm) |",
+        "| " + " | ".join(["---"] * (len(bands) + 4)) + " |",
+    ]
+    for row in d["per_value"]:
+        c = comparisons.get(row[parameter])
+        versus = (
+            f"{c['estimate']:+.3f} [{c['low']:+.3f}, {c['high']:+.3f}] | {c['p_holm']:.3g}"
+            if c
+            else "reference | \u2013"
+        )
+        cells = [_rate(b) for b in row["mass_bands"]]
+        lines.append(
+            f"| {row[parameter]:g} | {_rate(row)} | " + " | ".join(cells) + f" | {versus} |"
+        )
+    t = d["trend"]
+    lines += [
+        "",
+        f"Trend: {t['slope_log_odds_per_log_value']:+.3f} log-odds per unit log {parameter} "
+        f"[{t['low']:+.3f}, {t['high']:+.3f}] ({conf}; p = {t['p_value']:.3g}); odds ratio per "
+        f"doubling {t['odds_ratio_per_doubling']:.3f} [{t['odds_ratio_per_doubling_low']:.3f}, "
+        f"{t['odds_ratio_per_doubling_high']:.3f}]; {t['n_episodes']} episodes in "
+        f"{t['n_clusters']} state clusters; {t['method']}.",
+        "",
+        f"Shortest {parameter} within {d['margin']:g} of {d['reference']:g}: "
+        f"{d['shortest_within_margin']:g} ({d['within_margin_criterion']}).",
+        "",
+        f"![Success against {parameter}]({figure})",
+        "",
+    ]
+    return "\n".join(lines)
