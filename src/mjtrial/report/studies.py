@@ -66,7 +66,7 @@ def figure_sensitivity_forest(*, sensitivity: Mapping[str, Any]) -> Figure:
     ax.invert_yaxis()
     ax.grid(axis="x", color=_SHADE, linewidth=0.6, zorder=0)
     ax.set_xlabel(
-        f"{falsifier['treatment']} \u2212 {falsifier['baseline']} success "
+        f"{falsifier['treatment']} \u2212 {falsifier['baseline']} success\n"
         f"({pct(sensitivity['confidence'])} paired bootstrap CI)"
     )
     handles = [
@@ -128,10 +128,10 @@ def figure_dose_response(*, dose_response: Mapping[str, Any]) -> Figure:
     pooled_ax.text(
         shortest,
         0.02,
-        f" shortest within {dose_response['margin']:g}\n of {dose_response['reference']:g} s",
+        f"shortest within {dose_response['margin']:g} \nof {dose_response['reference']:g} s ",
         color=_GREY,
         va="bottom",
-        ha="left",
+        ha="right",
     )
     pooled_ax.set_ylim(0, 1.04)
     pooled_ax.set_ylabel(f"Success rate ({pct(dose_response['confidence'])} Wilson band)")
