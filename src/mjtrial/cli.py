@@ -66,6 +66,7 @@ def _replay(args: argparse.Namespace) -> int:
             state_id=args.state,
             output=Path(args.output) if args.output else None,
             config_path=Path(args.config) if args.config else None,
+            force=args.force,
         )
     except (KeyError, OSError, ValueError, ReplayMismatch) as err:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
@@ -131,6 +132,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--output", help="the .rrd to write (default: results/<exp>/replay/...)")
     p.add_argument("--config", help="config file (default: config/config.yaml)")
     p.add_argument("--no-viewer", action="store_true", help="do not open the Rerun viewer")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite an existing --output outside the results folder that replay did not write",
+    )
     p.set_defaults(run=_replay)
     p = sub.add_parser(
         "verify",

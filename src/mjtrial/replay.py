@@ -60,6 +60,41 @@ def _recorded_row(table_path: Path, state_id: int) -> dict[str, Any]:
     return {c: table.column(c)[int(rows[0])].as_py() for c in table.column_names}
 
 
+class OutputRefused(ValueError):
+    """`mjtrial replay --output` names a file it must not write."""
+
+
+def check_output(output: Path, *, results: Path, force: bool) -> None:
+    """Refuse to write a replay where it could destroy something: a pipeline output, or any
+    file that an earlier replay did not write (`force` allows the latter only)."""
+    output, results = Path(output).resolve(), Path(results).resolve()
+    inside = output.is_relative_to(results)
+    in_output_folder = any(provenance.is_recording_folder(p) for p in output.parents)
+    if inside and (output.suffix != ".rrd" or output.is_dir() or in_output_folder):
+        raise OutputRefused(
+            f"--output {output}: inside the results folder {results}; expected a new .rrd file "
+            "there, or a path outside it"
+        )
+    if not output.exists():
+        return
+    try:
+        ours = provenance.read_stamp(output).get("rule") == "replay"
+    except (OSError, ValueError):
+        ours = False
+    if ours:
+        return
+    if inside:
+        raise OutputRefused(
+            f"--output {output}: an output of the pipeline; expected a new .rrd file "
+            "(the pipeline's files are never overwritten)"
+        )
+    if not force:
+        raise OutputRefused(
+            f"--output {output}: exists and was not written by mjtrial replay; expected a new "
+            "file (pass --force to overwrite it)"
+        )
+
+
 def replay_episode(
     *,
     condition: str,
@@ -67,8 +102,12 @@ def replay_episode(
     output: Path | None = None,
     config_path: Path | None = None,
     repo_root: Path | None = None,
+    force: bool = False,
 ) -> Replay:
     """Re-simulate one episode, write its `.rrd` at full rate, and check it against the record.
+
+    `output` is guarded (`check_output`) before any work: inside the results folder only a new
+    `.rrd`, and never over a file that an earlier replay did not write, unless `force`.
 
     Raises:
       ReplayMismatch: the outcome or final state differs from `rollouts/<condition>.parquet`;
@@ -81,6 +120,8 @@ def replay_episode(
     if condition not in config["conditions"]:
         raise KeyError(f"condition {condition!r}: expected one of {sorted(config['conditions'])}")
     layout = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR)
+    output = output or layout.replay(condition, state_id)
+    check_output(output, results=layout.root, force=force)
     table_path = layout.rollout_table(condition)
     recorded = _recorded_row(table_path, state_id)
     recorded_stamp = provenance.read_stamp(table_path)
@@ -108,7 +149,6 @@ def replay_episode(
     replayed = {c: outcome[c][0] for c in ROLLOUT_COLUMNS}
     replayed = {k: (v.item() if hasattr(v, "item") else v) for k, v in replayed.items()}
 
-    output = output or layout.replay(condition, state_id)
     stamp = provenance.make_stamp(
         rule="replay",
         config_slice=slice_,
