@@ -1,0 +1,254 @@
+#!/usr/bin/env bash
+# The SLURM round trip: a one-node SLURM cluster on this machine, the workflow run on it through
+# profiles/slurm on a small N, and its results compared with a local run's.
+#
+# Needs root on Debian (installs slurmctld, slurmd, slurm-client and munge from Debian's
+# archive if missing) and the optional extra `pip install -e '.[slurm]'` in the active Python
+# environment. Everything it writes goes to a temporary folder, except munge's socket under
+# /run/munge and /etc/slurm/slurm.conf, which it removes on exit: the job step's `srun` reads
+# the config from there (the jobstep plugin drops SLURM_CONF from its environment), and a
+# slurm.conf left behind with no controller answering would make every later `snakemake` call
+# wait ~9 s while the SLURM plugin's import runs `scontrol show config`. It refuses to run
+# where a slurm.conf it did not write exists (a real SLURM installation). Every daemon it
+# starts is stopped on exit, failure or interrupt included. Ends with one line: PASS or FAIL.
+#
+# Environment: MJTRIAL_SLURM_N (states, default 12), MJTRIAL_SLURM_TIMEOUT (seconds allowed
+# to each Snakemake run, default 600), MJTRIAL_SLURM_KEEP=1 keeps the temporary folder.
+set -euo pipefail
+
+repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+n_states=${MJTRIAL_SLURM_N:-12}
+run_timeout=${MJTRIAL_SLURM_TIMEOUT:-600}
+partition=mjtrial
+# Not SLURM's default ports (6817, 6818).
+ctld_port=16817
+slurmd_port=16818
+slurm_conf=/etc/slurm/slurm.conf
+# The first line of the slurm.conf this script writes, so that it only ever removes its own.
+conf_marker="# mjtrial SLURM round trip (tests/cluster/run_slurm_test.sh): removed on exit"
+wrote_conf=false
+
+start_time=$SECONDS
+passed=false
+work=""
+slurm_pid=""  # the Snakemake runs, while they run
+local_pid=""
+stop_pidfiles=()  # daemons this script started, in start order
+
+say() { echo "slurm-test: $*"; }
+
+stop_daemon() {  # pid file: SIGTERM, up to 15 s to exit, then SIGKILL
+    local pid
+    [[ -s $1 ]] || return 0
+    pid=$(cat "$1")
+    kill "$pid" 2>/dev/null || return 0
+    for _ in $(seq 30); do
+        kill -0 "$pid" 2>/dev/null || return 0
+        sleep 0.5
+    done
+    kill -9 "$pid" 2>/dev/null || true
+}
+
+show_logs() {  # the tails that say why a run failed
+    local log
+    for log in "$work"/*.log "$work"/slurm/.snakemake/slurm_logs/*/*.log "$work"/slurm/.snakemake/slurm_logs/*/*/*.log; do
+        [[ -s $log ]] || continue
+        echo "----- ${log#"$work"/} (last 40 lines)"
+        tail -n 40 "$log"
+    done
+}
+
+cleanup() {
+    local status=$?
+    set +e
+    trap - EXIT INT TERM
+    local pid
+    for pid in $slurm_pid $local_pid; do  # timeout passes the signal on to Snakemake
+        kill "$pid" 2>/dev/null
+        wait "$pid" 2>/dev/null
+    done
+    if [[ $passed != true && -n $work ]]; then
+        show_logs
+    fi
+    if [[ -n $work && -s $work/slurmctld.pid ]]; then
+        # Cancel whatever is still queued or running, and give the job steps time to end.
+        squeue -h -o %i 2>/dev/null | xargs -r scancel 2>/dev/null
+        for _ in $(seq 20); do
+            [[ -z $(squeue -h -o %i 2>/dev/null) ]] && break
+            sleep 0.5
+        done
+    fi
+    local i
+    for ((i = ${#stop_pidfiles[@]} - 1; i >= 0; i--)); do
+        stop_daemon "${stop_pidfiles[i]}"
+    done
+    if [[ $wrote_conf == true ]]; then
+        rm -f "$slurm_conf"
+    fi
+    if [[ -n $work && ${MJTRIAL_SLURM_KEEP:-0} != 1 ]]; then
+        rm -rf "$work"
+    elif [[ -n $work ]]; then
+        say "kept $work"
+    fi
+    local elapsed=$((SECONDS - start_time))
+    if [[ $passed == true ]]; then
+        echo "PASS: SLURM round trip (N = $n_states): results equal a local run's (${elapsed} s)"
+        exit 0
+    fi
+    echo "FAIL: SLURM round trip (N = $n_states) after ${elapsed} s (exit status $status)"
+    exit $((status == 0 ? 1 : status))
+}
+trap cleanup EXIT
+trap 'exit 130' INT
+trap 'exit 143' TERM
+
+fail() {
+    say "$*"
+    exit 1
+}
+
+[[ $(id -u) == 0 ]] || fail "needs root (it installs and starts SLURM's daemons)"
+command -v snakemake >/dev/null || fail "no snakemake on PATH: activate the project's environment"
+python -c "import snakemake_executor_plugin_slurm" 2>/dev/null ||
+    fail "the SLURM executor plugin is missing: pip install -e '.[slurm]'"
+
+# --- SLURM and munge from Debian's archive, if missing
+missing=()
+for pair in slurmctld:slurmctld slurmd:slurmd sbatch:slurm-client munged:munge; do
+    command -v "${pair%%:*}" >/dev/null || missing+=("${pair#*:}")
+done
+if ((${#missing[@]})); then
+    say "installing ${missing[*]}"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+work=$(mktemp -d -t mjtrial-slurm.XXXXXX)
+chmod 755 "$work"
+# Nothing may write to the real home folder (rerun writes analytics settings there).
+export HOME="$work/home" XDG_CONFIG_HOME="$work/home/.config" XDG_CACHE_HOME="$work/home/.cache" \
+    XDG_DATA_HOME="$work/home/.local/share" RERUN_ANALYTICS=0 MPLBACKEND=Agg
+mkdir -p "$HOME"
+
+# --- munge: SLURM's daemons and clients authenticate through it
+if munge -n 2>/dev/null | unmunge >/dev/null 2>&1; then
+    say "munged already running; using it"
+else
+    if [[ ! -s /etc/munge/munge.key ]]; then
+        install -d -o munge -g munge -m 0700 /etc/munge
+        dd if=/dev/urandom of=/etc/munge/munge.key bs=1024 count=1 status=none
+        chown munge:munge /etc/munge/munge.key
+        chmod 0400 /etc/munge/munge.key
+    fi
+    install -d -o munge -g munge -m 0755 /run/munge
+    install -d -o munge -g munge -m 0700 /var/lib/munge /var/log/munge
+    runuser -u munge -- munged --pid-file=/run/munge/munged.pid
+    stop_pidfiles+=(/run/munge/munged.pid)
+    for _ in $(seq 20); do
+        munge -n 2>/dev/null | unmunge >/dev/null 2>&1 && break
+        sleep 0.25
+    done
+    munge -n | unmunge >/dev/null || fail "munged does not answer"
+fi
+
+# --- a one-node cluster: this host, its CPUs and memory as slurmd measures them
+node=$(hostname -s)
+hardware=$(slurmd -C | head -1)
+cpus=$(sed -n 's/.*CPUs=\([0-9]*\).*/\1/p' <<<"$hardware")
+memory=$(sed -n 's/.*RealMemory=\([0-9]*\).*/\1/p' <<<"$hardware")
+mkdir -p "$work/state" "$work/spool"
+if [[ -e $slurm_conf && $(head -1 "$slurm_conf") != "$conf_marker" ]]; then
+    fail "$slurm_conf exists and was not written by this script: not touching a real SLURM"
+fi
+mkdir -p "$(dirname "$slurm_conf")"
+wrote_conf=true
+cat >"$slurm_conf" <<EOF
+$conf_marker
+ClusterName=mjtrial-test
+SlurmctldHost=$node(127.0.0.1)
+SlurmctldPort=$ctld_port
+SlurmdPort=$slurmd_port
+SlurmUser=root
+SlurmdUser=root
+AuthType=auth/munge
+StateSaveLocation=$work/state
+SlurmdSpoolDir=$work/spool
+SlurmctldPidFile=$work/slurmctld.pid
+SlurmdPidFile=$work/slurmd.pid
+SlurmctldLogFile=$work/slurmctld.log
+SlurmdLogFile=$work/slurmd.log
+# No cgroups in a container: process groups track a job, and no task plugin binds it.
+ProctrackType=proctrack/pgid
+TaskPlugin=task/none
+SelectType=select/cons_tres
+SelectTypeParameters=CR_CPU_Memory
+SchedulerType=sched/backfill
+# No accounting database (slurmdbd): sacct fails, the profile polls with squeue.
+AccountingStorageType=accounting_storage/none
+JobAcctGatherType=jobacct_gather/none
+JobCompType=jobcomp/none
+MpiDefault=none
+MailProg=/bin/true
+ReturnToService=2
+KillWait=5
+NodeName=$node NodeAddr=127.0.0.1 CPUs=$cpus RealMemory=$memory State=UNKNOWN
+PartitionName=$partition Nodes=$node Default=YES MaxTime=INFINITE State=UP
+EOF
+say "node $node: $cpus CPUs, $memory MB; config $slurm_conf"
+
+slurmctld -i
+stop_pidfiles+=("$work/slurmctld.pid")
+slurmd -N "$node"
+stop_pidfiles+=("$work/slurmd.pid")
+state=""
+for _ in $(seq 60); do
+    state=$(sinfo -h -N -n "$node" -o %t 2>/dev/null || true)
+    [[ $state == idle ]] && break
+    sleep 1
+done
+[[ $state == idle ]] || fail "node $node is '$state', not idle, after 60 s"
+say "cluster up after $((SECONDS - start_time)) s"
+
+# --- the same small experiment on SLURM and locally, in two copies of the workflow
+cat >"$work/small.yaml" <<EOF
+states:
+  n: $n_states
+analysis:
+  n_resamples: 500
+  first_k: $((n_states < 10 ? n_states : 10))
+EOF
+for copy in slurm local; do
+    mkdir -p "$work/$copy"
+    cp -r "$repo"/{Snakefile,workflow,config,models,profiles} "$work/$copy/"
+done
+
+# The local run goes alongside: the SLURM run spends most of its time waiting for jobs to be
+# scheduled and polled, and the results do not depend on how busy the machine is.
+say "running the workflow on SLURM (--workflow-profile profiles/slurm) and locally (-c2)"
+t0=$SECONDS
+(cd "$work/local" && exec timeout "$run_timeout" snakemake -c2 --configfile "$work/small.yaml" \
+    </dev/null >"$work/snakemake-local.log" 2>&1) &
+local_pid=$!
+(cd "$work/slurm" && exec timeout "$run_timeout" snakemake --workflow-profile profiles/slurm \
+    --configfile "$work/small.yaml" </dev/null >"$work/snakemake-slurm.log" 2>&1) &
+slurm_pid=$!
+# `wait`, unlike a command in the foreground, lets an interrupt reach the trap at once.
+slurm_status=0
+wait "$slurm_pid" || slurm_status=$?
+slurm_pid=""
+slurm_seconds=$((SECONDS - t0))
+local_status=0
+wait "$local_pid" || local_status=$?
+local_pid=""
+((slurm_status == 0)) || fail "the SLURM run failed, status $slurm_status (snakemake-slurm.log)"
+((local_status == 0)) || fail "the local run failed, status $local_status (snakemake-local.log)"
+jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-slurm.log" || true)
+say "SLURM run: ${slurm_seconds} s, $jobs SLURM job(s); both runs: $((SECONDS - t0)) s"
+
+results=$(python -c 'import sys; from mjtrial.layout import Layout; print(Layout.of(sys.argv[1]).root)' \
+    "$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["experiment"])' \
+        "$work/local/config/config.yaml")")
+python "$repo/tests/cluster/compare_results.py" "$work/slurm/$results" "$work/local/$results" ||
+    fail "the SLURM run's results differ from the local run's"
+passed=true
