@@ -287,6 +287,55 @@ BAD_INPUT = [
         "XML_ERROR_MISMATCHED_ELEMENT ErrorID=14 (0xe) Line number=",
     ),
     (
+        "variant with an unknown option",
+        config_case(lambda c: c.update(variants={"x": {"option": {"timestepp": 0.001}}})),
+        "variants.x.option.timestepp: unknown option; expected one of",
+    ),
+    (
+        "variant of an element the model lacks",
+        config_case(
+            lambda c: c.update(variants={"x": {"geom": {"left_pads": {"friction": [1, 0, 0]}}}})
+        ),
+        "variants.x.geom.left_pads: the model has no geom of that name",
+    ),
+    (
+        "variant with a wrongly shaped friction",
+        config_case(
+            lambda c: c.update(variants={"x": {"geom": {"left_pad": {"friction": [0.6, 0.003]}}}})
+        ),
+        "variants.x.geom.left_pad.friction: expected 3 numbers, got 2",
+    ),
+    (
+        "variant with an unknown integrator",
+        config_case(lambda c: c.update(variants={"x": {"option": {"integrator": "RK5"}}})),
+        "variants.x.option.integrator: expected one of Euler, RK4, implicit, implicitfast",
+    ),
+    (
+        "variant with a zero timestep",
+        config_case(lambda c: c.update(variants={"x": {"option": {"timestep": 0}}})),
+        "variants.x.option.timestep: expected a positive number, got 0",
+    ),
+    (
+        "variant coarser than the protocol's step",
+        config_case(lambda c: c.update(variants={"x": {"option": {"timestep": 0.02}}})),
+        "variants.x.option.timestep: expected at most 0.01 s",
+    ),
+    (
+        "sweep of an unknown parameter",
+        config_case(lambda c: c["sweep"].update(parameter="speed")),
+        "sweep.parameter: expected one of ['lift_time'",
+    ),
+    (
+        "sweep of two values",
+        config_case(lambda c: c["sweep"].update(values=[0.15, 1.5])),
+        "sweep.values: expected at least 3 items",
+    ),
+    (
+        "sweep value out of range",
+        config_case(lambda c: c["sweep"].update(values=[0.15, 1.5, 20])),
+        "sweep.values[2]: expected <= 10, got 20",
+    ),
+    (
         "YAML bomb",
         _yaml_bomb,
         "config/config.yaml: expands to more than 100000 values through YAML aliases",

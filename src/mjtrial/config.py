@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -17,12 +17,14 @@ import mujoco
 import yaml
 
 from mjtrial import REPO_ROOT
+from mjtrial.conditions import sweep_base
 from mjtrial.layout import CONFIG_FILE, Layout
 from mjtrial.model_spec import ModelError, ModelSpec
 from mjtrial.protocol import PROTOCOL
 from mjtrial.provenance import git_state
 from mjtrial.simulate import episode_outcomes, iter_episode_batches, load_model
 from mjtrial.states import InitialState
+from mjtrial.studies.variants import variant_model
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -351,6 +353,48 @@ def check_config(
     unstable = _unstable(model, config["conditions"])
     if unstable:
         fail("model", f"{config['model']}: {unstable}")
+    _check_studies(config, schema, model_file, fail)
+
+
+def _check_studies(
+    config: Mapping[str, Any],
+    schema: Mapping[str, Any],
+    model_file: Path,
+    fail: Callable[[str, str], None],
+) -> None:
+    """Variants that apply to the model and keep the protocol's step; a sweep whose conditions
+    are valid ones. An unstable variant is not refused: its verdict is `invalid`."""
+    for name, overrides in (config.get("variants") or {}).items():
+        key = f"variants.{name}"
+        try:
+            model, _ = variant_model(model_file, overrides, key_prefix=key)
+        except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
+            named, _, expectation = str(err).partition(": ")
+            if named.startswith(key):
+                fail(named, expectation)
+            fail(key, str(err))
+        if model.opt.timestep > PROTOCOL.segment_time:
+            fail(
+                f"{key}.option.timestep",
+                f"expected at most {PROTOCOL.segment_time:g} s (the protocol's control step), "
+                f"got {model.opt.timestep:g}",
+            )
+    if "sweep" not in config:
+        return
+    sweep = config["sweep"]
+    base = sweep_base(config)
+    if base not in config["conditions"]:
+        fail("sweep.base", f"expected one of the conditions {sorted(config['conditions'])}")
+    condition_schema = schema["properties"]["conditions"]["additionalProperties"]
+    for i, value in enumerate(sweep["values"]):
+        condition = {**config["conditions"][base], sweep["parameter"]: value}
+        error = jsonschema.exceptions.best_match(
+            _Validator(condition_schema).iter_errors(condition)
+        )
+        if error is not None:
+            fail(f"sweep.values[{i}]", _schema_message(error).partition(": ")[2])
+    if "reference" in sweep and sweep["reference"] not in sweep["values"]:
+        fail("sweep.reference", f"expected one of sweep.values, got {sweep['reference']}")
 
 
 def _unstable(model: Any, conditions: Mapping[str, Mapping[str, Any]]) -> str | None:

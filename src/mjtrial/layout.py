@@ -17,6 +17,9 @@ from pathlib import Path
 RESULTS_DIR = "results"
 CONFIG_FILE = "config/config.yaml"  # the design, relative to the repository root
 NOMINAL = "nominal"  # the variant that is the model as committed
+STUDIES = ("sensitivity", "dose_response")  # each a target: `snakemake -c2 sensitivity`
+# Each study's figures, written as .png and .svg under figures/.
+STUDY_FIGURES = {"sensitivity": "sensitivity_forest", "dose_response": "dose_response"}
 
 # The report's figures, each written as .png and .svg under figures/.
 FIGURES = (
@@ -57,6 +60,9 @@ STAGES: dict[str, Stage] = {
         Stage("manifest", "manifest"),
         Stage("report", "report"),
         Stage("seal", "seal"),
+        Stage("rollout_variant", "rollout_variant"),
+        Stage("sensitivity", "study"),
+        Stage("dose_response", "study"),
     )
 }
 
@@ -153,6 +159,21 @@ class Layout:
 
     def figure_files(self) -> list[Path]:
         return [self.figure(name, fmt) for name in FIGURES for fmt in FIGURE_FORMATS]
+
+    # -- studies ------------------------------------------------------------------------
+    def study_summary(self, study: str) -> Path:
+        """`analysis/sensitivity.json`, `analysis/dose_response.json`."""
+        return self.root / "analysis" / f"{study}.json"
+
+    def study_report(self, study: str) -> Path:
+        return self.root / f"report_{study}.md"
+
+    def study_figure_files(self, study: str) -> list[Path]:
+        return [self.figure(STUDY_FIGURES[study], fmt) for fmt in FIGURE_FORMATS]
+
+    def study_seal(self, study: str) -> Path:
+        """The sha256 of the study's outputs and of the rollouts it read."""
+        return self.root / f"seal_{study}.json"
 
     def sealed_outputs(self, conditions: list[str]) -> list[Path]:
         """Every output of the built-in experiment, in pipeline order: what the seal covers."""

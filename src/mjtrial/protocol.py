@@ -9,7 +9,8 @@ steps.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -64,6 +65,31 @@ class Protocol:
 
 
 PROTOCOL = Protocol()
+
+# What a condition may set besides its lift time: the holds' durations and the grip target.
+# Never the success height (the metric is fixed by the design), nor the geometry of the task.
+CONDITION_PARAMETERS = (
+    "settle_time",
+    "pre_close_time",
+    "close_time",
+    "hold_time",
+    "gripper_closed",
+)
+
+
+def condition_protocol(condition: Mapping[str, float]) -> Protocol:
+    """The protocol of one condition: `PROTOCOL` with the condition's parameters set.
+
+    Args:
+      condition: the condition's config, `lift_time` and any of `CONDITION_PARAMETERS`.
+    """
+    unknown = set(condition) - {"lift_time", *CONDITION_PARAMETERS}
+    if unknown:
+        raise ValueError(
+            f"condition parameter(s) {sorted(unknown)}: expected lift_time or one of "
+            f"{list(CONDITION_PARAMETERS)}"
+        )
+    return replace(PROTOCOL, **{k: float(v) for k, v in condition.items() if k != "lift_time"})
 
 
 def hold_steps(duration: float, timestep: float) -> int:

@@ -1,7 +1,10 @@
 import sys
 from pathlib import Path
 
-from mjtrial.layout import FIGURES, Layout
+import re
+
+from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.layout import FIGURES, NOMINAL, STUDY_FIGURES, Layout
 from mjtrial.provenance import model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import config_slice, stage_code_hash
@@ -9,11 +12,80 @@ from mjtrial.stages.stamping import config_slice, stage_code_hash
 # Every path comes from the layout; rules pass wildcards ("{condition}") to its methods.
 LAYOUT = Layout.of(config["experiment"])
 CONDITIONS = list(config["conditions"])
+# The nominal model's conditions: the design's, and those the dose-response sweep adds.
+ALL_CONDITIONS = list(all_conditions(config))
+VARIANTS = variant_names(config)
+SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
 
 
 def rollout_slice(wildcards):
     """The config a condition's rollout depends on: its own protocol parameters only."""
     return config_slice("rollout", config, condition=wildcards.condition)
+
+
+def variant_slice(wildcards):
+    """A variant's rollout of one condition: the condition's slice and the variant's edits."""
+    return config_slice(
+        "rollout_variant",
+        config,
+        condition=f"{wildcards.variant}/{wildcards.condition}",
+    )
+
+
+def one_of(names):
+    """A wildcard constraint matching exactly one of `names`."""
+    return "|".join(map(re.escape, names)) or "(?!)"
+
+
+def sensitivity_tables():
+    """(variant, condition) -> rollout table: the nominal model's first, then each variant's,
+    for the falsifier's two conditions."""
+    falsifier = config["design"]["falsifier"]
+    conditions = [falsifier["treatment"], falsifier["baseline"]]
+    return {
+        (variant, c): LAYOUT.rollout_table(c, variant)
+        for variant in [NOMINAL, *VARIANTS]
+        for c in conditions
+    }
+
+
+def variant_outputs():
+    """Every output of the variants' rollouts (what the sensitivity study's seal covers)."""
+    return [
+        path
+        for variant in VARIANTS
+        for c in CONDITIONS
+        for path in (
+            LAYOUT.rollout_table(c, variant),
+            LAYOUT.nominal_episode(c, variant),
+            LAYOUT.recordings(c, variant),
+        )
+    ]
+
+
+def study_sealed(wildcards):
+    """A study's outputs and the rollouts it read (the built-in ones are sealed already)."""
+    study = wildcards.study
+    own = [LAYOUT.study_summary(study), LAYOUT.study_report(study)]
+    own += LAYOUT.study_figure_files(study)
+    if study == "sensitivity":
+        return own + variant_outputs()
+    return own + LAYOUT.rollout_outputs(
+        [c for c in SWEEP.values() if c not in CONDITIONS]
+    )
+
+
+def study_figure_outputs(study):
+    """A study's figure as named outputs, the PNG shown in Snakemake's HTML report."""
+    name = STUDY_FIGURES[study]
+    return {
+        "figure": report(
+            LAYOUT.figure(name, "png"),
+            caption=f"../report/{name}.rst",
+            category="Studies",
+        ),
+        "figure_svg": LAYOUT.figure(name, "svg"),
+    }
 
 
 def model_content(wildcards=None):

@@ -9,7 +9,7 @@ snakemake = globals()["snakemake"]
 run_job(
     snakemake,
     seal_outputs,
-    rule="seal",
+    rule=f"seal:{snakemake.wildcards.study}" if "study" in snakemake.wildcards.keys() else "seal",
     outputs=[Path(p) for p in snakemake.input],
     output=Path(snakemake.output.seal),
     repo_root=Path.cwd(),

@@ -13,7 +13,13 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance, recording, taxonomy
 from mjtrial.model_spec import ModelSpec
-from mjtrial.protocol import PROTOCOL, control_sequence
+from mjtrial.protocol import (
+    CONDITION_PARAMETERS,
+    PROTOCOL,
+    Protocol,
+    condition_protocol,
+    control_sequence,
+)
 from mjtrial.simulate import (
     EPISODE_COLUMNS,
     EpisodeBatch,
@@ -48,15 +54,21 @@ def condition_outcomes(
     thresholds: taxonomy.Thresholds,
     nthread: int,
     batch_size: int = 64,
+    protocol: Protocol = PROTOCOL,
 ) -> Iterator[tuple[EpisodeBatch, dict[str, np.ndarray]]]:
     """Each batch of episodes with its per-episode columns (`ROLLOUT_COLUMNS`)."""
-    _, phase = control_sequence(lift_time, timestep=model.opt.timestep)
+    _, phase = control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)
     for batch in iter_episode_batches(
-        model, states, lift_time=lift_time, nthread=nthread, batch_size=batch_size
+        model,
+        states,
+        lift_time=lift_time,
+        nthread=nthread,
+        batch_size=batch_size,
+        protocol=protocol,
     ):
-        outcome = episode_outcomes(model, batch, lift_time=lift_time)
+        outcome = episode_outcomes(model, batch, lift_time=lift_time, protocol=protocol)
         traj = taxonomy.trajectories_from_batch(
-            model, batch, phase=phase, home_xy=(PROTOCOL.home_x, 0.0)
+            model, batch, phase=phase, home_xy=(protocol.home_x, 0.0)
         )
         yield batch, outcome | taxonomy.classify(traj, outcome["success"], thresholds)
 
@@ -92,21 +104,31 @@ def run_condition(
     nthread: int,
     batch_size: int = 64,
     repo_root: Path = REPO_ROOT,
+    model: Any = None,
+    rule: str | None = None,
 ) -> dict[str, np.ndarray]:
     """Roll out every state under one condition.
 
     Writes the per-episode table, the nominal state's episode, and (given `output_recording`,
     a folder) every episode's trajectory as a Rerun recording, one .rrd per episode, written
-    batch by batch while the next batch runs.
+    batch by batch while the next batch runs. `model`, when given, is the compiled model to
+    run (a variant of `model_file`), and `rule` the stamp's rule (default `rollout:<condition>`).
     """
-    model = load_model(model_file)
+    model = load_model(model_file) if model is None else model
     states = read_states(states_path)
     condition = condition_slice["condition"]
     lift_time = float(condition_slice["lift_time"])
+    protocol = condition_protocol(
+        {
+            k: condition_slice[k]
+            for k in ("lift_time", *CONDITION_PARAMETERS)
+            if k in condition_slice
+        }
+    )
     thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
     inputs = {"states": states_path, **model_inputs(model_file)}
     stamp = make_stage_stamp(
-        f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root
+        rule or f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root
     )
     columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
 
@@ -118,6 +140,7 @@ def run_condition(
             thresholds=thresholds,
             nthread=nthread,
             batch_size=batch_size,
+            protocol=protocol,
         ):
             for c in ROLLOUT_COLUMNS:
                 columns[c].append(outcome[c])
@@ -132,7 +155,7 @@ def run_condition(
             model=model,
             condition=condition,
             episodes=episodes(),
-            ctrl=control_sequence(lift_time, timestep=model.opt.timestep)[0],
+            ctrl=control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)[0],
             stamp=stamp,
             log_every=log_every(condition_slice["recording"]["rate_hz"], model.opt.timestep),
         )
@@ -145,7 +168,14 @@ def run_condition(
     )
     nominal = nominal_state(model)
     _, nominal_outcome = next(
-        condition_outcomes(model, [nominal], lift_time=lift_time, thresholds=thresholds, nthread=1)
+        condition_outcomes(
+            model,
+            [nominal],
+            lift_time=lift_time,
+            thresholds=thresholds,
+            nthread=1,
+            protocol=protocol,
+        )
     )
 
     provenance.write_parquet(table, output_table, stamp)

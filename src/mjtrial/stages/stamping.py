@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, codehash, provenance
+from mjtrial.conditions import all_conditions
 from mjtrial.layout import STAGES
 
 
@@ -24,9 +25,29 @@ def config_slice(
     if stage == "rollout":
         return {
             "condition": condition,
-            **config["conditions"][condition],
+            **all_conditions(config)[condition],
             "failure_taxonomy": dict(config["failure_taxonomy"]),
             "recording": dict(config["recording"]),
+        }
+    if stage == "rollout_variant":  # condition: "<variant>/<condition>"
+        variant, _, name = condition.partition("/")
+        return {
+            **config_slice("rollout", config, condition=name),
+            "variant": {"name": variant, "overrides": config["variants"][variant]},
+        }
+    if stage == "sensitivity":
+        return {
+            "conditions": {c: config["conditions"][c] for c in _falsifier_conditions(config)},
+            "variants": dict(config["variants"]),
+            "falsifier": dict(config["design"]["falsifier"]),
+            "analysis": _analysis_settings(config),
+        }
+    if stage == "dose_response":
+        return {
+            "sweep": dict(config["sweep"]),
+            "conditions": all_conditions(config),
+            "mass_bands": list(config["analysis"]["bands"]["mass"]),
+            "analysis": _analysis_settings(config),
         }
     if stage == "analysis":
         return {
@@ -40,6 +61,16 @@ def config_slice(
     if stage in ("manifest", "report"):
         return dict(config)
     raise ValueError(f"stage: expected one of {list(STAGES)}, got {stage!r}")
+
+
+def _falsifier_conditions(config: Mapping[str, Any]) -> list[str]:
+    falsifier = config["design"]["falsifier"]
+    return [falsifier["treatment"], falsifier["baseline"]]
+
+
+def _analysis_settings(config: Mapping[str, Any]) -> dict[str, Any]:
+    """What the studies' statistics use of `analysis`: the main result's settings."""
+    return {k: config["analysis"][k] for k in ("confidence", "n_resamples", "seed")}
 
 
 @cache

@@ -30,7 +30,7 @@ from typing import Any
 
 from mjtrial import provenance, recording  # noqa: F401 - recording registers the .rrd reader
 from mjtrial.config import check_config, read_config_file
-from mjtrial.layout import Layout
+from mjtrial.layout import STUDIES, Layout
 from mjtrial.verify.chain import (
     STAMPED_SUFFIXES,
     Current,
@@ -108,6 +108,14 @@ def _why_unreadable(err: BaseException, path: Path) -> str:
     return f"{type(err).__name__}: {text}"[:120]
 
 
+def _seals(layout: Layout) -> list[Path]:
+    """The seals a results folder must hold: the built-in experiment's, and each study's
+    whose summary is there."""
+    return [layout.seal] + [
+        layout.study_seal(s) for s in STUDIES if layout.study_summary(s).exists()
+    ]
+
+
 def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> VerifyReport:
     """Read every stamp under ``results_dir`` and check the chain (see :func:`check_stamps`).
 
@@ -162,5 +170,5 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         unreadable=unreadable,
         manifest=manifest,
         manifest_path=_relative(manifest_file, repo_root),
-        seal_path=_relative(layout.seal, repo_root),
+        seal_paths=[_relative(p, repo_root) for p in _seals(layout)],
     )

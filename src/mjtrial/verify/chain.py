@@ -173,7 +173,7 @@ def parse_rule(rule: Any) -> tuple[str, str | None] | None:
     stage, sep, qualifier = rule.partition(":")
     if stage not in STAGES or (sep and not qualifier):
         return None
-    if stage == "rollout" and not qualifier:
+    if stage in ("rollout", "rollout_variant") and not qualifier:
         return None
     return stage, qualifier or None
 
@@ -373,7 +373,7 @@ def check_stamps(
     unreadable: Mapping[str, str] | None = None,
     manifest: Mapping[str, Any] | None = None,
     manifest_path: str | None = None,
-    seal_path: str | None = None,
+    seal_paths: Iterable[str] = (),
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -382,9 +382,9 @@ def check_stamps(
     gives the sha256 of a repository-relative path now, None when it does not exist.  Recorded
     inputs under ``outputs_prefix`` (e.g. ``"results/research_mode/"``) are outputs; the others
     (the model) are source files.  ``manifest`` is the parsed ``manifest.json`` (its ``stamps``
-    name the outputs expected besides ``manifest_path`` itself). ``seal_path`` is the seal,
-    whose stamp records the sha256 of every output, report and figures included: an edit to
-    any of them is seen there.
+    name the outputs expected besides ``manifest_path`` itself). ``seal_paths`` are the seals
+    expected, whose stamps record the sha256 of every output, reports and figures included: an
+    edit to any of them is seen there.
     """
     unreadable = dict(unreadable or {})
     prefix = outputs_prefix.rstrip("/") + "/"
@@ -410,7 +410,7 @@ def check_stamps(
     found = set(pipeline_stamps) | set(unreadable)
     expected: set[str] = set()
     manifest_rules: dict[str, Any] = {}
-    expected.update(p for p in (manifest_path, seal_path) if p is not None)
+    expected.update(p for p in (manifest_path, *seal_paths) if p is not None)
     recorded = manifest.get("stamps") if isinstance(manifest, Mapping) else None
     if isinstance(recorded, Mapping):
         for path, stamp in recorded.items():
@@ -427,7 +427,7 @@ def check_stamps(
     model_path = current.config.get("model")
     for path, stamp in pipeline_stamps.items():
         stage, qualifier = parsed[path]
-        condition = qualifier if stage == "rollout" else None
+        condition = qualifier if stage in ("rollout", "rollout_variant") else None
         rule = stamp["rule"]
 
         # The stamp itself: its recorded slice must hash to its recorded slice hash.
