@@ -147,3 +147,15 @@ def test_a_wide_margin_admits_the_shortest_value_and_bad_sweeps_stop():
             analysis=ANALYSIS,
             margin=0.05,
         )
+
+
+def test_trend_is_not_estimable_when_outcomes_are_separated():
+    """Small samples can separate: every failure at the shortest value, every success after."""
+    values = np.repeat([0.15, 0.3, 1.5], 4)
+    success = values > 0.2
+    groups = np.tile(np.arange(4), 3)
+    result = trend(values, success, groups, confidence=0.95)
+    assert result["not_estimable"]
+    assert result["slope_log_odds_per_log_value"] is None and result["low"] is None
+    result = trend(values, np.ones(12, dtype=bool), groups, confidence=0.95)
+    assert result["not_estimable"]

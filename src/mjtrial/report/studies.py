@@ -255,13 +255,19 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
             f"| {row[parameter]:g} | {_rate(row)} | " + " | ".join(cells) + f" | {versus} |"
         )
     t = d["trend"]
+    if t.get("not_estimable"):
+        trend_line = f"Trend: not estimable ({t['not_estimable']}); {t['method']}."
+    else:
+        trend_line = (
+            f"Trend: {t['slope_log_odds_per_log_value']:+.3f} log-odds per unit log {parameter} "
+            f"[{t['low']:+.3f}, {t['high']:+.3f}] ({conf}; p = {t['p_value']:.3g}); odds ratio "
+            f"per doubling {t['odds_ratio_per_doubling']:.3f} "
+            f"[{t['odds_ratio_per_doubling_low']:.3f}, {t['odds_ratio_per_doubling_high']:.3f}]; "
+            f"{t['n_episodes']} episodes in {t['n_clusters']} state clusters; {t['method']}."
+        )
     lines += [
         "",
-        f"Trend: {t['slope_log_odds_per_log_value']:+.3f} log-odds per unit log {parameter} "
-        f"[{t['low']:+.3f}, {t['high']:+.3f}] ({conf}; p = {t['p_value']:.3g}); odds ratio per "
-        f"doubling {t['odds_ratio_per_doubling']:.3f} [{t['odds_ratio_per_doubling_low']:.3f}, "
-        f"{t['odds_ratio_per_doubling_high']:.3f}]; {t['n_episodes']} episodes in "
-        f"{t['n_clusters']} state clusters; {t['method']}.",
+        trend_line,
         "",
         f"Shortest {parameter} within {d['margin']:g} of {d['reference']:g}: "
         f"{d['shortest_within_margin']:g} ({d['within_margin_criterion']}).",

@@ -59,7 +59,9 @@ def config_slice(
     if stage in ("failures", "seal"):
         return {}
     if stage in ("manifest", "report"):
-        return dict(config)
+        # The whole design, but not the studies' (their own outputs record it): adding a
+        # variant never reruns the built-in experiment.
+        return {k: v for k, v in config.items() if k not in ("variants", "sweep")}
     raise ValueError(f"stage: expected one of {list(STAGES)}, got {stage!r}")
 
 

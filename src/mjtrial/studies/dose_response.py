@@ -7,6 +7,7 @@ state, and each value is compared with the reference by paired difference and Mc
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -38,13 +39,34 @@ def trend(
       confidence: two-sided confidence of the interval.
 
     Returns slope, its standard error, interval and p-value (Wald, two-sided), the odds ratio
-    per doubling of the value (exp(slope ln 2)) with its interval, and the method.
+    per doubling of the value (exp(slope ln 2)) with its interval, and the method. When the
+    fit has no finite estimate (every outcome the same, or outcomes separated by the value, as
+    small samples can be), every number is None and `not_estimable` says why.
     """
     x = sm.add_constant(np.log(np.asarray(value, dtype=float)))
-    fit = sm.GLM(np.asarray(success, dtype=float), x, family=sm.families.Binomial()).fit(
-        cov_type="cluster", cov_kwds={"groups": np.asarray(groups)}
-    )
-    low, high = fit.conf_int(alpha=1.0 - confidence)[1]
+    y = np.asarray(success, dtype=float)
+    base = {
+        "n_episodes": int(x.shape[0]),
+        "n_clusters": int(np.unique(groups).size),
+        "method": TREND_METHOD,
+    }
+    with warnings.catch_warnings():  # separation shows below as non-finite numbers
+        warnings.simplefilter("ignore")
+        fit = sm.GLM(y, x, family=sm.families.Binomial()).fit(
+            cov_type="cluster", cov_kwds={"groups": np.asarray(groups)}
+        )
+        low, high = fit.conf_int(alpha=1.0 - confidence)[1]
+    numbers = [fit.params[1], fit.bse[1], low, high, fit.pvalues[1]]
+    if y.min() == y.max() or not np.all(np.isfinite(numbers)) or fit.bse[1] > 1e3:
+        keys = (
+            "slope_log_odds_per_log_value standard_error low high p_value intercept "
+            "odds_ratio_per_doubling odds_ratio_per_doubling_low odds_ratio_per_doubling_high"
+        ).split()
+        return {
+            **dict.fromkeys(keys),
+            "not_estimable": "the outcomes are all alike or separated by the value",
+            **base,
+        }
     slope = float(fit.params[1])
     return {
         "slope_log_odds_per_log_value": slope,
@@ -56,9 +78,7 @@ def trend(
         "odds_ratio_per_doubling": float(np.exp(slope * np.log(2))),
         "odds_ratio_per_doubling_low": float(np.exp(low * np.log(2))),
         "odds_ratio_per_doubling_high": float(np.exp(high * np.log(2))),
-        "n_episodes": int(x.shape[0]),
-        "n_clusters": int(np.unique(groups).size),
-        "method": TREND_METHOD,
+        **base,
     }
 
 
