@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,34 @@ log = logging.getLogger("mjtrial")
 
 # Columns of `rollouts/<condition>.parquet`, in order: the outcome, then the failure analysis.
 ROLLOUT_COLUMNS = (*EPISODE_COLUMNS, "failure_category", "peak_slip", "peak_carriage_accel")
+
+
+class Progress:
+    """How far a long job is: episodes done of total, episodes per second and time left, in
+    the log every `every` seconds (and at the end), so a user watching a run knows when it
+    will end."""
+
+    def __init__(self, what: str, *, total: int, every: float = 10.0) -> None:
+        self.what, self.total, self.every = what, total, every
+        self.done = 0
+        self.start = self.last = time.monotonic()
+
+    def advance(self, n: int) -> None:
+        self.done += n
+        now = time.monotonic()
+        if now - self.last < self.every and self.done < self.total:
+            return
+        self.last = now
+        rate = self.done / max(now - self.start, 1e-9)
+        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        log.info(
+            "%s: %d/%d episodes, %.1f episodes/s, %.0f s left",
+            self.what,
+            self.done,
+            self.total,
+            rate,
+            left,
+        )
 
 
 def read_states(path: Path) -> list[InitialState]:
@@ -131,6 +160,7 @@ def run_condition(
         rule or f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root
     )
     columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
+    progress = Progress(f"rollout {condition}", total=len(states))
 
     def episodes() -> Iterator[recording.EpisodeRecord]:
         for batch, outcome in condition_outcomes(
@@ -145,6 +175,7 @@ def run_condition(
             for c in ROLLOUT_COLUMNS:
                 columns[c].append(outcome[c])
             yield from episode_records(batch, outcome)
+            progress.advance(len(batch.states))
 
     if output_recording is None:
         for _ in episodes():
