@@ -43,6 +43,7 @@ include: "workflow/rules/analysis.smk"
 include: "workflow/rules/manifest.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/seal.smk"
+include: "workflow/rules/studies.smk"
 
 
 report: "workflow/report/workflow.rst"
@@ -52,7 +53,7 @@ rule all:
     default_target: True
     input:
         manifest=LAYOUT.manifest,
-        failures=LAYOUT.failures,
+        failures=[LAYOUT.failures] if RECORDED else [],
         report=LAYOUT.report,
         seal=LAYOUT.seal,
 

@@ -55,16 +55,27 @@ STAGES: dict[str, Stage] = {
     for s in (
         Stage("states", "states"),
         Stage("rollout", "rollout"),
+        Stage("gather", "gather"),
         Stage("failures", "failures"),
         Stage("analysis", "analysis"),
         Stage("manifest", "manifest"),
         Stage("report", "report"),
         Stage("seal", "seal"),
-        Stage("rollout_variant", "rollout_variant"),
         Stage("sensitivity", "study"),
         Stage("dose_response", "study"),
     )
 }
+
+
+def shard_ids(n_states: int, shard_size: int) -> list[str]:
+    """The shards of `n_states` states, `shard_size` each (the last may hold fewer)."""
+    return [f"{i:05d}" for i in range((n_states + shard_size - 1) // shard_size)]
+
+
+def shard_range(shard: str, shard_size: int, n_states: int) -> tuple[int, int]:
+    """The state ids [first, stop) of one shard."""
+    first = int(shard) * shard_size
+    return first, min(first + shard_size, n_states)
 
 
 @dataclass(frozen=True)
@@ -104,8 +115,25 @@ class Layout:
         return self.rollouts_dir(variant) / f"{condition}.nominal.json"
 
     def recordings(self, condition: str, variant: str = NOMINAL) -> Path:
-        """The folder of `condition`'s Rerun recordings, one .rrd per episode."""
+        """The folder of `condition`'s shards: each shard's table and recordings."""
         return self.rollouts_dir(variant) / condition
+
+    def shard_table(self, condition: str, shard: str, variant: str = NOMINAL) -> Path:
+        """One shard's rows of the rollout table (`shard` from `shard_ids`)."""
+        return self.recordings(condition, variant) / f"shard-{shard}.parquet"
+
+    def shard_recordings(self, condition: str, shard: str, variant: str = NOMINAL) -> Path:
+        """One shard's folder of Rerun recordings: a .rrd per recorded episode, a blueprint."""
+        return self.recordings(condition, variant) / f"shard-{shard}"
+
+    def shard_outputs(
+        self, condition: str, shards: list[str], *, recorded: bool, variant: str = NOMINAL
+    ) -> list[Path]:
+        """Every shard's table, and its recordings when episodes are `recorded`."""
+        out = [self.shard_table(condition, s, variant) for s in shards]
+        if recorded:
+            out += [self.shard_recordings(condition, s, variant) for s in shards]
+        return out
 
     # -- downstream -----------------------------------------------------------------------
     @property
@@ -149,12 +177,20 @@ class Layout:
         """The log of one job: `rollout_fast`, `analysis`, ..."""
         return self.logs_dir / f"{job}.log"
 
+    @property
+    def failures_table(self) -> Path:
+        """Every failed episode: condition, state, category, and whether failures.rrd holds it."""
+        return self.root / "replay" / "failures.parquet"
+
     # -- sets of outputs ------------------------------------------------------------------
-    def rollout_outputs(self, conditions: list[str]) -> list[Path]:
-        """Every rollout output of the built-in experiment's conditions."""
+    def rollout_outputs(
+        self, conditions: list[str], shards: list[str], *, recorded: bool, variant: str = NOMINAL
+    ) -> list[Path]:
+        """Every rollout output of these conditions: tables, nominal episodes, shards."""
         out: list[Path] = []
         for c in conditions:
-            out += [self.rollout_table(c), self.nominal_episode(c), self.recordings(c)]
+            out += [self.rollout_table(c, variant), self.nominal_episode(c, variant)]
+            out += self.shard_outputs(c, shards, recorded=recorded, variant=variant)
         return out
 
     def figure_files(self) -> list[Path]:
@@ -175,12 +211,14 @@ class Layout:
         """The sha256 of the study's outputs and of the rollouts it read."""
         return self.root / f"seal_{study}.json"
 
-    def sealed_outputs(self, conditions: list[str]) -> list[Path]:
+    def sealed_outputs(
+        self, conditions: list[str], shards: list[str], *, recorded: bool
+    ) -> list[Path]:
         """Every output of the built-in experiment, in pipeline order: what the seal covers."""
         return [
             self.states,
-            *self.rollout_outputs(conditions),
-            self.failures,
+            *self.rollout_outputs(conditions, shards, recorded=recorded),
+            *([self.failures, self.failures_table] if recorded else []),
             self.summary,
             self.manifest,
             self.report,

@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial import provenance, taxonomy
+from mjtrial import provenance, recording, taxonomy
 from mjtrial.config import load_config
-from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
+from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
 from mjtrial.protocol import control_sequence
-from mjtrial.recording import read_episode, write_episode_recording
+from mjtrial.recording import write_episode_recording
 from mjtrial.simulate import load_model
 from mjtrial.stages.rollout import (
     ROLLOUT_COLUMNS,
@@ -58,6 +58,25 @@ def _recorded_row(table_path: Path, state_id: int) -> dict[str, Any]:
     if rows.size != 1:
         raise KeyError(f"{table_path}: no episode for state {state_id}")
     return {c: table.column(c)[int(rows[0])].as_py() for c in table.column_names}
+
+
+def read_episode(
+    path: str | Path, *, condition: str, state_id: int, variant: str = NOMINAL
+) -> dict[str, np.ndarray]:
+    """One recorded episode's time series, wherever it is (`mjtrial.recording.read_episode`).
+
+    `path` is a results folder (`results/<experiment>`: the episode is looked up in its
+    condition's shards, of `variant`), a condition's folder, a shard's folder or a `.rrd` file.
+
+    Raises:
+      KeyError: it was not recorded (`recording.episodes: failed` records failures only,
+        `none` nothing): `mjtrial replay` re-simulates any episode.
+    """
+    path = Path(path)
+    layout = Layout(path)
+    if path.is_dir() and layout.rollouts_dir(variant).is_dir():
+        path = layout.recordings(condition, variant)
+    return recording.read_episode(path, condition=condition, state_id=state_id)
 
 
 class OutputRefused(ValueError):

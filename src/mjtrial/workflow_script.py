@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import logging
 import sys
 import traceback
@@ -43,6 +44,8 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     )
     log_path.write_text(provenance.log_stamp_line(stamp) + "\n", encoding="utf-8")
     setup_logging(log_path, mode="a")
+    if "rule" in inspect.signature(stage).parameters:  # stages that stamp per job take it too
+        kwargs["rule"] = rule
     try:
         stage(**kwargs)
     except Exception as err:  # noqa: BLE001 - every failure is reported the same way

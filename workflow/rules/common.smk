@@ -1,10 +1,16 @@
+import re
 import sys
 from pathlib import Path
 
-import re
-
 from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
-from mjtrial.layout import FIGURES, NOMINAL, STUDY_FIGURES, Layout
+from mjtrial.layout import (
+    FIGURES,
+    NOMINAL,
+    STUDY_FIGURES,
+    Layout,
+    shard_ids,
+    shard_range,
+)
 from mjtrial.provenance import model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import config_slice, stage_code_hash
@@ -16,20 +22,46 @@ CONDITIONS = list(config["conditions"])
 ALL_CONDITIONS = list(all_conditions(config))
 VARIANTS = variant_names(config)
 SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
+SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+SHARD_PATTERN = r"\d{5}"
+RECORDED = config["recording"]["episodes"] != "none"
+
+
+def qualified(wildcards):
+    """`<condition>`, or `<variant>/<condition>` for a simulator variant's rollout."""
+    variant = getattr(wildcards, "variant", None)
+    return f"{variant}/{wildcards.condition}" if variant else wildcards.condition
 
 
 def rollout_slice(wildcards):
-    """The config a condition's rollout depends on: its own protocol parameters only."""
-    return config_slice("rollout", config, condition=wildcards.condition)
+    """The config a condition's rollout depends on: its own protocol parameters (and the
+    variant's edits) only."""
+    return config_slice("rollout", config, condition=qualified(wildcards))
 
 
-def variant_slice(wildcards):
-    """A variant's rollout of one condition: the condition's slice and the variant's edits."""
-    return config_slice(
-        "rollout_variant",
-        config,
-        condition=f"{wildcards.variant}/{wildcards.condition}",
+def shard_bounds(wildcards):
+    """The state ids [first, stop) of the job's shard."""
+    return shard_range(
+        wildcards.shard, config["rollout"]["shard_size"], config["states"]["n"]
     )
+
+
+def shard_tables(wildcards):
+    """Every shard table of the job's condition (and variant), in state order."""
+    variant = getattr(wildcards, "variant", NOMINAL)
+    return [LAYOUT.shard_table(wildcards.condition, s, variant) for s in SHARDS]
+
+
+def shard_recording_output(folder):
+    """A shard's recordings folder as a named output, unless recording.episodes is none."""
+    return {"recording": directory(folder)} if RECORDED else {}
+
+
+def shard_recordings(conditions, variant=NOMINAL):
+    """Every shard's recordings folder of these conditions."""
+    if not RECORDED:
+        return []
+    return [LAYOUT.shard_recordings(c, s, variant) for c in conditions for s in SHARDS]
 
 
 def one_of(names):
@@ -54,11 +86,8 @@ def variant_outputs():
     return [
         path
         for variant in VARIANTS
-        for c in CONDITIONS
-        for path in (
-            LAYOUT.rollout_table(c, variant),
-            LAYOUT.nominal_episode(c, variant),
-            LAYOUT.recordings(c, variant),
+        for path in LAYOUT.rollout_outputs(
+            CONDITIONS, SHARDS, recorded=RECORDED, variant=variant
         )
     ]
 
@@ -70,9 +99,8 @@ def study_sealed(wildcards):
     own += LAYOUT.study_figure_files(study)
     if study == "sensitivity":
         return own + variant_outputs()
-    return own + LAYOUT.rollout_outputs(
-        [c for c in SWEEP.values() if c not in CONDITIONS]
-    )
+    swept = [c for c in SWEEP.values() if c not in CONDITIONS]
+    return own + LAYOUT.rollout_outputs(swept, SHARDS, recorded=RECORDED)
 
 
 def study_figure_outputs(study):

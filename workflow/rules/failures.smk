@@ -1,13 +1,18 @@
+# Only when episodes are recorded (recording.episodes is not none).
 rule failures:
     input:
-        recordings=per_condition(LAYOUT.recordings),
-        # which episodes failed, so that only their recordings are opened
+        # which episodes failed, so that only the chosen ones' recordings are opened
         tables=per_condition(LAYOUT.rollout_table),
+        shards=shard_recordings(CONDITIONS),
     output:
         failures=LAYOUT.failures,
+        table=LAYOUT.failures_table,
     log:
         LAYOUT.log("failures"),
     params:
+        slice=config_slice("failures", config),
+        conditions=CONDITIONS,
+        recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
         code=stage_code_hash("failures"),
     script:
         "../scripts/failures.py"

@@ -3,8 +3,12 @@ rule manifest:
         states=LAYOUT.states,
         rollouts=per_condition(LAYOUT.rollout_table),
         nominals=per_condition(LAYOUT.nominal_episode),
-        recordings=per_condition(LAYOUT.recordings),
-        failures=LAYOUT.failures,
+        shards=[
+            p
+            for c in CONDITIONS
+            for p in LAYOUT.shard_outputs(c, SHARDS, recorded=RECORDED)
+        ],
+        failures=[LAYOUT.failures, LAYOUT.failures_table] if RECORDED else [],
         summary=LAYOUT.summary,
         model=config["model"],
     output:

@@ -3,7 +3,7 @@ rule report:
         summary=LAYOUT.summary,
         manifest=LAYOUT.manifest,
         rollouts=per_condition(LAYOUT.rollout_table),
-        recordings=per_condition(LAYOUT.recordings),
+        shards=shard_recordings(CONDITIONS),
         model=config["model"],
     output:
         **figure_outputs(),
@@ -15,6 +15,7 @@ rule report:
     params:
         # The report renders the design record, so it depends on all of the config.
         slice=config_slice("report", config),
+        recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
         model_sha256=model_content,
         code=stage_code_hash("report"),
     script:

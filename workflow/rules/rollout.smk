@@ -1,6 +1,33 @@
+# Each condition's states in shards of rollout.shard_size: one job per (condition, shard), then
+# one job that gathers the condition's table from its shards. The nominal model's rollouts sit
+# under rollouts/, a simulator variant's under variants/<variant>/rollouts/.
+
+
 rule rollout:
     input:
         states=LAYOUT.states,
+        model=config["model"],
+    output:
+        **shard_recording_output(LAYOUT.shard_recordings("{condition}", "{shard}")),
+        table=LAYOUT.shard_table("{condition}", "{shard}"),
+    log:
+        LAYOUT.log("rollout_{condition}_{shard}"),
+    wildcard_constraints:
+        condition=one_of(ALL_CONDITIONS),
+        shard=SHARD_PATTERN,
+    threads: 2
+    params:
+        slice=rollout_slice,
+        shard=shard_bounds,
+        model_sha256=model_content,
+        code=stage_code_hash("rollout"),
+    script:
+        "../scripts/rollout.py"
+
+
+rule gather:
+    input:
+        shards=shard_tables,
         model=config["model"],
     output:
         table=report(
@@ -9,39 +36,39 @@ rule rollout:
             category="Tables",
         ),
         nominal=LAYOUT.nominal_episode("{condition}"),
-        # one .rrd per episode and the folder's blueprint.rbl: `rerun <folder>/*` opens them
-        recording=directory(LAYOUT.recordings("{condition}")),
     log:
-        LAYOUT.log("rollout_{condition}"),
+        LAYOUT.log("gather_{condition}"),
     wildcard_constraints:
         condition=one_of(ALL_CONDITIONS),
-    threads: 2
     params:
         slice=rollout_slice,
         model_sha256=model_content,
-        code=stage_code_hash("rollout"),
+        code=stage_code_hash("gather"),
     script:
-        "../scripts/rollout.py"
+        "../scripts/gather.py"
 
 
 # The design's conditions on a simulator variant (the sensitivity study).
-rule rollout_variant:
-    input:
-        states=LAYOUT.states,
-        model=config["model"],
+use rule rollout as rollout_variant with:
     output:
-        table=LAYOUT.rollout_table("{condition}", "{variant}"),
-        nominal=LAYOUT.nominal_episode("{condition}", "{variant}"),
-        recording=directory(LAYOUT.recordings("{condition}", "{variant}")),
+        **shard_recording_output(
+            LAYOUT.shard_recordings("{condition}", "{shard}", "{variant}")
+        ),
+        table=LAYOUT.shard_table("{condition}", "{shard}", "{variant}"),
     log:
-        LAYOUT.log("rollout_{variant}_{condition}"),
+        LAYOUT.log("rollout_{variant}_{condition}_{shard}"),
     wildcard_constraints:
         variant=one_of(VARIANTS),
         condition=one_of(CONDITIONS),
-    threads: 2
-    params:
-        slice=variant_slice,
-        model_sha256=model_content,
-        code=stage_code_hash("rollout_variant"),
-    script:
-        "../scripts/rollout_variant.py"
+        shard=SHARD_PATTERN,
+
+
+use rule gather as gather_variant with:
+    output:
+        table=LAYOUT.rollout_table("{condition}", "{variant}"),
+        nominal=LAYOUT.nominal_episode("{condition}", "{variant}"),
+    log:
+        LAYOUT.log("gather_{variant}_{condition}"),
+    wildcard_constraints:
+        variant=one_of(VARIANTS),
+        condition=one_of(CONDITIONS),

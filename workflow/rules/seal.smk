@@ -2,7 +2,7 @@
 # `mjtrial verify` sees an edit to any of them.
 rule seal:
     input:
-        LAYOUT.sealed_outputs(CONDITIONS),
+        LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED),
     output:
         seal=LAYOUT.seal,
     log:

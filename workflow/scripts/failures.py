@@ -1,4 +1,4 @@
-"""Snakemake adapter: gather every failed lift into one replay file (gather_failures)."""
+"""Snakemake adapter: the failed lifts in one replay file and a table (gather_failures)."""
 
 from pathlib import Path
 
@@ -6,12 +6,15 @@ from mjtrial.stages.failures import gather_failures
 from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
+conditions = snakemake.params.conditions
 run_job(
     snakemake,
     gather_failures,
     rule="failures",
-    recordings=[Path(p) for p in snakemake.input.recordings],
-    tables=[Path(p) for p in snakemake.input.tables],
+    recordings=dict(zip(conditions, map(Path, snakemake.params.recordings), strict=True)),
+    tables=dict(zip(conditions, map(Path, snakemake.input.tables), strict=True)),
+    failures_max=snakemake.params.slice["failures_max"],
     output=Path(snakemake.output.failures),
+    output_table=Path(snakemake.output.table),
     repo_root=Path.cwd(),
 )

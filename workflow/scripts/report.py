@@ -18,7 +18,7 @@ run_job(
     rollout_tables=dict(
         zip(config["conditions"], map(Path, snakemake.input.rollouts), strict=True)
     ),
-    recordings=dict(zip(config["conditions"], map(Path, snakemake.input.recordings), strict=True)),
+    recordings=dict(zip(config["conditions"], map(Path, snakemake.params.recordings), strict=True)),
     model_file=Path(snakemake.input.model),
     figures_dir=Path(snakemake.output[FIGURES[0]]).parent,
     output=Path(snakemake.output.report),

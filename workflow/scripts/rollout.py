@@ -1,21 +1,28 @@
-"""Snakemake adapter: roll out one condition (mjtrial.stages.rollout.run_condition)."""
+"""Snakemake adapter: roll out one shard of one condition (mjtrial.stages.rollout.run_shard)."""
 
 from pathlib import Path
 
-from mjtrial.stages.rollout import run_condition
+from mjtrial.stages.rollout import run_shard
 from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
+condition = snakemake.params.slice["condition"]
+variant = snakemake.params.slice.get("variant")
+qualified = f"{variant['name']}/{condition}" if variant else condition
+first, stop = snakemake.params.shard
 run_job(
     snakemake,
-    run_condition,
-    rule=f"rollout:{snakemake.wildcards.condition}",
+    run_shard,
+    rule=f"rollout:{qualified}#{snakemake.wildcards.shard}",
     condition_slice=snakemake.params.slice,
     states_path=Path(snakemake.input.states),
     model_file=Path(snakemake.input.model),
+    first=first,
+    stop=stop,
     output_table=Path(snakemake.output.table),
-    output_nominal=Path(snakemake.output.nominal),
-    output_recording=Path(snakemake.output.recording),
+    output_recording=Path(snakemake.output.recording)
+    if "recording" in snakemake.output.keys()
+    else None,
     nthread=snakemake.threads,
     repo_root=Path.cwd(),
 )

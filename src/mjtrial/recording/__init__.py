@@ -38,6 +38,7 @@ from mjtrial import provenance
 from mjtrial.recording.failures import write_failures_rrd
 from mjtrial.recording.names import episode_file_name, logged_steps
 from mjtrial.recording.read import (
+    find_episode_file,
     list_recordings,
     read_episode,
     read_rrd_stamp,
@@ -51,6 +52,7 @@ from mjtrial.recording.write import (
 )
 
 __all__ = [
+    "find_episode_file",
     "EpisodeRecord",
     "episode_file_name",
     "list_recordings",

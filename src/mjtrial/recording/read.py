@@ -191,6 +191,24 @@ def recorded_signals(reader: RrdReader, entry: StoreEntry) -> dict[str, list[str
     return out
 
 
+def find_episode_file(folder: str | os.PathLike[str], *, condition: str, state_id: int) -> Path:
+    """The file of one episode's recording in a condition's folder, in whichever shard.
+
+    Raises:
+      KeyError: no shard of the folder holds it (say, `recording.episodes` is `failed` and the
+        episode succeeded).
+    """
+    folder = Path(folder)
+    name = episode_file_name(condition, state_id)
+    found = sorted(folder.glob(f"shard-*/{name}")) or sorted(folder.glob(name))
+    if not found:
+        raise KeyError(
+            f"{folder}: no recording of condition {condition!r}, state {state_id} (no file "
+            f"{name} in any shard; with recording.episodes: failed, only failures are recorded)"
+        )
+    return found[0]
+
+
 def read_episode(
     path: str | os.PathLike[str], *, condition: str, state_id: int
 ) -> dict[str, np.ndarray]:
@@ -209,12 +227,7 @@ def read_episode(
     """
     path = Path(path)
     if path.is_dir():
-        path = path / episode_file_name(condition, state_id)
-        if not path.is_file():
-            raise KeyError(
-                f"{path.parent}: no recording of condition {condition!r}, state {state_id} "
-                f"(no file {path.name})"
-            )
+        path = find_episode_file(path, condition=condition, state_id=state_id)
     reader = open_rrd(path)
     entry = _find_episode(reader, path, condition, state_id)
     cube = top_level_entity(CUBE)  # a free joint's body is a child of the world body

@@ -264,8 +264,6 @@ class EpisodeStores:
             if len(group) == _GROUP:
                 yield group
                 group = []
-        if not seen:
-            raise ValueError(f"{condition}: no episodes to record")
         if group:
             yield group
 
@@ -299,7 +297,7 @@ def write_condition_recordings(
     scales to any number of episodes, and opens or travels on its own.
 
     Returns:
-      the number of recordings written (no episodes is an error).
+      the number of recordings written (none: a folder holding its blueprint only).
     """
     builder = EpisodeStores(
         model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every

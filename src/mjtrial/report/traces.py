@@ -86,7 +86,6 @@ def cube_height_traces(
         a trajectory with an outcome it did not have), its logged steps are not the
         protocol's for this lift time and timestep, or the chosen episodes were logged at
         different steps.
-      KeyError: an episode has no recording.
     """
     traces = {}
     for name, table_path in rollout_tables.items():
@@ -95,8 +94,13 @@ def cube_height_traces(
         chosen = _chosen_episodes(Path(table_path), per_outcome)
         steps: np.ndarray | None = None
         heights = []
+        drawn = []
         for episode in chosen:
-            logged = read_episode(recordings[name], condition=name, state_id=episode.state_id)
+            try:
+                logged = read_episode(recordings[name], condition=name, state_id=episode.state_id)
+            except KeyError:
+                continue  # not recorded (recording.episodes: failed or none): not drawn
+            drawn.append(episode)
             where = f"{recordings[name]}: {name} state {episode.state_id}"
             if logged["step"][-1] + 1 != len(phase):
                 raise ValueError(
@@ -121,8 +125,8 @@ def cube_height_traces(
             lift_time=lift_time,
             time=(steps + 1) * timestep,
             height=np.array(heights).reshape(len(heights), len(steps)),
-            state_ids=tuple(e.state_id for e in chosen),
-            success=tuple(e.success for e in chosen),
+            state_ids=tuple(e.state_id for e in drawn),
+            success=tuple(e.success for e in drawn),
             log_interval=float((steps[1] - steps[0]) * timestep) if len(steps) > 1 else timestep,
             close_start=float(np.flatnonzero(phase == Phase.CLOSE)[0] * timestep),
             lift_start=float(lift[0] * timestep),

@@ -1,45 +1,116 @@
-"""The failures stage: every failed episode's recording, gathered into one `failures.rrd`."""
+"""The failures stage: the failed episodes' recordings in one `failures.rrd`, bounded, and a
+table of every failure beside it.
+
+At 100,000 states the failures can be tens of thousands; the viewer opens a file whole, so
+`failures.rrd` holds at most `failures_max` of them, chosen deterministically and spread over
+conditions and failure categories, and `failures.parquet` lists every one (each replayable
+with `mjtrial replay`).
+"""
 
 from __future__ import annotations
 
+import itertools
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, recording
+from mjtrial import REPO_ROOT, provenance, recording
 from mjtrial.stages.stamping import make_stage_stamp
 
 log = logging.getLogger("mjtrial")
 
+FAILURES_SCHEMA = pa.schema(
+    [
+        ("condition", pa.string()),
+        ("state_id", pa.int64()),
+        ("failure_category", pa.string()),
+        ("in_failures_rrd", pa.bool_()),
+    ]
+)
+
+
+def choose_failures(
+    failures: Sequence[tuple[str, int, str]], *, at_most: int
+) -> set[tuple[str, int]]:
+    """Which failures go into `failures.rrd`: round robin over the (condition, category) groups,
+    in name order, each group's lowest state ids first, until `at_most` are chosen.
+
+    Args:
+      failures: (condition, state_id, failure category) of every failed episode.
+    """
+    groups: dict[tuple[str, str], list[int]] = {}
+    for condition, state_id, category in failures:
+        groups.setdefault((condition, str(category)), []).append(int(state_id))
+    queues = [iter(sorted(ids)) for _, ids in sorted(groups.items())]
+    chosen: list[tuple[str, int]] = []
+    names = [key[0] for key, _ in sorted(groups.items())]
+    for _ in itertools.count():
+        took = False
+        for condition, queue in zip(names, queues, strict=True):
+            state_id = next(queue, None)
+            if state_id is not None and len(chosen) < at_most:
+                chosen.append((condition, state_id))
+                took = True
+        if not took or len(chosen) >= at_most:
+            break
+    return set(chosen)
+
 
 def gather_failures(
     *,
-    recordings: Sequence[Path],
-    tables: Sequence[Path],
+    recordings: Mapping[str, Path],
+    tables: Mapping[str, Path],
+    failures_max: int,
     output: Path,
+    output_table: Path,
     repo_root: Path = REPO_ROOT,
 ) -> int:
-    """Gather every failed episode of every condition into one `failures.rrd`.
+    """Write `failures.rrd` (at most `failures_max` failed episodes) and `failures.parquet`.
 
-    `recordings` are the conditions' folders (`rollouts/<condition>/`), `tables` their rollout
-    tables, in the same order: the tables say which episodes failed, so only their files are
-    opened (at 100 000 states, opening every file would take minutes); a recording that does
-    not say it failed is an error (`recording.write_failures_rrd`'s `only_failures`).
+    Args:
+      recordings: condition -> its folder of shards (`rollouts/<condition>/`).
+      tables: condition -> its rollout table; the tables say which episodes failed, so only
+        the chosen episodes' files are opened.
+
+    A recording that does not say it failed is an error (`write_failures_rrd`'s
+    `only_failures`).
     """
-    if len(recordings) != len(tables):
-        raise ValueError(f"{len(recordings)} recording folders but {len(tables)} tables")
-    files = []
-    for folder, table in zip(map(Path, recordings), map(Path, tables), strict=True):
-        rows = pq.read_table(table, columns=["state_id", "success"]).to_pylist()
-        files += [
-            folder / recording.episode_file_name(folder.name, row["state_id"])
-            for row in rows
-            if not row["success"]
-        ]
-    inputs = {p.stem: p for p in recordings} | {f"{p.stem}_table": p for p in tables}
-    stamp = make_stage_stamp("failures", {}, inputs, repo_root=repo_root)
+    failures: list[tuple[str, int, str]] = []
+    for condition, table in tables.items():
+        rows = pq.read_table(table, columns=["state_id", "success", "failure_category"])
+        for row in rows.to_pylist():
+            if not row["success"]:
+                failures.append((condition, row["state_id"], row["failure_category"]))
+    chosen = choose_failures(failures, at_most=failures_max)
+    files = [
+        recording.find_episode_file(recordings[c], condition=c, state_id=s)
+        for c, s, _ in failures
+        if (c, s) in chosen
+    ]
+    inputs = {f"{c}_table": p for c, p in tables.items()}
+    inputs |= {c: sorted(Path(p).glob("shard-*")) for c, p in recordings.items()}
+    stamp = make_stage_stamp(
+        "failures", {"failures_max": failures_max}, inputs, repo_root=repo_root
+    )
     count = recording.write_failures_rrd(output, files, stamp=stamp, only_failures=True)
-    log.info("failures: %d failed episodes -> %s", count, output)
+    listed = pa.table(
+        {
+            "condition": [c for c, _, _ in failures],
+            "state_id": [s for _, s, _ in failures],
+            "failure_category": [k for _, _, k in failures],
+            "in_failures_rrd": [(c, s) in chosen for c, s, _ in failures],
+        },
+        schema=FAILURES_SCHEMA,
+    )
+    provenance.write_parquet(listed, output_table, stamp)
+    log.info(
+        "failures: %d failed episodes, %d of them in %s; all listed in %s",
+        len(failures),
+        count,
+        output,
+        output_table,
+    )
     return count

@@ -36,7 +36,10 @@ def write_report_stage(
         "manifest": manifest_path,
         **model_inputs(model_file),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
-        **{f"recordings:{k}": v for k, v in recordings.items()},
+        **{
+            f"recordings:{k}": sorted(p for p in Path(v).glob("shard-*") if p.is_dir())
+            for k, v in recordings.items()
+        },
     }
     stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
     summary = json.loads(Path(summary_path).read_text())

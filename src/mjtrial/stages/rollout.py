@@ -30,6 +30,7 @@ from mjtrial.simulate import (
 )
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs
 from mjtrial.states import InitialState, states_from_table
+from mjtrial.studies.variants import variant_model
 
 log = logging.getLogger("mjtrial")
 
@@ -122,45 +123,81 @@ def episode_records(
         )
 
 
-def run_condition(
-    *,
-    condition_slice: Mapping[str, Any],
-    states_path: Path,
-    model_file: Path,
-    output_table: Path,
-    output_nominal: Path,
-    output_recording: Path | None = None,
-    nthread: int,
-    batch_size: int = 64,
-    repo_root: Path = REPO_ROOT,
-    model: Any = None,
-    rule: str | None = None,
-) -> dict[str, np.ndarray]:
-    """Roll out every state under one condition.
+# The table's types, fixed: a shard whose every episode succeeded has no category to infer a
+# type from, and every shard's table must concatenate into the condition's.
+ROLLOUT_SCHEMA = pa.schema(
+    [
+        ("state_id", pa.int64()),
+        ("success", pa.bool_()),
+        ("final_height", pa.float64()),
+        ("final_x", pa.float64()),
+        ("final_y", pa.float64()),
+        ("steps_simulated", pa.int64()),
+        ("nonfinite", pa.bool_()),
+        ("warning", pa.string()),
+        ("failure_category", pa.string()),
+        ("peak_slip", pa.float64()),
+        ("peak_carriage_accel", pa.float64()),
+    ]
+)
+EPISODES_RECORDED = ("all", "failed", "none")  # config recording.episodes
 
-    Writes the per-episode table, the nominal state's episode, and (given `output_recording`,
-    a folder) every episode's trajectory as a Rerun recording, one .rrd per episode, written
-    batch by batch while the next batch runs. `model`, when given, is the compiled model to
-    run (a variant of `model_file`), and `rule` the stamp's rule (default `rollout:<condition>`).
-    """
-    model = load_model(model_file) if model is None else model
-    states = read_states(states_path)
-    condition = condition_slice["condition"]
-    lift_time = float(condition_slice["lift_time"])
-    protocol = condition_protocol(
+
+def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> Any:
+    """The model a condition runs on: the committed one, or the slice's variant of it."""
+    variant = condition_slice.get("variant")
+    if variant is None:
+        return load_model(model_file)
+    model, _ = variant_model(
+        model_file, variant["overrides"], key_prefix=f"variants.{variant['name']}"
+    )
+    return model
+
+
+def _protocol(condition_slice: Mapping[str, Any]) -> Protocol:
+    return condition_protocol(
         {
             k: condition_slice[k]
             for k in ("lift_time", *CONDITION_PARAMETERS)
             if k in condition_slice
         }
     )
+
+
+def run_shard(
+    *,
+    condition_slice: Mapping[str, Any],
+    states_path: Path,
+    model_file: Path,
+    first: int,
+    stop: int,
+    output_table: Path,
+    output_recording: Path | None = None,
+    nthread: int,
+    rule: str,
+    batch_size: int = 64,
+    repo_root: Path = REPO_ROOT,
+) -> pa.Table:
+    """Roll out the states with ids in [first, stop) under one condition: one shard.
+
+    Writes the shard's rows of the rollout table and (given `output_recording`, a folder) the
+    trajectory of every episode that `recording.episodes` asks for (`all` or `failed`) as a
+    Rerun recording, one .rrd per episode, written while the next batch runs. Memory is bounded
+    by the batch and the shard, never by the number of states.
+    """
+    model = condition_model(condition_slice, model_file)
+    states = [s for s in read_states(states_path) if first <= s.state_id < stop]
+    if len(states) != stop - first:
+        raise ValueError(f"{states_path}: expected states {first}..{stop - 1}, found {len(states)}")
+    condition = condition_slice["condition"]
+    lift_time = float(condition_slice["lift_time"])
+    protocol = _protocol(condition_slice)
     thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
+    recorded = condition_slice["recording"].get("episodes", "all")
     inputs = {"states": states_path, **model_inputs(model_file)}
-    stamp = make_stage_stamp(
-        rule or f"rollout:{condition}", dict(condition_slice), inputs, repo_root=repo_root
-    )
+    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
     columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
-    progress = Progress(f"rollout {condition}", total=len(states))
+    progress = Progress(f"{rule}", total=len(states))
 
     def episodes() -> Iterator[recording.EpisodeRecord]:
         for batch, outcome in condition_outcomes(
@@ -174,7 +211,9 @@ def run_condition(
         ):
             for c in ROLLOUT_COLUMNS:
                 columns[c].append(outcome[c])
-            yield from episode_records(batch, outcome)
+            for episode in episode_records(batch, outcome):
+                if recorded == "all" or not episode.success:
+                    yield episode
             progress.advance(len(batch.states))
 
     if output_recording is None:
@@ -193,40 +232,77 @@ def run_condition(
     merged = {c: np.concatenate(v) for c, v in columns.items()}
     table = pa.table(
         {
-            c: pa.array(merged[c].tolist() if merged[c].dtype == object else merged[c])
+            c: pa.array(
+                merged[c].tolist() if merged[c].dtype == object else merged[c],
+                type=ROLLOUT_SCHEMA.field(c).type,
+            )
             for c in ROLLOUT_COLUMNS
         }
     )
-    nominal = nominal_state(model)
-    _, nominal_outcome = next(
-        condition_outcomes(
-            model,
-            [nominal],
-            lift_time=lift_time,
-            thresholds=thresholds,
-            nthread=1,
-            protocol=protocol,
-        )
-    )
-
     provenance.write_parquet(table, output_table, stamp)
-    provenance.write_json(
-        {
-            "condition": condition,
-            "state": nominal.__dict__ | {"state_id": None},
-            "success": bool(nominal_outcome["success"][0]),
-            "final_height": float(nominal_outcome["final_height"][0]),
-            "failure_category": nominal_outcome["failure_category"][0],
-        },
-        output_nominal,
-        stamp,
-    )
     log.info(
-        "rollout %s: %d/%d successes (lift %g s) -> %s",
-        condition,
+        "%s: %d/%d successes (lift %g s) -> %s",
+        rule,
         int(merged["success"].sum()),
         len(states),
         lift_time,
         output_table,
     )
-    return merged
+    return table
+
+
+def gather_condition(
+    *,
+    condition_slice: Mapping[str, Any],
+    shard_tables: Sequence[Path],
+    model_file: Path,
+    output_table: Path,
+    output_nominal: Path,
+    rule: str,
+    repo_root: Path = REPO_ROOT,
+) -> pa.Table:
+    """The condition's rollout table from its shards' (in state order), and the nominal state's
+    episode (no offset, no yaw, the mass as compiled) for the "nominal state alone" mistake."""
+    tables = [pq.read_table(p).replace_schema_metadata(None) for p in shard_tables]
+    table = pa.concat_tables(tables) if tables else ROLLOUT_SCHEMA.empty_table()
+    ids = table.column("state_id").to_numpy()
+    if not np.array_equal(ids, np.arange(len(ids))):
+        raise ValueError(
+            f"{rule}: the shards' state ids are not 0..{len(ids) - 1} in order; expected every "
+            "shard once"
+        )
+    model = condition_model(condition_slice, model_file)
+    nominal = nominal_state(model)
+    _, outcome = next(
+        condition_outcomes(
+            model,
+            [nominal],
+            lift_time=float(condition_slice["lift_time"]),
+            thresholds=taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"]),
+            nthread=1,
+            protocol=_protocol(condition_slice),
+        )
+    )
+    inputs = {"shards": list(shard_tables), **model_inputs(model_file)}
+    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
+    provenance.write_parquet(table, output_table, stamp)
+    provenance.write_json(
+        {
+            "condition": condition_slice["condition"],
+            "state": nominal.__dict__ | {"state_id": None},
+            "success": bool(outcome["success"][0]),
+            "final_height": float(outcome["final_height"][0]),
+            "failure_category": outcome["failure_category"][0],
+        },
+        output_nominal,
+        stamp,
+    )
+    log.info(
+        "%s: %d shards, %d/%d successes -> %s",
+        rule,
+        len(shard_tables),
+        int(np.asarray(table.column("success")).sum()),
+        table.num_rows,
+        output_table,
+    )
+    return table

@@ -22,19 +22,17 @@ def config_slice(
     """
     if stage == "states":
         return dict(config["states"])
-    if stage == "rollout":
-        return {
-            "condition": condition,
-            **all_conditions(config)[condition],
+    if stage in ("rollout", "gather"):  # condition: "<condition>" or "<variant>/<condition>"
+        variant, _, name = condition.rpartition("/")
+        condition_slice = {
+            "condition": name,
+            **all_conditions(config)[name],
             "failure_taxonomy": dict(config["failure_taxonomy"]),
-            "recording": dict(config["recording"]),
+            "recording": {k: config["recording"][k] for k in ("rate_hz", "episodes")},
         }
-    if stage == "rollout_variant":  # condition: "<variant>/<condition>"
-        variant, _, name = condition.partition("/")
-        return {
-            **config_slice("rollout", config, condition=name),
-            "variant": {"name": variant, "overrides": config["variants"][variant]},
-        }
+        if variant:
+            condition_slice["variant"] = {"name": variant, "overrides": config["variants"][variant]}
+        return condition_slice
     if stage == "sensitivity":
         return {
             "conditions": {c: config["conditions"][c] for c in _falsifier_conditions(config)},
@@ -56,7 +54,9 @@ def config_slice(
             "sample_size": dict(config["design"]["sample_size"]),
             "analysis": dict(config["analysis"]),
         }
-    if stage in ("failures", "seal"):
+    if stage == "failures":
+        return {"failures_max": config["recording"]["failures_max"]}
+    if stage == "seal":
         return {}
     if stage in ("manifest", "report"):
         # The whole design, but not the studies' (their own outputs record it): adding a

@@ -173,7 +173,7 @@ def parse_rule(rule: Any) -> tuple[str, str | None] | None:
     stage, sep, qualifier = rule.partition(":")
     if stage not in STAGES or (sep and not qualifier):
         return None
-    if stage in ("rollout", "rollout_variant") and not qualifier:
+    if stage in ("rollout", "gather") and not qualifier:
         return None
     return stage, qualifier or None
 
@@ -427,7 +427,8 @@ def check_stamps(
     model_path = current.config.get("model")
     for path, stamp in pipeline_stamps.items():
         stage, qualifier = parsed[path]
-        condition = qualifier if stage in ("rollout", "rollout_variant") else None
+        # "rollout:<variant>/<condition>#<shard>": the slice is the (variant's) condition's
+        condition = qualifier.partition("#")[0] if stage in ("rollout", "gather") else None
         rule = stamp["rule"]
 
         # The stamp itself: its recorded slice must hash to its recorded slice hash.

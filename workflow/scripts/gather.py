@@ -1,0 +1,22 @@
+"""Snakemake adapter: a condition's table from its shards (gather_condition)."""
+
+from pathlib import Path
+
+from mjtrial.stages.rollout import gather_condition
+from mjtrial.workflow_script import run_job
+
+snakemake = globals()["snakemake"]
+condition = snakemake.params.slice["condition"]
+variant = snakemake.params.slice.get("variant")
+qualified = f"{variant['name']}/{condition}" if variant else condition
+run_job(
+    snakemake,
+    gather_condition,
+    rule=f"gather:{qualified}",
+    condition_slice=snakemake.params.slice,
+    shard_tables=[Path(p) for p in snakemake.input.shards],
+    model_file=Path(snakemake.input.model),
+    output_table=Path(snakemake.output.table),
+    output_nominal=Path(snakemake.output.nominal),
+    repo_root=Path.cwd(),
+)
