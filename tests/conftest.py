@@ -75,7 +75,8 @@ def run_snakemake(workdir: Path, *args: str, check: bool = True, env: dict | Non
 
 @pytest.fixture(scope="session")
 def built(tmp_path_factory) -> Path:
-    """A small copy of the experiment (12 states, 500 resamples) built once by Snakemake."""
+    """A small copy of the experiment built once by Snakemake: 12 states in shards of 5 (two
+    full shards and a partial one), 500 resamples."""
     import shutil
 
     workdir = tmp_path_factory.mktemp("experiment")
@@ -85,6 +86,7 @@ def built(tmp_path_factory) -> Path:
 
     def small(config):
         config["states"]["n"] = 12
+        config["rollout"]["shard_size"] = 5
         config["analysis"]["n_resamples"] = 500
 
     edit_config(workdir, small)

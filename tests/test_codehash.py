@@ -29,7 +29,7 @@ def test_imports_are_read_wherever_they_stand():
 import os
 import mjtrial.stats
 from mjtrial import layout, REPO_ROOT
-from mjtrial.stages.rollout import run_condition
+from mjtrial.stages.rollout import run_shard
 import numpy as np
 
 def later():
@@ -101,15 +101,15 @@ def test_digest_changes_with_any_file_and_names_it():
 
 # Rules whose inputs come from each stage, directly or not (workflow/rules/*.smk).
 DOWNSTREAM = {  # within the built-in experiment, what `snakemake -c2` plans
-    "states": {"rollout", "failures", "analysis", "manifest", "report", "seal"},
-    "rollout": {"failures", "analysis", "manifest", "report", "seal"},
+    "states": {"rollout", "gather", "failures", "analysis", "manifest", "report", "seal"},
+    "rollout": {"gather", "failures", "analysis", "manifest", "report", "seal"},
+    "gather": {"failures", "analysis", "manifest", "report", "seal"},
     "failures": {"manifest", "report", "seal"},
     "analysis": {"manifest", "report", "seal"},
     "manifest": {"report", "seal"},
     "report": {"seal"},
     "seal": set(),
-    "rollout_variant": set(),  # the studies' stages are not part of `snakemake -c2`
-    "sensitivity": set(),
+    "sensitivity": set(),  # the studies' stages are not part of `snakemake -c2`
     "dose_response": set(),
 }
 
@@ -146,7 +146,7 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
     with open(workdir / "src" / "mjtrial" / "stats.py", "a") as f:
         f.write("\n# an edit\n")
 
-    built_in = importing - {"rollout_variant", "sensitivity", "dose_response"}
+    built_in = importing - {"sensitivity", "dose_response"}
     expected = built_in | {d for s in built_in for d in DOWNSTREAM[s]}
     jobs = planned_jobs(workdir, env=env)
     assert set(jobs) - {"all"} == expected
@@ -172,8 +172,8 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
 def _stage_of(path: str) -> str:
     """The stage that writes a results path of the built-in experiment."""
     rel = path.split("research_mode/", 1)[1]
-    if rel.startswith("rollouts/"):
-        return "rollout"
+    if rel.startswith("rollouts/"):  # a shard's table or recordings, or the gathered files
+        return "rollout" if "/shard-" in rel else "gather"
     if rel.startswith("replay/"):
         return "failures"
     if rel.startswith("analysis/"):

@@ -21,6 +21,7 @@ from mjtrial.replay import OutputRefused, check_output, replay_episode
 from mjtrial.verify import Status, verify_results
 
 LAYOUT = Layout.of("research_mode")
+SHARD_SIZE = 5  # the built experiment's rollout.shard_size (conftest)
 
 
 def digest(folder: Path) -> dict[str, str]:
@@ -50,7 +51,8 @@ def _garbage_states(workdir: Path) -> None:
 def _truncated_recording(workdir: Path) -> None:
     table = pq.read_table(workdir / LAYOUT.rollout_table("fast"))
     failed = [r["state_id"] for r in table.to_pylist() if not r["success"]]
-    episode = workdir / LAYOUT.recordings("fast") / f"fast-state-{failed[0]:06d}.rrd"
+    shard = LAYOUT.shard_recordings("fast", f"{failed[0] // SHARD_SIZE:05d}")
+    episode = workdir / shard / f"fast-state-{failed[0]:06d}.rrd"
     episode.write_bytes(episode.read_bytes()[:100])
 
 
@@ -95,8 +97,9 @@ def test_every_log_begins_with_its_stamp(built):
     logs = sorted((built / LAYOUT.logs_dir).glob("*.log"))
     assert {p.stem for p in logs} >= {
         "states",
-        "rollout_fast",
-        "rollout_slow",
+        *(f"rollout_{c}_{s}" for c in ("fast", "slow") for s in ("00000", "00001", "00002")),
+        "gather_fast",
+        "gather_slow",
         "failures",
         "analysis",
         "manifest",
@@ -105,17 +108,17 @@ def test_every_log_begins_with_its_stamp(built):
     }
     for log in logs:
         stamp = provenance.read_stamp(log)
-        assert stamp["rule"].split(":")[0] in ("states", "rollout", *log.stem.split("_")[:1])
+        assert stamp["rule"].split(":")[0] == log.stem.split("_")[0]
         assert stamp["extra"]["code"]
 
 
 def test_temporaries_of_a_killed_job_are_removed_by_the_next_run(work):
-    left = work / LAYOUT.recordings("slow").parent / ".slow.tmp-123-abcd"
+    left = work / LAYOUT.recordings("slow") / ".shard-00000.tmp-123-abcd"
     left.mkdir()
     (left / "slow-state-000001.rrd").write_bytes(b"half")
     proc = run_snakemake(work, "--forcerun", "seal")
     assert not left.exists()
-    assert f"removed {LAYOUT.root}/rollouts/.slow.tmp-123-abcd" in proc.stderr
+    assert f"removed {LAYOUT.root}/rollouts/slow/.shard-00000.tmp-123-abcd" in proc.stderr
 
 
 # --------------------------------------------------------------------------------------------
@@ -191,7 +194,9 @@ def test_replay_refuses_to_write_over_pipeline_files(work, capsys, monkeypatch):
         LAYOUT.states,
         LAYOUT.failures,
         LAYOUT.rollout_table("fast"),
-        LAYOUT.recordings("fast") / "new.rrd",
+        LAYOUT.shard_recordings("fast", "00000") / "new.rrd",
+        LAYOUT.shard_table("fast", "00001"),
+        LAYOUT.failures_table,
         LAYOUT.root / "new.json",
     ]:
         with pytest.raises(OutputRefused, match="--output"):

@@ -12,11 +12,13 @@ import re
 import shutil
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 import yaml
 from conftest import edit_config
 from conftest import run_snakemake as run
 
+import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 
 
@@ -36,59 +38,102 @@ def planned_jobs(workdir: Path, env: dict | None = None) -> dict[str, int]:
     return jobs
 
 
+# The small experiment's 12 states in shards of 5 (conftest): states [0, 5), [5, 10), [10, 12).
+SHARDS = {"00000": range(0, 5), "00001": range(5, 10), "00002": range(10, 12)}
+
+
 def test_builds_everything_and_second_run_has_nothing_to_do(built):
     results = built / "results" / "research_mode"
     for rel in (
         "states.parquet",
         "rollouts/fast.parquet",
         "rollouts/slow.parquet",
+        "rollouts/fast/shard-00000.parquet",
+        "rollouts/slow/shard-00002.parquet",
         "analysis/summary.json",
         "manifest.json",
-        "rollouts/fast/fast-state-000000.rrd",
-        "rollouts/slow/blueprint.rbl",
+        "rollouts/fast/shard-00000/fast-state-000000.rrd",
+        "rollouts/slow/shard-00002/slow-state-000011.rrd",
+        "rollouts/slow/shard-00001/blueprint.rbl",
         "replay/failures.rrd",
+        "replay/failures.parquet",
         "report.md",
         "figures/cube_height.svg",
     ):
         assert (results / rel).is_file(), rel
-    for condition in ("fast", "slow"):  # a folder of one .rrd per episode, and its blueprint
-        assert len(list((results / "rollouts" / condition).glob("*.rrd"))) == 12
+    for condition in ("fast", "slow"):
+        folder = results / "rollouts" / condition
+        # Each shard: a table of its rows, a folder of one .rrd per episode and its blueprint.
+        assert sorted(p.name for p in folder.iterdir()) == sorted(
+            [f"shard-{s}" for s in SHARDS] + [f"shard-{s}.parquet" for s in SHARDS]
+        )
+        for shard, ids in SHARDS.items():
+            rows = pq.read_table(folder / f"shard-{shard}.parquet").column("state_id").to_pylist()
+            assert rows == list(ids)
+            assert sorted(p.name for p in (folder / f"shard-{shard}").glob("*.rrd")) == [
+                f"{condition}-state-{i:06d}.rrd" for i in ids
+            ]
+            assert (folder / f"shard-{shard}" / "blueprint.rbl").is_file()
+        # The condition's table is its shards' rows, in state order.
+        whole = pq.read_table(results / "rollouts" / f"{condition}.parquet")
+        parts = [pq.read_table(folder / f"shard-{s}.parquet") for s in SHARDS]
+        assert whole.replace_schema_metadata(None).equals(
+            pa.concat_tables([t.replace_schema_metadata(None) for t in parts])
+        )
     assert planned_jobs(built) == {}
 
 
 def test_every_output_is_stamped_with_commit_state_and_versions(built):
     results = built / "results" / "research_mode"
-    folders = [results / "rollouts" / c for c in ("fast", "slow")]  # one output each
+    folders = [results / "rollouts" / c / f"shard-{s}" for c in ("fast", "slow") for s in SHARDS]
     outputs = [
         p
         for p in results.rglob("*")
         if (p.is_file() and "logs" not in p.parts and p.parent not in folders) or p in folders
     ]
-    # 8 data files, 2 folders of recordings, report.md, 5 figures as PNG and SVG, the seal
-    assert len(outputs) == 22
+    # 15 data files (states, 2 tables, 2 nominal episodes, 6 shard tables, failures.rrd and
+    # .parquet, summary, manifest), 6 folders of recordings, report.md, 5 figures as PNG and SVG,
+    # the seal
+    assert len(outputs) == 33
     for path in [*outputs, *(p for f in folders for p in f.glob("*.rrd"))]:
         stamp = provenance.read_stamp(path)
         assert stamp["versions"]["mujoco"] == "3.14.0"
         # The copy is not a git repository: the stamp says so instead of crashing.
         assert stamp["git"]["available"] is False and stamp["git"]["reason"]
     rollout = provenance.read_stamp(results / "rollouts" / "fast.parquet")
+    assert rollout["rule"] == "gather:fast"
     assert rollout["inputs"]["model"]["sha256"] == provenance.file_sha256(
         built / "models" / "gantry_gripper" / "scene.xml"
     )
     config = yaml.safe_load((built / "config" / "config.yaml").read_text())
-    assert rollout["config_slice"] == {
+    condition_slice = {
         "condition": "fast",
         "lift_time": 0.15,
         "failure_taxonomy": config["failure_taxonomy"],
-        "recording": config["recording"],
+        "recording": {"rate_hz": config["recording"]["rate_hz"], "episodes": "all"},
     }
+    assert rollout["config_slice"] == condition_slice
     assert rollout["config_slice_sha256"] == provenance.config_hash(rollout["config_slice"])
+    for shard in SHARDS:
+        for path in (
+            results / "rollouts" / "fast" / f"shard-{shard}.parquet",
+            results / "rollouts" / "fast" / f"shard-{shard}",
+        ):
+            stamp = provenance.read_stamp(path)
+            assert stamp["rule"] == f"rollout:fast#{shard}"
+            assert stamp["config_slice"] == condition_slice
+            assert stamp["inputs"]["states"]["sha256"] == provenance.file_sha256(
+                results / "states.parquet"
+            )
+    failures = provenance.read_stamp(results / "replay" / "failures.parquet")
+    assert failures["config_slice"] == {"failures_max": config["recording"]["failures_max"]}
     manifest = json.loads((results / "manifest.json").read_text())
     assert manifest["model"]["integrator"] == "mjINT_IMPLICITFAST"
     assert manifest["results"]["conditions"]["fast"]["n"] == 12
     assert manifest["results"]["falsifier"]["verdict"] in ("survives", "refuted")
-    # states, 2 tables, 2 nominal episodes, 2 recordings, failures, summary
-    assert len(manifest["stamps"]) == 9
+    # states, 2 tables, 2 nominal episodes, 6 shard tables, 6 shard folders, failures.rrd and
+    # .parquet, summary
+    assert len(manifest["stamps"]) == 20
 
 
 def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_path):
@@ -115,7 +160,8 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
         "failures": 1,
         "manifest": 1,
         "report": 1,
-        "rollout": 1,
+        "rollout": 3,  # fast's 3 shards
+        "gather": 1,
         "seal": 1,
     }
     assert "wildcards: condition=fast" in out and "condition=slow" not in out
@@ -157,7 +203,7 @@ def test_editing_the_included_model_file_reruns_both_rollouts(built, tmp_path):
     model = workdir / "models" / "gantry_gripper" / "gantry_gripper.xml"
     model.write_text(model.read_text().replace('forcerange="-18 18"', 'forcerange="-19 19"'))
     jobs = planned_jobs(workdir)
-    assert jobs["rollout"] == 2 and "states" not in jobs
+    assert jobs["rollout"] == 2 * 3 and jobs["gather"] == 2 and "states" not in jobs
 
 
 def test_every_failed_episode_has_exactly_one_category(built):

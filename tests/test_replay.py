@@ -17,16 +17,30 @@ def _rollouts(built, condition):
     return pq.read_table(built / "results" / "research_mode" / "rollouts" / f"{condition}.parquet")
 
 
+SHARD_SIZE = 5  # the built experiment's rollout.shard_size (conftest)
+
+
 @pytest.mark.parametrize("condition", ["fast", "slow"])
 def test_logged_trajectories_match_the_tables(built, condition):
     results = built / "results" / "research_mode"
     table = _rollouts(built, condition)
-    rrd = results / "rollouts" / condition  # a folder: one .rrd per episode
-    assert len(list_recordings(rrd)) == table.num_rows
+    shards = sorted(p for p in (results / "rollouts" / condition).iterdir() if p.is_dir())
+    assert len(shards) == 3  # 12 states in shards of 5
+    for shard in shards:  # a folder: one .rrd per episode of the shard's states
+        first = int(shard.name.removeprefix("shard-")) * SHARD_SIZE
+        assert [r["state_id"] for r in list_recordings(shard)] == list(
+            range(first, min(first + SHARD_SIZE, table.num_rows))
+        )
     for row in table.to_pylist():
-        episode = read_episode(rrd, condition=condition, state_id=row["state_id"])
-        assert episode["cube_height"][-1] == row["final_height"]
-        assert bool(episode["cube_height"][-1] > 0.2) == row["success"]
+        # Found by the results folder (in whichever shard), the shard's folder and the file.
+        shard = shards[row["state_id"] // SHARD_SIZE]
+        file = shard / f"{condition}-state-{row['state_id']:06d}.rrd"
+        for where in (results, shard, file):
+            episode = read_episode(where, condition=condition, state_id=row["state_id"])
+            assert episode["cube_height"][-1] == row["final_height"]
+            assert bool(episode["cube_height"][-1] > 0.2) == row["success"]
+    with pytest.raises(KeyError, match="no recording"):
+        read_episode(results, condition=condition, state_id=table.num_rows)
 
 
 def test_failures_file_holds_every_failed_episode(built):
@@ -44,6 +58,17 @@ def test_failures_file_holds_every_failed_episode(built):
         if "state_id" in r
     }
     assert listed == failed
+    # failures.parquet lists every failure with its category, each also in failures.rrd here
+    # (fewer than recording.failures_max).
+    rows = pq.read_table(results / "replay" / "failures.parquet").to_pylist()
+    categories = {
+        (c, r["state_id"]): r["failure_category"]
+        for c in ("fast", "slow")
+        for r in _rollouts(built, c).to_pylist()
+        if not r["success"]
+    }
+    assert {(r["condition"], r["state_id"]): r["failure_category"] for r in rows} == categories
+    assert len(rows) == len(failed) and all(r["in_failures_rrd"] for r in rows)
 
 
 def test_replay_reproduces_recorded_failures(built, tmp_path):
@@ -110,22 +135,53 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
     from mjtrial.stages.failures import gather_failures
 
     rollouts = built / "results" / "research_mode" / "rollouts"
-    folders = [rollouts / c for c in ("fast", "slow")]
-    tables = [rollouts / f"{c}.parquet" for c in ("fast", "slow")]
+    folders = {c: rollouts / c for c in ("fast", "slow")}
+    tables = {c: rollouts / f"{c}.parquet" for c in ("fast", "slow")}
     out = tmp_path / "failures.rrd"
-    failed = sum(not r["success"] for t in tables for r in pq.read_table(t).to_pylist())
-    assert gather_failures(recordings=folders, tables=tables, output=out) == failed
+    failed = sum(not r["success"] for t in tables.values() for r in pq.read_table(t).to_pylist())
+    assert failed > 1
+    assert (
+        gather_failures(
+            recordings=folders,
+            tables=tables,
+            failures_max=200,
+            output=out,
+            output_table=tmp_path / "failures.parquet",
+        )
+        == failed
+    )
+    # At most failures_max in the .rrd; the table still lists every failure.
+    assert (
+        gather_failures(
+            recordings=folders,
+            tables=tables,
+            failures_max=1,
+            output=tmp_path / "one.rrd",
+            output_table=tmp_path / "one.parquet",
+        )
+        == 1
+    )
+    assert len([r for r in list_recordings(tmp_path / "one.rrd") if "state_id" in r]) == 1
+    listed = pq.read_table(tmp_path / "one.parquet").to_pylist()
+    assert len(listed) == failed and sum(r["in_failures_rrd"] for r in listed) == 1
 
     # A table that calls a successful episode failed: the recordings disagree, nothing written.
-    table = pq.read_table(tables[1])
+    table = pq.read_table(tables["slow"])
     success = table.column("success").to_pylist()
     first_success = success.index(True)
     success[first_success] = False
     edited = tmp_path / "slow.parquet"
     table = table.set_column(table.schema.get_field_index("success"), "success", pa.array(success))
     provenance.write_parquet(
-        table.replace_schema_metadata(None), edited, provenance.read_stamp(tables[1])
+        table.replace_schema_metadata(None), edited, provenance.read_stamp(tables["slow"])
     )
     with pytest.raises(ValueError, match=f"slow-state-{first_success:06d}.*not a failed episode"):
-        gather_failures(recordings=folders, tables=[tables[0], edited], output=tmp_path / "bad.rrd")
+        gather_failures(
+            recordings=folders,
+            tables={"fast": tables["fast"], "slow": edited},
+            failures_max=200,
+            output=tmp_path / "bad.rrd",
+            output_table=tmp_path / "bad.parquet",
+        )
     assert not (tmp_path / "bad.rrd").exists()
+    assert not (tmp_path / "bad.parquet").exists()

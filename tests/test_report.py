@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from mjtrial import provenance, report
-from mjtrial.layout import FIGURES, RESULTS_DIR, Layout
+from mjtrial.layout import FIGURES, RESULTS_DIR, Layout, shard_ids, shard_range
 from mjtrial.protocol import PROTOCOL
 from mjtrial.recording import read_episode
 from mjtrial.report.figures import CONDITION_PALETTE, condition_colors
@@ -24,7 +24,7 @@ from mjtrial.report.text import render_report
 from mjtrial.report.traces import TRACES_PER_OUTCOME, cube_height_traces
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.manifest import write_manifest
-from mjtrial.stages.rollout import run_condition
+from mjtrial.stages.rollout import gather_condition, run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
 
@@ -34,30 +34,48 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory) -> dict:
-    """States, rollouts (tables and recordings), summary and manifest of a 12-state copy of the
-    experiment, and its figures and report; the folder is not a git repository."""
+    """States, rollouts (tables and recordings, in shards of 5 states), summary and manifest of a
+    12-state copy of the experiment, and its figures and report; the folder is not a git
+    repository."""
     root = tmp_path_factory.mktemp("report_experiment")
     shutil.copytree(REPO_ROOT / "models", root / "models")
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     config["states"]["n"] = 12
+    config["rollout"]["shard_size"] = 5
     config["analysis"]["n_resamples"] = 300
     layout = Layout.of(config["experiment"], base=root / RESULTS_DIR)
     model_file = root / config["model"]
     states_path = layout.states
     build_states(states_slice=config_slice("states", config), output=states_path, repo_root=root)
+    n, shard_size = config["states"]["n"], config["rollout"]["shard_size"]
     tables, nominals, recordings = {}, {}, {}
     for name in config["conditions"]:
+        condition_slice = config_slice("rollout", config, condition=name)
+        shards = shard_ids(n, shard_size)
+        for shard in shards:
+            first, stop = shard_range(shard, shard_size, n)
+            run_shard(
+                condition_slice=condition_slice,
+                states_path=states_path,
+                model_file=model_file,
+                first=first,
+                stop=stop,
+                output_table=layout.shard_table(name, shard),
+                output_recording=layout.shard_recordings(name, shard),
+                nthread=1,
+                rule=f"rollout:{name}#{shard}",
+                repo_root=root,
+            )
         tables[name] = layout.rollout_table(name)
         nominals[name] = layout.nominal_episode(name)
         recordings[name] = layout.recordings(name)
-        run_condition(
-            condition_slice=config_slice("rollout", config, condition=name),
-            states_path=states_path,
+        gather_condition(
+            condition_slice=condition_slice,
+            shard_tables=[layout.shard_table(name, s) for s in shards],
             model_file=model_file,
             output_table=tables[name],
             output_nominal=nominals[name],
-            output_recording=recordings[name],
-            nthread=1,
+            rule=f"gather:{name}",
             repo_root=root,
         )
     summary_path = layout.summary

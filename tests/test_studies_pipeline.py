@@ -11,6 +11,7 @@ import pytest
 from conftest import edit_config, run_snakemake
 from test_pipeline import planned_jobs
 
+import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 from mjtrial.layout import Layout
 from mjtrial.verify import Status, verify_results
@@ -44,10 +45,13 @@ def test_studies_reuse_the_nominal_rollouts(built, tmp_path):
     edit_config(workdir, small_studies)
     assert planned_jobs(workdir) == {}  # the built-in experiment is untouched
     sensitivity = planned_jobs_for(workdir, "sensitivity")
-    assert "rollout" not in sensitivity
-    assert sensitivity["rollout_variant"] == 4  # 2 variants x the falsifier's 2 conditions
+    assert "rollout" not in sensitivity and "gather" not in sensitivity
+    # 2 variants x the falsifier's 2 conditions, in 3 shards each (12 states in shards of 5)
+    assert sensitivity["rollout_variant"] == 2 * 2 * 3
+    assert sensitivity["gather_variant"] == 2 * 2
     dose = planned_jobs_for(workdir, "dose_response")
-    assert dose["rollout"] == 1  # 0.3 s only: 0.15 s is fast and 1.5 s is slow
+    # 0.3 s only: 0.15 s is fast and 1.5 s is slow
+    assert dose["rollout"] == 3 and dose["gather"] == 1
 
 
 def planned_jobs_for(workdir: Path, target: str) -> dict[str, int]:
@@ -71,7 +75,8 @@ def test_adding_a_variant_runs_only_its_episodes(studied, tmp_path):
     edit_config(workdir, lambda c: c["variants"].update(cone={"option": {"cone": "pyramidal"}}))
     jobs = planned_jobs_for(workdir, "sensitivity")
     assert jobs == {
-        "rollout_variant": 2,
+        "rollout_variant": 2 * 3,  # the falsifier's 2 conditions, 3 shards each
+        "gather_variant": 2,
         "study_sensitivity": 1,
         "seal_study": 1,
         "sensitivity": 1,
@@ -118,6 +123,19 @@ def test_study_outputs_are_stamped_reported_sealed_and_verified(studied):
                 study,
                 "seal",
             )
+    # A variant's rollouts: its shards, then the gathered table, stamped with its qualified rule.
+    for shard in ("00000", "00001", "00002"):
+        for path in (
+            LAYOUT.shard_table("fast", shard, "rk4"),
+            LAYOUT.shard_recordings("fast", shard, "rk4"),
+        ):
+            assert provenance.read_stamp(studied / path)["rule"] == f"rollout:rk4/fast#{shard}"
+    assert provenance.read_stamp(studied / LAYOUT.rollout_table("fast", "rk4"))["rule"] == (
+        "gather:rk4/fast"
+    )
+    sealed = json.loads((studied / LAYOUT.study_seal("sensitivity")).read_text())["outputs"]
+    assert (LAYOUT.shard_table("slow", "00002", "unstable")).as_posix() in sealed
+    assert (LAYOUT.shard_recordings("slow", "00002", "unstable")).as_posix() in sealed
     assert "## Sensitivity" in (studied / LAYOUT.study_report("sensitivity")).read_text()
     assert "## Dose-response" in (studied / LAYOUT.study_report("dose_response")).read_text()
     report = verify_results(

@@ -18,6 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import SNAKEMAKE, edit_config, run_snakemake
 
+import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 from mjtrial.stages.rollout import read_states
 
@@ -435,7 +436,7 @@ def test_killed_run_recovers_to_the_uninterrupted_results(built, tmp_path):
         stderr=subprocess.DEVNULL,
         start_new_session=True,
     )
-    rollout_log = workdir / RESULTS / "logs" / "rollout_fast.log"
+    rollout_log = workdir / RESULTS / "logs" / "rollout_fast_00000.log"  # the first shard's
     deadline = time.monotonic() + 120
     while not rollout_log.exists() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.02)

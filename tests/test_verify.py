@@ -29,15 +29,26 @@ from mjtrial.verify import (
 )
 
 RESULTS = "results/research_mode"
-ROLLOUTS = [
+SHARDS = ("00000", "00001", "00002")  # the built experiment's 12 states in shards of 5
+# Each shard's table and folder of recordings (one output), as rollout:<condition>#<shard> wrote
+SHARD_OUTPUTS = [
+    f"{RESULTS}/rollouts/{c}/shard-{s}{ext}"
+    for c in ("fast", "slow")
+    for s in SHARDS
+    for ext in (".parquet", "")
+]
+# What gather:<condition> wrote from them
+GATHERED = [
     f"{RESULTS}/rollouts/{c}{ext}"
     for c in ("fast", "slow")
-    for ext in (".parquet", ".nominal.json", "")  # "": the folder of recordings, one output
+    for ext in (".parquet", ".nominal.json")
 ]
+ROLLOUTS = [*SHARD_OUTPUTS, *GATHERED]
 STATES = f"{RESULTS}/states.parquet"
 SUMMARY = f"{RESULTS}/analysis/summary.json"
 MANIFEST = f"{RESULTS}/manifest.json"
 FAILURES = f"{RESULTS}/replay/failures.rrd"
+FAILURES_TABLE = f"{RESULTS}/replay/failures.parquet"
 REPORT = f"{RESULTS}/report.md"
 MODEL = "models/gantry_gripper/scene.xml"
 
@@ -76,7 +87,9 @@ def assert_ok(report: VerifyReport, paths) -> None:
 
 def test_fresh_build_verifies(built, monkeypatch, capsys):
     report = verify(built)
-    folders = {built / RESULTS / "rollouts" / c for c in ("fast", "slow")}
+    folders = {
+        built / RESULTS / "rollouts" / c / f"shard-{s}" for c in ("fast", "slow") for s in SHARDS
+    }
     stamped = sorted(
         p.relative_to(built).as_posix()
         for p in (built / RESULTS).rglob("*")
@@ -87,7 +100,8 @@ def test_fresh_build_verifies(built, monkeypatch, capsys):
         )
     )
     assert sorted(o.path for o in report.outputs) == stamped
-    assert {STATES, SUMMARY, MANIFEST, FAILURES, REPORT, *ROLLOUTS} <= set(stamped)
+    assert {STATES, SUMMARY, MANIFEST, FAILURES, FAILURES_TABLE, REPORT, *ROLLOUTS} <= set(stamped)
+    assert len(stamped) == 33
     assert report.ok and report.exit_code == 0, report.format()
     assert report.warnings == () and report.skipped == ()
 
@@ -112,7 +126,7 @@ def test_config_change_makes_analysis_and_downstream_stale_then_rebuild_verifies
         assert report[path].status is Status.STALE, path
         assert "input stale: analysis/summary.json" in reasons(report, path)
     assert "config slice changed: manifest" in reasons(report, MANIFEST)
-    assert_ok(report, [STATES, *ROLLOUTS, FAILURES])
+    assert_ok(report, [STATES, *ROLLOUTS, FAILURES, FAILURES_TABLE])
     assert not report.ok and report.exit_code == 1
 
     args = [str(work / RESULTS), "--config", str(work / "config/config.yaml")]
@@ -131,9 +145,13 @@ def test_model_change_makes_rollouts_stale_not_states(work):
     model = work / MODEL
     model.write_text(model.read_text() + "<!-- an edit -->\n")
     report = verify(work)
-    for path in ROLLOUTS:
+    for path in SHARD_OUTPUTS:
         assert report[path].status is Status.STALE, path
         assert reasons(report, path) == f"model changed: {MODEL}"
+    for path in GATHERED:  # gather reads the model too (the nominal episode), and the shards
+        condition = Path(path).name.split(".")[0]
+        shards = ", ".join(f"rollouts/{condition}/shard-{s}.parquet" for s in SHARDS)
+        assert reasons(report, path) == f"model changed: {MODEL}; input stale: {shards}"
     assert report[STATES].status is Status.OK
     assert report[SUMMARY].status is Status.STALE
     assert "input stale: rollouts/" in reasons(report, SUMMARY)
@@ -155,14 +173,41 @@ def test_states_row_changed_under_its_old_stamp_is_tampered(work):
     assert report[STATES].status is Status.TAMPERED
     why = reasons(report, STATES)
     assert why.startswith(
-        "sha256 recorded by rollouts/fast, rollouts/fast.nominal.json, rollouts/fast.parquet"
+        "sha256 recorded by rollouts/fast/shard-00000, rollouts/fast/shard-00000.parquet, "
+        "rollouts/fast/shard-00001 and 12 more"  # 12 shard outputs, the summary, the manifest
     )
     assert "does not match the file" in why
-    for rollout in ROLLOUTS:
+    for rollout in SHARD_OUTPUTS:
         assert report[rollout].status is Status.STALE
         assert reasons(report, rollout) == "input tampered: states.parquet"
+    for rollout in GATHERED:
+        assert report[rollout].status is Status.STALE
+        assert reasons(report, rollout).startswith("input stale: rollouts/")
     assert report[SUMMARY].status is Status.STALE
     assert report.with_status(Status.TAMPERED) == [STATES]
+
+
+def test_shard_table_changed_under_its_old_stamp_is_tampered(work):
+    shard = f"{RESULTS}/rollouts/fast/shard-00001.parquet"
+    path = work / shard
+    stamp = provenance.read_stamp(path)
+    table = pq.read_table(path)
+    heights = table.column("final_height").to_pylist()
+    heights[0] += 0.01
+    column = table.schema.get_field_index("final_height")
+    table = table.set_column(column, "final_height", pa.array(heights))
+    provenance.write_parquet(table.replace_schema_metadata(None), path, stamp)
+
+    report = verify(work)
+    assert report.with_status(Status.TAMPERED) == [shard]
+    why = reasons(report, shard)
+    assert why.startswith("sha256 recorded by rollouts/fast.nominal.json, rollouts/fast.parquet")
+    assert "does not match the file" in why
+    for gathered in (f"{RESULTS}/rollouts/fast.parquet", f"{RESULTS}/rollouts/fast.nominal.json"):
+        assert reasons(report, gathered) == "input tampered: rollouts/fast/shard-00001.parquet"
+    assert_ok(
+        report, [STATES, *(p for p in ROLLOUTS if "fast" not in p or "shard" in p and p != shard)]
+    )
 
 
 def test_edited_summary_is_tampered(work):
@@ -178,7 +223,7 @@ def test_edited_summary_is_tampered(work):
     assert reasons(report, SUMMARY).startswith("sha256 recorded by manifest.json, figures/")
     assert report[MANIFEST].status is Status.STALE
     assert reasons(report, MANIFEST) == "input tampered: analysis/summary.json"
-    assert_ok(report, [STATES, *ROLLOUTS, FAILURES])
+    assert_ok(report, [STATES, *ROLLOUTS, FAILURES, FAILURES_TABLE])
     assert report.with_status(Status.TAMPERED) == [SUMMARY]
 
 
@@ -192,6 +237,7 @@ def test_deleted_rollout_is_missing(work, capsys):
     assert "input missing: rollouts/slow.parquet" in reasons(report, MANIFEST)
     # failures.rrd was chosen from the tables: it depends on them too
     assert reasons(report, FAILURES) == "input missing: rollouts/slow.parquet"
+    assert reasons(report, FAILURES_TABLE) == "input missing: rollouts/slow.parquet"
     assert_ok(report, [STATES, *[p for p in ROLLOUTS if p != slow]])
     assert report.counts()[Status.MISSING] == 1
 
@@ -200,14 +246,13 @@ def test_deleted_manifest_is_missing(work):
     (work / MANIFEST).unlink()
     report = verify(work)
     assert report[MANIFEST].status is Status.MISSING
-    assert_ok(report, [STATES, *ROLLOUTS, FAILURES, SUMMARY])
+    assert_ok(report, [STATES, *ROLLOUTS, FAILURES, FAILURES_TABLE, SUMMARY])
     assert all(report[p].status is Status.STALE for p in report_outputs(report))
 
 
 @pytest.mark.parametrize(
     ("rel", "output"),
     [
-        ("rollouts/fast/fast-state-000000.rrd", "rollouts/fast"),  # the file the stamp is read from
         ("figures/cube_height.png", "figures/cube_height.png"),
         ("report.md", "report.md"),
     ],
@@ -220,26 +265,31 @@ def test_garbled_output_has_no_readable_stamp(work, rel, output):
     report = verify(work)
     assert report[f"{RESULTS}/{output}"].status is Status.TAMPERED
     assert reasons(report, f"{RESULTS}/{output}").startswith("no readable stamp (")
-    if output == "rollouts/fast":
-        assert "sha256 recorded by replay/failures.rrd" in reasons(report, f"{RESULTS}/{output}")
-        assert reasons(report, FAILURES) == "input tampered: rollouts/fast"
     assert report.counts()[Status.TAMPERED] == 1
 
 
-@pytest.mark.parametrize("change", ["garble", "delete", "add"])
+@pytest.mark.parametrize("change", ["garble", "garble the first", "delete", "add"])
 def test_any_change_to_a_folder_of_recordings_is_tampering(work, change):
-    folder = work / RESULTS / "rollouts" / "slow"
-    last = sorted(folder.glob("*.rrd"))[-1]  # not the file the folder's stamp is read from
+    folder = work / RESULTS / "rollouts" / "slow" / "shard-00001"
+    first, *_, last = sorted(folder.glob("*.rrd"))
     if change == "garble":
         last.write_bytes(bytes(len(last.read_bytes())))
+    elif change == "garble the first":  # the episode file the folder's stamp was read from
+        data = bytearray(first.read_bytes())
+        data[: len(data) // 2] = bytes(len(data) // 2)
+        first.write_bytes(bytes(data))
     elif change == "delete":
         last.unlink()
     else:
         shutil.copy(last, folder / "slow-state-999999.rrd")
     report = verify(work)
-    assert report[f"{RESULTS}/rollouts/slow"].status is Status.TAMPERED
-    assert "sha256 recorded by" in reasons(report, f"{RESULTS}/rollouts/slow")
-    assert reasons(report, FAILURES) == "input tampered: rollouts/slow"
+    shard = f"{RESULTS}/rollouts/slow/shard-00001"
+    assert report[shard].status is Status.TAMPERED
+    assert "sha256 recorded by replay/failures.parquet, replay/failures.rrd" in reasons(
+        report, shard
+    )
+    assert reasons(report, FAILURES) == "input tampered: rollouts/slow/shard-00001"
+    assert report.counts()[Status.TAMPERED] == 1
 
 
 def test_replay_recording_is_skipped_not_failed(work, capsys):
@@ -269,7 +319,7 @@ CONFIG = {
     "states": {"seed": 1, "n": 3},
     "conditions": {"fast": {"lift_time": 0.1}},
     "failure_taxonomy": {"lifted_height": 0.03},
-    "recording": {"rate_hz": 100},
+    "recording": {"rate_hz": 100, "episodes": "all", "failures_max": 200},
     "design": {"falsifier": {"treatment": "fast"}, "sample_size": {"target_halfwidth": 0.1}},
     "analysis": {"seed": 2},
 }
@@ -284,7 +334,8 @@ CURRENT = Current(
 
 
 def stamp(rule: str, time: str, inputs=None, **changes):
-    stage, _, condition = rule.partition(":")
+    stage, _, qualifier = rule.partition(":")
+    condition = qualifier.partition("#")[0]  # rollout:<condition>#<shard>
     slice_ = config_slice(stage, CONFIG, condition=condition or None)
     out = {
         "mjtrial_stamp": 1,
@@ -303,12 +354,15 @@ def stamp(rule: str, time: str, inputs=None, **changes):
 
 
 def chain():
-    """states -> rollout:fast -> analysis, each recording its input's current hash."""
+    """states -> rollout:fast#00000 (a shard) -> analysis, each recording its input's current
+    hash."""
     shas = {"m.xml": "M", f"{PREFIX}s.parquet": "S", f"{PREFIX}r.parquet": "R"}
     stamps = {
         f"{PREFIX}s.parquet": stamp("states", "01"),
         f"{PREFIX}r.parquet": stamp(
-            "rollout:fast", "02", {"states": (f"{PREFIX}s.parquet", "S"), "model": ("m.xml", "M")}
+            "rollout:fast#00000",
+            "02",
+            {"states": (f"{PREFIX}s.parquet", "S"), "model": ("m.xml", "M")},
         ),
         f"{PREFIX}a.json": stamp("analysis", "03", {"rollout:fast": (f"{PREFIX}r.parquet", "R")}),
     }
@@ -324,9 +378,12 @@ def check(stamps, shas, current=CURRENT, **kwargs):
 def test_parse_rule():
     assert parse_rule("states") == ("states", None)
     assert parse_rule("states:development") == ("states", "development")
-    assert parse_rule("rollout:fast") == ("rollout", "fast")
+    assert parse_rule("rollout:fast#00000") == ("rollout", "fast#00000")
+    assert parse_rule("rollout:rk4/fast#00002") == ("rollout", "rk4/fast#00002")
+    assert parse_rule("gather:fast") == ("gather", "fast")
+    assert parse_rule("gather:rk4/fast") == ("gather", "rk4/fast")
     assert parse_rule("analysis") == ("analysis", None)
-    for rule in ("rollout", "replay", "states:", None, 3):
+    for rule in ("rollout", "gather", "rollout_variant:rk4/fast", "replay", "states:", None, 3):
         assert parse_rule(rule) is None
 
 
@@ -378,7 +435,7 @@ def test_model_config_code_and_versions_make_stale():
     config["conditions"]["fast"]["lift_time"] = 0.2
     report = check(stamps, shas, Current(config, CURRENT.code, VERSIONS, PLATFORM))
     assert reasons(report, f"{PREFIX}r.parquet") == (
-        "config slice changed: rollout:fast (lift_time: 0.1 -> 0.2)"
+        "config slice changed: rollout:fast#00000 (lift_time: 0.1 -> 0.2)"
     )
     assert reasons(report, f"{PREFIX}a.json").startswith(
         "config slice changed: analysis (conditions.fast.lift_time: 0.1 -> 0.2); input stale"
