@@ -483,7 +483,6 @@ def test_failed_write_leaves_nothing(
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"episodes": []}, "no episodes"),
         ({"stamp": {"rule": "x"}}, "mjtrial_stamp"),
         ({"log_every": 0}, "log_every"),
         ({"ctrl": np.zeros((10, 3))}, "ctrl"),
@@ -509,6 +508,19 @@ def test_invalid_arguments_raise(
     with pytest.raises(ValueError, match=match):
         write_condition_recordings(tmp_path / "c", **args)
     assert not (tmp_path / "c").exists()
+    assert _leftovers(tmp_path) == []
+
+
+def test_a_shard_with_no_recorded_episode_is_a_folder_holding_its_blueprint(
+    tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray
+) -> None:
+    # recording.episodes: failed, and every episode of the shard succeeded
+    path = tmp_path / "c"
+    n = write_condition_recordings(
+        path, model=model, condition="c", episodes=[], ctrl=ctrl, stamp=STAMP, log_every=5
+    )
+    assert n == 0
+    assert list(path.glob("*.rrd")) == [] and (path / "blueprint.rbl").is_file()
     assert _leftovers(tmp_path) == []
 
 
