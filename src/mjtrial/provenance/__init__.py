@@ -23,6 +23,7 @@ from mjtrial.provenance.formats import (
 from mjtrial.provenance.stamp import (
     MODEL_FILE_SUFFIXES,
     RECORDING_FOLDER_BLUEPRINT,
+    RECORDING_FOLDER_STAMP,
     STAMP_VERSION,
     config_hash,
     file_sha256,
@@ -39,6 +40,7 @@ from mjtrial.provenance.stamp import (
 __all__ = [
     "MODEL_FILE_SUFFIXES",
     "RECORDING_FOLDER_BLUEPRINT",
+    "RECORDING_FOLDER_STAMP",
     "STAMP_KEY",
     "STAMP_VERSION",
     "MissingStampError",

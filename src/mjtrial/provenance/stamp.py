@@ -96,6 +96,11 @@ def config_hash(slice: Any) -> str:
 RECORDING_FOLDER_BLUEPRINT = "blueprint.rbl"
 
 
+# Each folder of recordings also holds its stamp in a small JSON file, so that reading it needs
+# no .rrd parsing, and a folder that recorded no episode (recording.episodes: failed) has one.
+RECORDING_FOLDER_STAMP = "recordings.json"
+
+
 def is_recording_folder(path: str | os.PathLike[str]) -> bool:
     """Whether `path` is a folder of recordings written as one output."""
     path = Path(path)

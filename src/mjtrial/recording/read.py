@@ -14,6 +14,7 @@ import pyarrow.compute as pc
 from rerun.chunk import RrdReader, StoreEntry
 
 from mjtrial.model_spec import CUBE
+from mjtrial.provenance import RECORDING_FOLDER_STAMP, read_stamp
 from mjtrial.recording.arrow import (
     QUATERNION,
     RECORDING_NAME,
@@ -141,9 +142,13 @@ def list_recordings(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
 def read_rrd_stamp(path: str | os.PathLike[str]) -> dict[str, Any] | None:
     """The file's provenance stamp: the `provenance` property of its first recording.
 
-    For a folder of recordings, its first file's (they all hold the folder's stamp). None when
+    For a folder of recordings, the stamp of its `recordings.json` (the same as every
+    recording's in it; a folder from before that file existed: its first file's). None when
     there is no recording or the first recording has no stamp.
     """
+    path = Path(path)
+    if path.is_dir() and (path / RECORDING_FOLDER_STAMP).is_file():
+        return read_stamp(path / RECORDING_FOLDER_STAMP)
     files = recording_files(path)
     if not files:
         return None

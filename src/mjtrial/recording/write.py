@@ -34,7 +34,7 @@ import pyarrow as pa
 from rerun.chunk import ChunkStore
 
 from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
-from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT
+from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT, RECORDING_FOLDER_STAMP, write_json
 from mjtrial.recording.arrow import (
     chunks,
     component_field,
@@ -334,6 +334,9 @@ def write_condition_recordings(
             raise
         syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
         syncer.finish()
+        write_json(
+            {"condition": condition, "recordings": count}, folder / RECORDING_FOLDER_STAMP, stamp
+        )
     return count
 
 
