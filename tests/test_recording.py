@@ -148,14 +148,18 @@ def test_condition_folder_holds_one_file_per_episode_and_passes_rerun_verify(
 ) -> None:
     files = sorted(p.name for p in condition_rrd.iterdir())
     assert files == sorted(
-        ["blueprint.rbl", *(f"{CONDITION}-state-{s.state_id:06d}.rrd" for s in STATES)]
+        [
+            "blueprint.rbl",
+            "recordings.json",  # the folder's stamp
+            *(f"{CONDITION}-state-{s.state_id:06d}.rrd" for s in STATES),
+        ]
     )
     assert recording_files(condition_rrd) == [
         condition_rrd / f"{CONDITION}-state-{s.state_id:06d}.rrd" for s in STATES
     ]
     for path in recording_files(condition_rrd):
         assert [e.recording_id for e in rr.chunk.RrdReader(path).recordings()] == [path.stem]
-    result = _verify(*condition_rrd.iterdir())
+    result = _verify(*recording_files(condition_rrd), condition_rrd / "blueprint.rbl")
     assert result.returncode == 0, result.stderr[-2000:]
 
 
@@ -520,7 +524,7 @@ def test_a_shard_with_no_recorded_episode_is_a_folder_holding_its_blueprint(
         path, model=model, condition="c", episodes=[], ctrl=ctrl, stamp=STAMP, log_every=5
     )
     assert n == 0
-    assert list(path.glob("*.rrd")) == [] and (path / "blueprint.rbl").is_file()
+    assert sorted(p.name for p in path.iterdir()) == ["blueprint.rbl", "recordings.json"]
     assert _leftovers(tmp_path) == []
 
 
@@ -589,7 +593,11 @@ def test_rewriting_a_folder_replaces_it_and_a_failed_rewrite_keeps_it(
     common = {"model": model, "condition": "c", "ctrl": ctrl, "stamp": STAMP, "log_every": 50}
     write_condition_recordings(path, episodes=episodes, **common)
     write_condition_recordings(path, episodes=episodes[:1], **common)
-    assert sorted(p.name for p in path.iterdir()) == ["blueprint.rbl", "c-state-000000.rrd"]
+    assert sorted(p.name for p in path.iterdir()) == [
+        "blueprint.rbl",
+        "c-state-000000.rrd",
+        "recordings.json",
+    ]
     before = {p.name: p.read_bytes() for p in path.iterdir()}
 
     def broken():
