@@ -57,6 +57,18 @@ def shard_recording_output(folder):
     return {"recording": directory(folder)} if RECORDED else {}
 
 
+def as_inputs(paths):
+    """`paths` as rule inputs: files only. A shard's recordings folder is replaced by its shard
+    table, written by the same job: Snakemake has no checksum of a folder and would compare
+    its files' times, so a `touch` would rerun what reads it."""
+    return [SHARD_TABLE_OF.get(str(p), p) for p in paths]
+
+
+def folders_of(paths):
+    """The shard recordings folders among `paths` (passed as params, beside `as_inputs`)."""
+    return [str(p) for p in paths if str(p) in SHARD_TABLE_OF]
+
+
 def shard_recordings(conditions, variant=NOMINAL):
     """Every shard's recordings folder of these conditions."""
     if not RECORDED:
@@ -79,6 +91,23 @@ def sensitivity_tables():
         for variant in [NOMINAL, *VARIANTS]
         for c in conditions
     }
+
+
+# Each shard's recordings folder -> its table (the same job writes both).
+SHARD_TABLE_OF = {
+    str(LAYOUT.shard_recordings(c, s, v)): LAYOUT.shard_table(c, s, v)
+    for v in [NOMINAL, *VARIANTS]
+    for c in (ALL_CONDITIONS if v == NOMINAL else CONDITIONS)
+    for s in SHARDS
+}
+
+
+def study_sealed_inputs(wildcards):
+    return as_inputs(study_sealed(wildcards))
+
+
+def study_sealed_folders(wildcards):
+    return folders_of(study_sealed(wildcards))
 
 
 def variant_outputs():

@@ -3,7 +3,7 @@ rule failures:
     input:
         # which episodes failed, so that only the chosen ones' recordings are opened
         tables=per_condition(LAYOUT.rollout_table),
-        shards=shard_recordings(CONDITIONS),
+        shards=as_inputs(shard_recordings(CONDITIONS)),
     output:
         failures=LAYOUT.failures,
         table=LAYOUT.failures_table,

@@ -6,7 +6,7 @@ rule manifest:
         shards=[
             p
             for c in CONDITIONS
-            for p in LAYOUT.shard_outputs(c, SHARDS, recorded=RECORDED)
+            for p in LAYOUT.shard_outputs(c, SHARDS, recorded=False)
         ],
         failures=[LAYOUT.failures, LAYOUT.failures_table] if RECORDED else [],
         summary=LAYOUT.summary,
@@ -20,6 +20,7 @@ rule manifest:
     log:
         LAYOUT.log("manifest"),
     params:
+        folders=shard_recordings(CONDITIONS),
         # The manifest records the whole config, so it depends on all of it.
         slice=config_slice("manifest", config),
         code=stage_code_hash("manifest"),

@@ -3,7 +3,7 @@ rule report:
         summary=LAYOUT.summary,
         manifest=LAYOUT.manifest,
         rollouts=per_condition(LAYOUT.rollout_table),
-        shards=shard_recordings(CONDITIONS),
+        shards=as_inputs(shard_recordings(CONDITIONS)),
         model=config["model"],
     output:
         **figure_outputs(),

@@ -2,12 +2,13 @@
 # `mjtrial verify` sees an edit to any of them.
 rule seal:
     input:
-        LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED),
+        as_inputs(LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED)),
     output:
         seal=LAYOUT.seal,
     log:
         LAYOUT.log("seal"),
     params:
+        folders=folders_of(LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED)),
         code=stage_code_hash("seal"),
     script:
         "../scripts/seal.py"

@@ -49,7 +49,7 @@ rule study_dose_response:
 
 rule seal_study:
     input:
-        study_sealed,
+        study_sealed_inputs,
     output:
         seal=LAYOUT.study_seal("{study}"),
     log:
@@ -57,6 +57,7 @@ rule seal_study:
     wildcard_constraints:
         study="sensitivity|dose_response",
     params:
+        folders=study_sealed_folders,
         code=stage_code_hash("seal"),
     script:
         "../scripts/seal.py"

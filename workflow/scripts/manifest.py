@@ -17,6 +17,7 @@ run_job(
         *map(Path, snakemake.input.rollouts),
         *map(Path, snakemake.input.nominals),
         *map(Path, snakemake.input.shards),
+        *map(Path, snakemake.params.folders),
         *map(Path, snakemake.input.failures),
     ],
     model_file=Path(snakemake.input.model),

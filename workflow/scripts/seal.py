@@ -10,7 +10,7 @@ run_job(
     snakemake,
     seal_outputs,
     rule=f"seal:{snakemake.wildcards.study}" if "study" in snakemake.wildcards.keys() else "seal",
-    outputs=[Path(p) for p in snakemake.input],
+    outputs=sorted({*map(Path, snakemake.input), *map(Path, snakemake.params.folders)}),
     output=Path(snakemake.output.seal),
     repo_root=Path.cwd(),
 )
