@@ -223,7 +223,9 @@ def episode_outcomes(
     failure; its warning is named by re-running it with the reference stepper, which is rare
     and so costs nothing in a healthy experiment.
     """
-    final = batch.physics[:, -1, :]
+    # A copy: the columns below must not keep the whole batch's trajectories alive (a view
+    # would, and a job that keeps every batch's columns would hold every trajectory).
+    final = batch.physics[:, -1, :].copy()
     spec = ModelSpec.of(model)
     stopped, broken = halted(batch.physics), nonfinite(batch.physics)
     height = final[:, spec.state_cube_z]
