@@ -86,3 +86,12 @@ def test_unhealthy_episode_is_a_failure_with_its_warning(gantry_model, tmp_path,
     assert out["warning"][0] == "mjWARN_BADQACC"
     # It ran until the first descent set-point (after the 0.3 s settle), then froze.
     assert 150 < out["steps_simulated"][0] < 160
+
+
+def test_outcome_columns_do_not_hold_the_batch_trajectories(gantry_model, evaluation_states):
+    """A job keeps every batch's outcome columns; a view would keep every trajectory alive."""
+    [batch] = iter_episode_batches(gantry_model, evaluation_states[:3], lift_time=0.15, nthread=1)
+    outcome = episode_outcomes(gantry_model, batch, lift_time=0.15)
+    for name, column in outcome.items():
+        if isinstance(column, np.ndarray) and column.dtype != object:
+            assert not np.shares_memory(column, batch.physics), name
