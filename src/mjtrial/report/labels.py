@@ -30,3 +30,13 @@ def failure_categories(summary: Mapping[str, Any]) -> list[str]:
     for counts in summary["failures"].values():
         categories += [c for c in counts if c not in categories]
     return categories
+
+
+def rate_cell(rec: Mapping[str, Any]) -> str:
+    """`k/n rate [low, high]`, the one format of a success rate in the reports."""
+    if not rec["n"]:
+        return "no states"
+    return (
+        f"{rec['successes']}/{rec['n']} {rec['rate']:.3f} "
+        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
+    )

@@ -20,7 +20,7 @@ from mjtrial.report.figures import (
     _save,
     _styled,
 )
-from mjtrial.report.labels import pct
+from mjtrial.report.labels import pct, rate_cell
 
 STUDY_FIGURES = ("sensitivity_forest", "dose_response")
 _VERDICT_STYLE = {  # colour, marker: survives blue, refuted vermillion, invalid hollow grey
@@ -159,15 +159,6 @@ def write_study_figures(
     return paths
 
 
-def _rate(rec: Mapping[str, Any]) -> str:
-    if not rec["n"]:
-        return "(no states)"
-    return (
-        f"{rec['successes']}/{rec['n']} = {rec['rate']:.3f} "
-        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
-    )
-
-
 def _overrides(overrides: Mapping[str, Any]) -> str:
     """`option.timestep=0.001; geom.left_pad.friction=[0.6, 0.003, 0.0001]`, or `none`."""
     parts = []
@@ -202,7 +193,7 @@ def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -
     for name, rec in sensitivity["variants"].items():
         p = rec["paired_difference"]
         verdict = rec["verdict"] + (f" ({rec['unhealthy']} unhealthy)" if rec["unhealthy"] else "")
-        cells = [_rate(rec["conditions"][c]) for c in names]
+        cells = [rate_cell(rec["conditions"][c]) for c in names]
         lines.append(
             f"| {name} | " + " | ".join(cells) + f" | {p['estimate']:+.3f} "
             f"[{p['low']:+.3f}, {p['high']:+.3f}] | {verdict} | `{rec['model_sha256'][:12]}` |"
@@ -250,9 +241,9 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
             if c
             else "reference | \u2013"
         )
-        cells = [_rate(b) for b in row["mass_bands"]]
+        cells = [rate_cell(b) for b in row["mass_bands"]]
         lines.append(
-            f"| {row[parameter]:g} | {_rate(row)} | " + " | ".join(cells) + f" | {versus} |"
+            f"| {row[parameter]:g} | {rate_cell(row)} | " + " | ".join(cells) + f" | {versus} |"
         )
     t = d["trend"]
     if t.get("not_estimable"):

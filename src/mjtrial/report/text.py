@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.report.labels import UNITS, band_parameter, failure_categories, pct
+from mjtrial.report.labels import UNITS, band_parameter, failure_categories, pct, rate_cell
 from mjtrial.states import STATE_PARAMETERS
 
 # Units of the failure taxonomy's thresholds (mjtrial.taxonomy.Thresholds).
@@ -26,16 +26,6 @@ _TAXONOMY_UNITS = {
     "workspace_radius": "m",
     "max_tilt": "rad",
 }
-
-
-def _rate_cell(rec: Mapping[str, Any]) -> str:
-    """`k/n rate [low, high]`, the one format of a success rate in the report."""
-    if not rec["n"]:
-        return "no states"
-    return (
-        f"{rec['successes']}/{rec['n']} {rec['rate']:.3f} "
-        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
-    )
 
 
 def _interval(low: float, high: float, *, signed: bool = False) -> str:
@@ -259,11 +249,11 @@ def _band_section(summary: Mapping[str, Any], parameter: str, names: Sequence[st
     label, unit = band_parameter(parameter)
     conditions = summary["conditions"]
     rows = [
-        [f"{b['band']}", b["n"], *(_rate_cell(b["conditions"][name]) for name in names)]
+        [f"{b['band']}", b["n"], *(rate_cell(b["conditions"][name]) for name in names)]
         for b in summary["bands"][parameter]
     ]
     rows.append(
-        ["all (pooled)", summary["n_states"], *(_rate_cell(conditions[name]) for name in names)]
+        ["all (pooled)", summary["n_states"], *(rate_cell(conditions[name]) for name in names)]
     )
     head = f"{label} band ({unit})" if unit else f"{label} band"
     return [
@@ -398,10 +388,10 @@ def _mistakes(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]:
     ]
     rows = [
         [f"{summary['n_states']} evaluation states (the result)"]
-        + [_rate_cell(conditions[name]) for name in names]
+        + [rate_cell(conditions[name]) for name in names]
     ]
     for mistake in summary["mistakes"].values():
-        rows.append([mistake["what"], *(_rate_cell(mistake["conditions"][n]) for n in names)])
+        rows.append([mistake["what"], *(rate_cell(mistake["conditions"][n]) for n in names)])
     lines += [*_table(["evaluated on", *names], rows), ""]
 
     def width(rec: Mapping[str, Any]) -> float:
