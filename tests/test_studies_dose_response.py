@@ -80,8 +80,9 @@ def sweep():
     return {0.15: failing(8), 0.3: failing(5), 0.6: failing(3), 1.0: table(ok), 1.5: table(ok)}
 
 
-def test_each_value_against_the_slowest_with_holm_by_hand():
-    out = summarize_dose_response(
+def summarize_sweep():
+    """The hand-built sweep summarized with two mass bands and a 0.05 margin."""
+    return summarize_dose_response(
         sweep(),
         parameter="lift_time",
         states=states(),
@@ -89,6 +90,10 @@ def test_each_value_against_the_slowest_with_holm_by_hand():
         analysis=ANALYSIS,
         margin=0.05,
     )
+
+
+def test_each_value_against_the_slowest_with_holm_by_hand():
+    out = summarize_sweep()
     assert out["reference"] == 1.5
     rows = {c["lift_time"]: c for c in out["comparisons"]}
     assert list(rows) == [0.15, 0.3, 0.6, 1.0]
@@ -109,14 +114,7 @@ def test_each_value_against_the_slowest_with_holm_by_hand():
 
 
 def test_rates_pooled_and_per_mass_band():
-    out = summarize_dose_response(
-        sweep(),
-        parameter="lift_time",
-        states=states(),
-        mass_edges=[0.05, 0.3, 0.6],
-        analysis=ANALYSIS,
-        margin=0.05,
-    )
+    out = summarize_sweep()
     first = out["per_value"][0]
     assert (first["lift_time"], first["successes"], first["n"]) == (0.15, 12, N)
     masses = states()["mass"]
