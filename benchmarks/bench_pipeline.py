@@ -31,7 +31,7 @@ from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 from mjtrial.protocol import control_sequence
 from mjtrial.replay import replay_episode
 from mjtrial.simulate import episode_model, initial_physics_state, load_model, reference_episode
-from mjtrial.stages.rollout import run_condition
+from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
 from mjtrial.states import generate_initial_states, states_from_table
@@ -100,18 +100,22 @@ def main() -> None:
         build_states(states_slice={**s, "n": n}, output=states_path, repo_root=REPO_ROOT)
 
         def stage(record: bool):
-            return {
-                name: run_condition(
+            outputs = {}
+            for name in conditions:
+                folder = tmp / name  # a folder of recordings
+                shutil.rmtree(folder, ignore_errors=True)
+                outputs[name] = run_shard(
                     condition_slice=config_slice("rollout", config, condition=name),
                     states_path=states_path,
                     model_file=model_file,
+                    first=0,
+                    stop=n,
                     output_table=tmp / f"{name}.parquet",
-                    output_nominal=tmp / f"{name}.nominal.json",
-                    output_recording=tmp / name if record else None,  # a folder
+                    output_recording=folder if record else None,
                     nthread=args.threads,
+                    rule=f"rollout:{name}",
                 )
-                for name in conditions
-            }
+            return outputs
 
         runs = {"bare": bare, "stage": lambda: stage(False), "stage+rrd": lambda: stage(True)}
         times: dict[str, list[float]] = {k: [] for k in runs}
@@ -139,7 +143,7 @@ def main() -> None:
     for name in conditions:
         np.testing.assert_array_equal(np.stack(reference[name]), bare_finals[name])
         heights = np.stack(reference[name])[:, 1 + 7]
-        assert np.array_equal(heights, stage_out[name]["final_height"]), name
+        assert np.array_equal(heights, stage_out[name].column("final_height").to_numpy()), name
     print("engine, bare rollout and reference agree on every episode's final state: yes")
 
     # 4. A clean `snakemake -c2` of the experiment, in a fresh copy of the workflow; then a

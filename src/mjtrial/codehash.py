@@ -14,6 +14,7 @@ from __future__ import annotations
 import ast
 import hashlib
 from collections.abc import Mapping
+from functools import cache
 from pathlib import Path
 
 from mjtrial import REPO_ROOT
@@ -88,9 +89,16 @@ def module_closure(roots: set[str]) -> list[str]:
         if file is None:
             raise ModuleNotFoundError(f"{name}: no such module in {PACKAGE_DIR}")
         seen.add(name)
-        for imported in imported_modules(file.read_text(encoding="utf-8"), module=name):
+        for imported in _module_imports(file, name):
             todo += _with_parents(imported)
     return sorted(seen)
+
+
+@cache
+def _module_imports(file: Path, name: str) -> frozenset[str]:
+    """`imported_modules` of one module's file, parsed once per process (Snakemake asks for
+    every stage's closure at start-up, and the closures share most modules)."""
+    return frozenset(imported_modules(file.read_text(encoding="utf-8"), module=name))
 
 
 def _sha256(path: Path) -> str:

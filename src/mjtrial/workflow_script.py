@@ -1,29 +1,38 @@
-"""What every Snakemake script shares: the rule's log, its stamp line, and one-line errors."""
+"""What every Snakemake script shares: the rule's log, its stamp line, and one-line errors.
+
+A workflow script runs either as Snakemake's `script:` (a process of its own: the rollouts,
+whose memory is bounded by their shard and which a SLURM cluster spreads over nodes) or inside
+Snakemake's own process, from a rule's `run:` block (`run_in_process`): the light stages, for
+which a process of their own would cost more in interpreter start-up and imports (about 1 s of
+CPU each) than their work. Both run the same script with the same `snakemake` object.
+"""
 
 from __future__ import annotations
 
 import inspect
 import logging
+import os
+import resource
 import sys
+import threading
+import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from functools import cache
 from pathlib import Path
+from types import CodeType, SimpleNamespace
 from typing import Any
 
 from mjtrial import provenance
 from mjtrial.stages.stamping import make_stage_stamp
 
 log = logging.getLogger("mjtrial")
+log.setLevel(logging.INFO)
 
 
-def setup_logging(log_path: str | Path, *, mode: str = "w") -> None:
-    """Send mjtrial's log to the rule's log file (`mode` "a" appends) and to the console."""
-    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-    log.setLevel(logging.INFO)
-    log.handlers.clear()
-    for handler in (logging.FileHandler(log_path, mode=mode), logging.StreamHandler(sys.stderr)):
-        handler.setFormatter(logging.Formatter("%(message)s"))
-        log.addHandler(handler)
+class JobFailed(Exception):
+    """A job that ran inside Snakemake's process failed; its log holds the traceback."""
 
 
 def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs: Any) -> None:
@@ -35,22 +44,122 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
       rule: the stamp's rule, `<stage>` or `<stage>:<qualifier>` (`rollout:fast`).
 
     On failure the console and the log get one line, `error: <rule>: <message>`; the log also
-    gets the traceback below it, for a bug. The exit status is 1.
+    gets the traceback below it, for a bug. A job in its own process exits with status 1; a job
+    inside Snakemake's process raises `JobFailed`. The log's last line on success gives the
+    job's wall time, CPU time and peak memory (`resources_line`).
     """
+    in_process = getattr(snakemake, "in_process", False)
     log_path = Path(snakemake.log[0])
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic(), time.thread_time()
     stamp = make_stage_stamp(
         rule, snakemake.params.get("slice", {}), dict(snakemake.input.items()), repo_root=Path.cwd()
     )
     log_path.write_text(provenance.log_stamp_line(stamp) + "\n", encoding="utf-8")
-    setup_logging(log_path, mode="a")
     if "rule" in inspect.signature(stage).parameters:  # stages that stamp per job take it too
         kwargs["rule"] = rule
+    with job_log(log_path):
+        try:
+            stage(**kwargs)
+        except Exception as err:  # noqa: BLE001 - every failure is reported the same way
+            message = " ".join(str(err).split()) or type(err).__name__
+            log.error("error: %s: %s", rule, message)
+            with open(log_path, "a", encoding="utf-8") as f:
+                f.write("".join(traceback.format_exception(err)))
+            if in_process:
+                raise JobFailed(f"{rule}: {message} (traceback in {log_path})") from None
+            sys.exit(1)
+        log.info("%s", thread_resources_line(*started) if in_process else resources_line())
+
+
+@contextmanager
+def job_log(log_path: Path) -> Iterator[None]:
+    """Send this thread's `mjtrial` log records to the job's log file and to the console.
+
+    Only the calling thread's records: jobs running side by side in Snakemake's process each
+    keep their own log.
+    """
+    thread = threading.get_ident()
+    handlers = [logging.FileHandler(log_path, mode="a"), logging.StreamHandler(sys.stderr)]
+    for handler in handlers:
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        handler.addFilter(lambda record: record.thread == thread)
+        log.addHandler(handler)
     try:
-        stage(**kwargs)
-    except Exception as err:  # noqa: BLE001 - every failure is reported the same way
-        message = " ".join(str(err).split()) or type(err).__name__
-        log.error("error: %s: %s", rule, message)
-        with open(log_path, "a", encoding="utf-8") as f:
-            f.write("".join(traceback.format_exception(err)))
-        sys.exit(1)
+        yield
+    finally:
+        for handler in handlers:
+            log.removeHandler(handler)
+            handler.close()
+
+
+def run_in_process(
+    script: str | Path,
+    *,
+    input: Any,
+    output: Any,
+    params: Any,
+    wildcards: Any,
+    threads: int,
+    log: Any,
+    rule_name: str,
+) -> None:
+    """Run a workflow script in Snakemake's own process, from a rule's `run:` block.
+
+    The script gets a `snakemake` object with the job's input, output, params, wildcards,
+    threads, log and rule name, as with `script:`. The script's code is compiled once per process.
+    """
+    job = SimpleNamespace(
+        input=input,
+        output=output,
+        params=params,
+        wildcards=wildcards,
+        threads=threads,
+        log=log,
+        rule=rule_name,
+        in_process=True,
+    )
+    exec(_compiled(str(Path(script).resolve())), {"snakemake": job, "__name__": "mjtrial_job"})
+
+
+@cache
+def _compiled(path: str) -> CodeType:
+    return compile(Path(path).read_text(encoding="utf-8"), path, "exec")
+
+
+def resources_line() -> str:
+    """This process's wall time since it started, CPU time and peak memory, as one log line.
+
+    The figures the SLURM profile's `runtime` and `mem_mb` are declared from, and what the
+    benchmark adds up per stage (`benchmarks/bench_vs_plain_loop.py`); they count the
+    interpreter's start-up and imports too.
+    """
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return (
+        f"# resources: wall {_process_age():.2f} s, "
+        f"cpu {usage.ru_utime + usage.ru_stime:.2f} s, peak rss {usage.ru_maxrss / 1024:.0f} MB"
+    )
+
+
+def thread_resources_line(wall_start: float, cpu_start: float) -> str:
+    """A job's own wall and CPU time when it ran in Snakemake's process (its thread's CPU; the
+    process's memory is Snakemake's, so none is given)."""
+    return (
+        f"# resources: wall {time.monotonic() - wall_start:.2f} s, "
+        f"cpu {time.thread_time() - cpu_start:.2f} s, in snakemake's process"
+    )
+
+
+def _process_age() -> float:
+    """Seconds since this process started (from /proc; the time since import elsewhere)."""
+    try:
+        with open(f"/proc/{os.getpid()}/stat") as f:
+            start_ticks = int(f.read().rpartition(")")[2].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return time.monotonic() - _IMPORTED
+
+
+_IMPORTED = time.monotonic()

@@ -14,5 +14,5 @@ rule analysis:
     params:
         slice=config_slice("analysis", config),
         code=stage_code_hash("analysis"),
-    script:
-        "../scripts/analysis.py"
+    run:
+        run_script("analysis", input, output, params, wildcards, threads, log, rule)

@@ -14,6 +14,7 @@ from mjtrial.layout import (
 from mjtrial.provenance import model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import config_slice, stage_code_hash
+from mjtrial.workflow_script import run_in_process
 
 # Every path comes from the layout; rules pass wildcards ("{condition}") to its methods.
 LAYOUT = Layout.of(config["experiment"])
@@ -25,6 +26,24 @@ SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
 SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
 RECORDED = config["recording"]["episodes"] != "none"
+
+
+def run_script(script, input, output, params, wildcards, threads, log, rule_name):
+    """Run `workflow/scripts/<script>.py` for a job inside Snakemake's own process (a rule's
+    `run:` block; profiles/default/config.yaml sets `force-use-threads`, or Snakemake would
+    start a Snakemake process per such job). The light stages run so: a process of their own
+    would cost more in start-up and imports than their work (mjtrial.workflow_script).
+    """
+    run_in_process(
+        f"workflow/scripts/{script}.py",
+        input=input,
+        output=output,
+        params=params,
+        wildcards=wildcards,
+        threads=threads,
+        log=log,
+        rule_name=rule_name,
+    )
 
 
 def qualified(wildcards):

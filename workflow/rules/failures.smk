@@ -14,5 +14,5 @@ rule failures:
         conditions=CONDITIONS,
         recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
         code=stage_code_hash("failures"),
-    script:
-        "../scripts/failures.py"
+    run:
+        run_script("failures", input, output, params, wildcards, threads, log, rule)

@@ -24,5 +24,5 @@ rule manifest:
         # The manifest records the whole config, so it depends on all of it.
         slice=config_slice("manifest", config),
         code=stage_code_hash("manifest"),
-    script:
-        "../scripts/manifest.py"
+    run:
+        run_script("manifest", input, output, params, wildcards, threads, log, rule)

@@ -18,5 +18,5 @@ rule report:
         recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
         model_sha256=model_content,
         code=stage_code_hash("report"),
-    script:
-        "../scripts/report.py"
+    run:
+        run_script("report", input, output, params, wildcards, threads, log, rule)

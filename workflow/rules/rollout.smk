@@ -15,14 +15,14 @@ rule rollout:
     wildcard_constraints:
         condition=one_of(ALL_CONDITIONS),
         shard=SHARD_PATTERN,
-    threads: 2
+    threads: 1
     params:
         slice=rollout_slice,
         shard=shard_bounds,
         model_sha256=model_content,
         code=stage_code_hash("rollout"),
-    script:
-        "../scripts/rollout.py"
+    run:
+        run_script("rollout", input, output, params, wildcards, threads, log, rule)
 
 
 rule gather:
@@ -44,8 +44,8 @@ rule gather:
         slice=rollout_slice,
         model_sha256=model_content,
         code=stage_code_hash("gather"),
-    script:
-        "../scripts/gather.py"
+    run:
+        run_script("gather", input, output, params, wildcards, threads, log, rule)
 
 
 # The design's conditions on a simulator variant (the sensitivity study).

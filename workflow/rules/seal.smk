@@ -10,5 +10,5 @@ rule seal:
     params:
         folders=folders_of(LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED)),
         code=stage_code_hash("seal"),
-    script:
-        "../scripts/seal.py"
+    run:
+        run_script("seal", input, output, params, wildcards, threads, log, rule)

@@ -7,8 +7,8 @@ rule states:
         slice=config_slice("states", config),
         development=False,
         code=stage_code_hash("states"),
-    script:
-        "../scripts/states.py"
+    run:
+        run_script("states", input, output, params, wildcards, threads, log, rule)
 
 
 # Tuning states only, never reported: `snakemake -c2 dev`.
@@ -21,8 +21,8 @@ rule development_states:
         slice=config_slice("states", config),
         development=True,
         code=stage_code_hash("states"),
-    script:
-        "../scripts/states.py"
+    run:
+        run_script("states", input, output, params, wildcards, threads, log, rule)
 
 
 rule dev:

@@ -21,8 +21,8 @@ rule study_sensitivity:
         slice=config_slice("sensitivity", config) if VARIANTS else {},
         table_keys=list(sensitivity_tables()),
         code=stage_code_hash("sensitivity"),
-    script:
-        "../scripts/study.py"
+    run:
+        run_script("study", input, output, params, wildcards, threads, log, rule)
 
 
 rule study_dose_response:
@@ -43,8 +43,8 @@ rule study_dose_response:
         slice=config_slice("dose_response", config) if SWEEP else {},
         values=list(SWEEP),
         code=stage_code_hash("dose_response"),
-    script:
-        "../scripts/study.py"
+    run:
+        run_script("study", input, output, params, wildcards, threads, log, rule)
 
 
 rule seal_study:
@@ -59,8 +59,8 @@ rule seal_study:
     params:
         folders=study_sealed_folders,
         code=stage_code_hash("seal"),
-    script:
-        "../scripts/seal.py"
+    run:
+        run_script("seal", input, output, params, wildcards, threads, log, rule)
 
 
 rule sensitivity:

@@ -22,6 +22,7 @@ from mjtrial.protocol import (
     control_sequence,
 )
 from mjtrial.simulate import (
+    BATCH_SIZE,
     EPISODE_COLUMNS,
     EpisodeBatch,
     episode_outcomes,
@@ -83,7 +84,7 @@ def condition_outcomes(
     lift_time: float,
     thresholds: taxonomy.Thresholds,
     nthread: int,
-    batch_size: int = 64,
+    batch_size: int = BATCH_SIZE,
     protocol: Protocol = PROTOCOL,
 ) -> Iterator[tuple[EpisodeBatch, dict[str, np.ndarray]]]:
     """Each batch of episodes with its per-episode columns (`ROLLOUT_COLUMNS`)."""
@@ -175,7 +176,7 @@ def run_shard(
     output_recording: Path | None = None,
     nthread: int,
     rule: str,
-    batch_size: int = 64,
+    batch_size: int = BATCH_SIZE,
     repo_root: Path = REPO_ROOT,
 ) -> pa.Table:
     """Roll out the states with ids in [first, stop) under one condition: one shard.
