@@ -1,7 +1,6 @@
 """Tests for mjtrial.stats against independent references: closed forms computed here,
-exact binomial sums with integers, published values, and scipy where scipy is not the code under
-test (the Wilson interval and the McNemar p-value come from scipy.stats.binomtest, so they are
-checked against hand computations instead)."""
+exact binomial sums with integers, published values, and scipy.stats, which the code under test
+does not use (the Wilson interval and the McNemar p-value are computed with scipy.special)."""
 
 from __future__ import annotations
 
@@ -603,3 +602,25 @@ def test_importing_stats_does_not_import_scipy():
     code = "import sys, mjtrial.stats; print('scipy' in sys.modules)"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert proc.stdout.strip() == "False"
+
+
+def test_wilson_is_scipy_binomtest_wilson_to_the_last_bit():
+    """The same formula as scipy.stats.binomtest's Wilson interval, so the very same floats."""
+    from scipy.stats import binomtest
+
+    for n in (1, 2, 7, 20, 200, 2_000, 20_001):
+        for k in sorted({0, 1, n // 3, n // 2, n - 1, n}):
+            for confidence in (0.9, 0.95, 0.99):
+                ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
+                assert wilson_interval(k, n, confidence) == (ci.low, ci.high), (k, n, confidence)
+
+
+def test_mcnemar_agrees_with_scipy_binomtest():
+    """scipy.stats.binomtest sums the two tails apart: equal to 1e-12 relative."""
+    from scipy.stats import binomtest
+
+    for only_a, only_b in [*MCNEMAR_COUNTS, (0, 1), (3, 40), (120, 80), (1000, 1100)]:
+        k, n = min(only_a, only_b), only_a + only_b
+        expected = binomtest(k, n, 0.5).pvalue if n else 1.0
+        result = mcnemar(*paired_outcomes(only_a, only_b))
+        assert result.p_value == pytest.approx(expected, rel=1e-12, abs=0.0), (only_a, only_b)

@@ -14,7 +14,7 @@ from mjtrial.layout import (
 from mjtrial.provenance import model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import config_slice, stage_code_hash
-from mjtrial.workflow_script import run_in_process
+from mjtrial.workflow_script import import_in_background, run_in_process
 
 # Every path comes from the layout; rules pass wildcards ("{condition}") to its methods.
 LAYOUT = Layout.of(config["experiment"])
@@ -192,7 +192,9 @@ SAFEKEEPING = Snapshot(LAYOUT.root, logs=LAYOUT.logs_dir, workdir=Path.cwd())
 
 
 def on_start():
-    """Clear what killed jobs left, put back what a killed run removed, take the snapshot."""
+    """Clear what killed jobs left, put back what a killed run removed, take the snapshot;
+    load the later stages' libraries while the rollouts run."""
+    import_in_background()
     for path in remove_stale_temporaries(LAYOUT.root):
         print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
     restored = SAFEKEEPING.take()

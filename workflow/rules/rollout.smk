@@ -15,14 +15,16 @@ rule rollout:
     wildcard_constraints:
         condition=one_of(ALL_CONDITIONS),
         shard=SHARD_PATTERN,
+    # One engine thread per job, and as many jobs side by side as there are cores: no thread
+    # pool to synchronise per batch of episodes (the SLURM profile gives each job 2).
     threads: 1
     params:
         slice=rollout_slice,
         shard=shard_bounds,
         model_sha256=model_content,
         code=stage_code_hash("rollout"),
-    run:
-        run_script("rollout", input, output, params, wildcards, threads, log, rule)
+    script:
+        "../scripts/rollout.py"
 
 
 rule gather:

@@ -107,6 +107,24 @@ def is_recording_folder(path: str | os.PathLike[str]) -> bool:
     return path.is_dir() and (path / RECORDING_FOLDER_BLUEPRINT).is_file()
 
 
+# Folder digests already computed in this process, by the folder and its files' names, sizes,
+# modification times and inodes. The failures, report, manifest and seal jobs run in
+# Snakemake's one process and each records every shard's recordings folder (3.2 GB at
+# N = 20,000): the bytes are read once, not four times. An edit changes a file's time and
+# reads the folder again; `mjtrial verify` runs in a process of its own and reads everything.
+_FOLDER_DIGESTS: dict[tuple[str, str], str] = {}
+
+
+def _folder_signature(folder: Path, files: list[Path]) -> str:
+    h = hashlib.sha256()
+    for p in files:
+        st = p.stat()
+        h.update(
+            f"{p.relative_to(folder).as_posix()}\0{st.st_size}\0{st.st_mtime_ns}\0{st.st_ino}\n".encode()
+        )
+    return h.hexdigest()
+
+
 def file_sha256(path: str | os.PathLike[str]) -> str:
     """sha256 of a file's bytes, read in 1 MiB blocks; of a folder, of its files' names and bytes.
 
@@ -116,12 +134,16 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     """
     if Path(path).is_dir():
         folder = Path(path)
-        digest = hashlib.sha256()
         files = (q for q in folder.rglob("*") if q.is_file())
         hidden = lambda q: any(part.startswith(".") for part in q.relative_to(folder).parts)  # noqa: E731
-        for p in sorted(q for q in files if not hidden(q)):
-            digest.update(f"{p.relative_to(folder).as_posix()}\0{file_sha256(p)}\n".encode())
-        return digest.hexdigest()
+        listed = sorted(q for q in files if not hidden(q))
+        key = (str(folder.resolve()), _folder_signature(folder, listed))
+        if key not in _FOLDER_DIGESTS:
+            digest = hashlib.sha256()
+            for p in listed:
+                digest.update(f"{p.relative_to(folder).as_posix()}\0{file_sha256(p)}\n".encode())
+            _FOLDER_DIGESTS[key] = digest.hexdigest()
+        return _FOLDER_DIGESTS[key]
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         while block := fh.read(_BLOCK):

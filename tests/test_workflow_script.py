@@ -1,0 +1,150 @@
+"""Jobs run by `mjtrial.workflow_script`: in Snakemake's process (a thread each) or their own.
+
+The stage functions here are stand-ins defined in a script file; what is checked is the job's
+log (stamp first, its own messages only, resources last), its one-line error, and how a failure
+ends the job in each mode.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+from snakemake.iocontainers import Namedlist
+
+from mjtrial.provenance import STAMP_VERSION
+from mjtrial.workflow_script import JobFailed, job_log, run_in_process
+
+SCRIPT = """
+import logging
+from mjtrial.workflow_script import run_job
+
+snakemake = globals()["snakemake"]
+log = logging.getLogger("mjtrial")
+
+
+def stage(*, what, output):
+    if what == "fail":
+        raise ValueError("the states table has\\n no rows")
+    log.info("%s wrote %s", what, output)
+    with open(output, "w") as f:
+        f.write(snakemake.rule)
+
+
+run_job(snakemake, stage, rule="states", what=snakemake.params.what, output=snakemake.output[0])
+"""
+
+
+def Named(*values, **named):
+    """A Snakemake named list (as a job's input, output, params and log are)."""
+    nl = Namedlist(toclone=list(values)) if values else Namedlist()
+    for key, value in named.items():
+        nl.append(value)
+        nl._add_name(key)
+    return nl
+
+
+def job_args(tmp_path: Path, what: str, name: str = "job") -> dict:
+    return dict(
+        input=Named(),
+        output=Named(str(tmp_path / f"{name}.txt")),
+        params=Named(what=what, slice={"n": 3}),
+        wildcards=Named(),
+        threads=1,
+        log=Named(str(tmp_path / "logs" / f"{name}.log")),
+        rule_name="states",
+    )
+
+
+@pytest.fixture
+def script(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the stamp's repository root: not a git repository here
+    path = tmp_path / "stage_script.py"
+    path.write_text(SCRIPT)
+    return path
+
+
+def stamp_of(log_text: str) -> dict:
+    first = log_text.splitlines()[0]
+    assert first.startswith("# mjtrial.provenance: ")
+    return json.loads(first.removeprefix("# mjtrial.provenance: "))
+
+
+def test_in_process_job_writes_stamp_messages_and_resources(script, tmp_path):
+    run_in_process(script, **job_args(tmp_path, "states"))
+    assert (tmp_path / "job.txt").read_text() == "states"  # the script saw snakemake.rule
+    lines = (tmp_path / "logs/job.log").read_text().splitlines()
+    stamp = stamp_of(lines[0])
+    assert stamp["mjtrial_stamp"] == STAMP_VERSION
+    assert stamp["rule"] == "states" and stamp["config_slice"] == {"n": 3}
+    assert lines[1] == f"states wrote {tmp_path / 'job.txt'}"
+    assert lines[2].startswith("# resources: wall ") and "in snakemake's process" in lines[2]
+    assert len(lines) == 3
+
+
+def test_in_process_failure_raises_with_one_line_and_traceback_in_log(script, tmp_path, capsys):
+    with pytest.raises(JobFailed) as failed:
+        run_in_process(script, **job_args(tmp_path, "fail"))
+    assert str(failed.value).startswith("states: the states table has no rows (traceback in ")
+    err = capsys.readouterr().err
+    assert "error: states: the states table has no rows\n" in err
+    assert "Traceback" not in err  # the console gets one line; the log the traceback
+    log_text = (tmp_path / "logs/job.log").read_text()
+    stamp_of(log_text)
+    assert "\nerror: states: the states table has no rows\n" in log_text
+    assert "Traceback (most recent call last)" in log_text
+    assert 'raise ValueError("the states table has' in log_text
+    assert "# resources" not in log_text
+    assert not (tmp_path / "job.txt").exists()
+    # the handlers are gone: a later message reaches no job's log
+    logging.getLogger("mjtrial").info("after the job")
+    assert "after the job" not in (tmp_path / "logs/job.log").read_text()
+
+
+def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
+    """As Snakemake's `script:` runs it: a process of its own, exit status 1."""
+    args = job_args(tmp_path, "fail")
+    runner = tmp_path / "runner.py"
+    runner.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from test_workflow_script import Named\n"
+        "from types import SimpleNamespace\n"
+        f"snakemake = SimpleNamespace(input=Named(), output=Named({args['output'][0]!r}),\n"
+        "    params=Named(what='fail', slice={}), log=Named(" + repr(args["log"][0]) + "),\n"
+        "    rule='states')\n"
+        f"exec(open({str(script)!r}).read(), {{'snakemake': snakemake}})\n"
+    )
+    proc = subprocess.run([sys.executable, str(runner)], capture_output=True, text=True)
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr == "error: states: the states table has no rows\n"
+
+
+def test_job_log_keeps_each_threads_messages_apart(tmp_path):
+    """Two jobs side by side in one process: each log holds its own thread's messages only."""
+    log = logging.getLogger("mjtrial")
+    ready = threading.Barrier(2)
+
+    def job(name: str) -> None:
+        path = tmp_path / f"{name}.log"
+        path.write_text("")
+        with job_log(path):
+            ready.wait()
+            for i in range(50):
+                log.info("%s %d", name, i)
+            ready.wait()
+
+    threads = [threading.Thread(target=job, args=(n,)) for n in ("a", "b")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for name in ("a", "b"):
+        lines = (tmp_path / f"{name}.log").read_text().splitlines()
+        assert lines == [f"{name} {i}" for i in range(50)]
+    assert not [h for h in log.handlers if isinstance(h, logging.FileHandler)]
