@@ -112,6 +112,25 @@ def test_every_log_begins_with_its_stamp(built):
         assert stamp["extra"]["code"]
 
 
+def test_every_log_holds_its_own_jobs_messages_and_ends_with_its_resources(built):
+    """The jobs after the rollouts run side by side in Snakemake's process (failures beside
+    analysis): each log still holds its own messages only, and ends with the job's resources;
+    a rollout's is its own process's."""
+    for log in sorted((built / LAYOUT.logs_dir).glob("*.log")):
+        lines = log.read_text(encoding="utf-8").splitlines()
+        rule = provenance.read_stamp(log)["rule"]
+        assert lines[-1].startswith("# resources: wall "), log.name
+        in_process = "in snakemake's process" in lines[-1]
+        assert in_process == (not log.stem.startswith("rollout_")), log.name
+        stage = rule.split(":")[0]
+        others = {"states", "rollout", "gather", "failures", "analysis", "manifest", "report"}
+        others |= {"seal"}
+        for line in lines[1:-1]:  # no line of another job: those begin "<stage>:" or "<stage> ->"
+            word = line.split(" ")[0].split(":")[0]
+            assert word not in others - {stage}, (log.name, line)
+        assert any(line.split(" ")[0].split(":")[0] == stage for line in lines[1:-1]), log.name
+
+
 def test_temporaries_of_a_killed_job_are_removed_by_the_next_run(work):
     left = work / LAYOUT.recordings("slow") / ".shard-00000.tmp-123-abcd"
     left.mkdir()
