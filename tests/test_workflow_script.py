@@ -56,7 +56,7 @@ def job_args(tmp_path: Path, what: str, name: str = "job") -> dict:
         params=Named(what=what, slice={"n": 3}),
         wildcards=Named(),
         threads=1,
-        log=Named(str(tmp_path / "logs" / f"{name}.log")),
+        logs=Named(str(tmp_path / "logs" / f"{name}.log")),
         rule_name="states",
     )
 
@@ -116,7 +116,7 @@ def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
         "from test_workflow_script import Named\n"
         "from types import SimpleNamespace\n"
         f"snakemake = SimpleNamespace(input=Named(), output=Named({args['output'][0]!r}),\n"
-        "    params=Named(what='fail', slice={}), log=Named(" + repr(args["log"][0]) + "),\n"
+        "    params=Named(what='fail', slice={}), log=Named(" + repr(args["logs"][0]) + "),\n"
         "    rule='states')\n"
         f"exec(open({str(script)!r}).read(), {{'snakemake': snakemake}})\n"
     )

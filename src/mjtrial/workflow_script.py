@@ -84,9 +84,9 @@ def release_memory() -> None:
     """Hand the memory a finished job freed back to the system.
 
     Jobs in Snakemake's process free what they used, but glibc's allocator keeps freed heap
-    pages for the process, so its resident memory would grow job after job (measured without
-    this: 411 MB before the report at N = 20,000, 451 MB after it). `malloc_trim` returns them;
-    where there is no glibc this does nothing.
+    pages for the process, so its resident memory would grow job after job (at N = 20,000,
+    before this and the session's other memory changes, the report job alone took the process
+    from 411 to 451 MB). `malloc_trim` returns them; where there is no glibc this does nothing.
     """
     gc.collect()
     try:
@@ -124,7 +124,7 @@ def run_in_process(
     params: Any,
     wildcards: Any,
     threads: int,
-    log: Any,
+    logs: Any,
     rule_name: str,
 ) -> None:
     """Run a workflow script in Snakemake's own process, from a rule's `run:` block.
@@ -138,7 +138,7 @@ def run_in_process(
         params=params,
         wildcards=wildcards,
         threads=threads,
-        log=log,
+        log=logs,
         rule=rule_name,
         in_process=True,
     )

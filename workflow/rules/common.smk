@@ -41,7 +41,7 @@ def run_script(script, input, output, params, wildcards, threads, log, rule_name
         params=params,
         wildcards=wildcards,
         threads=threads,
-        log=log,
+        logs=log,
         rule_name=rule_name,
     )
 
