@@ -32,6 +32,12 @@ FIGURES = (
 FIGURE_FORMATS = ("png", "svg")
 
 
+def script_path(script: str) -> str:
+    """A workflow script's path relative to the repository root (`study` ->
+    `workflow/scripts/study.py`)."""
+    return f"workflow/scripts/{script}.py"
+
+
 @dataclass(frozen=True)
 class Stage:
     """A pipeline stage: its workflow script (`workflow/scripts/<script>.py`) and rule names.
@@ -46,7 +52,7 @@ class Stage:
     @property
     def script_path(self) -> str:
         """The script's path relative to the repository root."""
-        return f"workflow/scripts/{self.script}.py"
+        return script_path(self.script)
 
 
 # In pipeline order.

@@ -8,6 +8,7 @@ from mjtrial.layout import (
     NOMINAL,
     STUDY_FIGURES,
     Layout,
+    script_path,
     shard_ids,
     shard_range,
 )
@@ -35,7 +36,7 @@ def run_script(script, input, output, params, wildcards, threads, log, rule_name
     would cost more in start-up and imports than their work (mjtrial.workflow_script).
     """
     run_in_process(
-        f"workflow/scripts/{script}.py",
+        script_path(script),
         input=input,
         output=output,
         params=params,
