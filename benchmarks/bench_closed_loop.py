@@ -1,0 +1,175 @@
+"""Benchmark: the batched closed-loop engine against the per-episode loop a researcher writes.
+
+The baseline is the plain loop: one `MjData` per episode, the same policy called once per
+control step on that episode's observation, `mj_step` in a Python loop in between, the push
+set per step, success checked at the control instants of the last second, nothing recorded.
+The engine runs the same episodes in lockstep batches (`mjtrial.closed_loop.run_batch`) and
+records every physics step's state besides. Episodes: the cart-pole of `models/cartpole/`,
+2.5 s, a 10 ms control period (5 steps of 2 ms), 20 ms of sensing latency, a push on the pole.
+
+    python benchmarks/bench_closed_loop.py                 # 400 episodes, 5 repeats
+    python benchmarks/bench_closed_loop.py --episodes 100 --repeats 3
+
+It prints episodes per second of each, and the engine's speed over the loop's on 1 and 2
+threads: the median of the paired ratios over repeats (each repeat runs the loop and the engine
+back to back, in an order that flips every repeat), with their range.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import copy
+import statistics
+import time
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from mjtrial import REPO_ROOT
+from mjtrial.closed_loop import Pushes, Timing, run_batch
+from mjtrial.controllers import EncoderFeedback, lqr_gain
+from mjtrial.model_spec import FULLPHYSICS
+
+MODEL = REPO_ROOT / "models" / "cartpole" / "cartpole.xml"
+STEPS_PER_CONTROL = 5
+DURATION = 2.5  # s
+LATENCY = 0.02  # s
+BATCH_SIZE = 200
+
+
+def episodes(model: mujoco.MjModel, n: int, seed: int = 0):
+    """Per-episode models (pole mass), initial states (pole angle, rate) and pushes."""
+    rng = np.random.default_rng(seed)
+    pole = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "pole")
+    data = mujoco.MjData(model)
+    models, initial = [], []
+    for mass, angle, rate in zip(
+        rng.uniform(0.05, 0.3, n), rng.uniform(-0.1, 0.1, n), rng.uniform(-0.5, 0.5, n), strict=True
+    ):
+        m = copy.copy(model)
+        m.body_mass[pole] = mass
+        mujoco.mj_setConst(m, data)
+        mujoco.mj_resetData(m, data)
+        data.qpos[1], data.qvel[1] = angle, rate
+        state = np.empty(mujoco.mj_stateSize(m, FULLPHYSICS))
+        mujoco.mj_getState(m, data, state, FULLPHYSICS)
+        models.append(m)
+        initial.append(state)
+    start = rng.integers(250, 500, n)
+    wrench = np.zeros((n, 6))
+    wrench[:, 0] = rng.uniform(-6, 6, n)
+    return models, np.stack(initial), Pushes(pole, start, start + 50, wrench)
+
+
+def policy_for(model: mujoco.MjModel) -> EncoderFeedback:
+    gain = lqr_gain(
+        model, q=np.diag([10.0, 50.0, 1.0, 1.0]), r=np.eye(1) * 0.02, steps_per_control=5
+    )
+    period = STEPS_PER_CONTROL * model.opt.timestep
+    return EncoderFeedback(gain, period=period, ctrl_range=model.actuator_ctrlrange)
+
+
+def plain_loop(nominal, models, initial, pushes, timing) -> int:
+    """The per-episode loop; returns the number of successes."""
+    policy = policy_for(nominal)
+    last_second = timing.n_controls - round(1.0 / (STEPS_PER_CONTROL * nominal.opt.timestep))
+    delay = timing.latency_steps // STEPS_PER_CONTROL  # in control periods
+    successes = 0
+    for i, m in enumerate(models):
+        d = mujoco.MjData(m)
+        mujoco.mj_setState(m, d, initial[i], FULLPHYSICS)
+        policy.reset(1)
+        measured = collections.deque([d.qpos.copy()] * (delay + 1), maxlen=delay + 1)
+        upright = True
+        for k in range(timing.n_controls):
+            d.ctrl[:] = policy(measured[0][None])[0]
+            for j in range(k * STEPS_PER_CONTROL, (k + 1) * STEPS_PER_CONTROL):
+                pushed = pushes.start[i] <= j < pushes.stop[i]
+                d.xfrc_applied[pushes.body] = pushes.wrench[i] if pushed else 0.0
+                mujoco.mj_step(m, d)
+            measured.append(d.qpos.copy())
+            if k >= last_second:
+                upright &= abs(d.qpos[1]) < 0.25 and abs(d.qpos[0]) < 1.0
+        successes += upright
+    return successes
+
+
+def engine(nominal, models, initial, pushes, timing, nthread) -> int:
+    """The engine over the same episodes, in batches; returns the number of successes."""
+    last_second = round(1.0 / nominal.opt.timestep)
+    successes = 0
+    with rollout.Rollout(nthread=nthread) as runner:
+        datas = [mujoco.MjData(nominal) for _ in range(max(1, nthread))]
+        for start in range(0, len(models), BATCH_SIZE):
+            rows = slice(start, start + BATCH_SIZE)
+            batch = run_batch(
+                models[rows],
+                initial[rows],
+                policy_for(nominal),
+                lambda states: states[:, 1:3],
+                timing,
+                runner=runner,
+                datas=datas,
+                pushes=pushes.rows(rows),
+            )
+            tail = batch.physics[:, -last_second:]
+            successes += int(
+                ((np.abs(tail[:, :, 2]) < 0.25) & (np.abs(tail[:, :, 1]) < 1)).all(1).sum()
+            )
+    return successes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--episodes", type=int, default=400)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    nominal = mujoco.MjModel.from_xml_path(str(MODEL))
+    dt = nominal.opt.timestep
+    timing = Timing(
+        STEPS_PER_CONTROL,
+        round(DURATION / (STEPS_PER_CONTROL * dt)),
+        round(LATENCY / dt),
+    )
+    models, initial, pushes = episodes(nominal, args.episodes)
+    n = args.episodes
+    print(
+        f"{n} cart-pole episodes of {DURATION} s, control every "
+        f"{STEPS_PER_CONTROL * dt * 1e3:.0f} ms,"
+        f" latency {LATENCY * 1e3:.0f} ms; engine batches of {BATCH_SIZE}; {args.repeats} repeats"
+    )
+    loop_s: list[float] = []
+    engine_s: dict[int, list[float]] = {1: [], 2: []}
+    ratios: dict[int, list[float]] = {1: [], 2: []}
+    for repeat in range(args.repeats):
+        for threads in (1, 2):
+            runs = {
+                "loop": lambda: plain_loop(nominal, models, initial, pushes, timing),
+                "engine": lambda t=threads: engine(
+                    nominal, models, initial, pushes, timing, t if t > 1 else 0
+                ),
+            }
+            order = ["loop", "engine"] if repeat % 2 == 0 else ["engine", "loop"]
+            seconds, outcome = {}, {}
+            for name in order:
+                t0 = time.perf_counter()
+                outcome[name] = runs[name]()
+                seconds[name] = time.perf_counter() - t0
+            loop_s.append(seconds["loop"])
+            engine_s[threads].append(seconds["engine"])
+            ratios[threads].append(seconds["loop"] / seconds["engine"])
+    print(f"successes: loop {outcome['loop']}, engine {outcome['engine']} (of {n})")
+    print(f"plain per-episode loop:   {n / statistics.median(loop_s):8.0f} episodes/s")
+    for threads in (1, 2):
+        r = ratios[threads]
+        print(
+            f"engine, {threads} thread{'s' if threads > 1 else ' '}:         "
+            f"{n / statistics.median(engine_s[threads]):8.0f} episodes/s   "
+            f"{statistics.median(r):.2f}x the loop ({min(r):.2f}-{max(r):.2f})"
+        )
+
+
+if __name__ == "__main__":
+    main()
