@@ -4,7 +4,7 @@ The baseline is the plain loop: one `MjData` per episode, the same policy called
 control step on that episode's observation, `mj_step` in a Python loop in between, the push
 set per step, success checked at the control instants of the last second, nothing recorded.
 The engine runs the same episodes in lockstep batches (`mjtrial.closed_loop.run_batch`) and
-records every physics step's state besides. Episodes: the cart-pole of `models/cartpole/`,
+records every physics step's state besides. Episodes: the cart-pole of `tasks/cartpole_latency/`,
 2.5 s, a 10 ms control period (5 steps of 2 ms), 20 ms of sensing latency, a push on the pole.
 
     python benchmarks/bench_closed_loop.py                 # 400 episodes, 5 repeats
@@ -32,7 +32,7 @@ from mjtrial.closed_loop import Pushes, Timing, run_batch
 from mjtrial.controllers import EncoderFeedback, lqr_gain
 from mjtrial.model_spec import FULLPHYSICS
 
-MODEL = REPO_ROOT / "models" / "cartpole" / "cartpole.xml"
+MODEL = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
 STEPS_PER_CONTROL = 5
 DURATION = 2.5  # s
 LATENCY = 0.02  # s

@@ -24,7 +24,7 @@ from mjtrial.closed_loop import (
 from mjtrial.controllers import EncoderFeedback, lqr_gain
 from mjtrial.model_spec import FULLPHYSICS
 
-CARTPOLE = REPO_ROOT / "models" / "cartpole" / "cartpole.xml"
+CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
 STEPS_PER_CONTROL = 5
 NOMINAL = mujoco.MjModel.from_xml_path(str(CARTPOLE))  # the LQR is designed on it
 
@@ -91,19 +91,24 @@ def _run(models, initial, pushes, timing, *, nthread, batch_size):
                     pushes=pushes.rows(rows),
                 )
             )
-    return np.concatenate([b.physics for b in out]), np.concatenate([b.ctrl for b in out])
+    return (
+        np.concatenate([b.physics for b in out]),
+        np.concatenate([b.ctrl for b in out]),
+        np.concatenate([b.sensordata for b in out]),
+    )
 
 
 @pytest.mark.parametrize("latency_steps", [0, 3, 10])
 def test_engine_equals_plain_mj_step_loop(cartpole, latency_steps):
     models, initial, pushes = _episodes(cartpole, 6)
     timing = Timing(STEPS_PER_CONTROL, 150, latency_steps)
-    physics, ctrl = _run(models, initial, pushes, timing, nthread=0, batch_size=6)
+    physics, ctrl, sensors = _run(models, initial, pushes, timing, nthread=0, batch_size=6)
     for i in range(6):
         ref = reference_episode(
             models[i], initial[i], _policy(cartpole), encoders, timing, pushes=pushes.rows([i])
         )
         np.testing.assert_array_equal(physics[i], ref.physics[0])
+        np.testing.assert_array_equal(sensors[i], ref.sensordata[0])
         np.testing.assert_array_equal(ctrl[i], ref.ctrl[0])
     # the push and the latency do something: episodes differ from one another and move
     assert np.ptp(physics[:, -1, 1]) > 0.01
@@ -112,10 +117,11 @@ def test_engine_equals_plain_mj_step_loop(cartpole, latency_steps):
 def test_results_do_not_depend_on_batch_size_or_threads(cartpole):
     models, initial, pushes = _episodes(cartpole, 10)
     timing = Timing(STEPS_PER_CONTROL, 100, 10)
-    physics, ctrl = _run(models, initial, pushes, timing, nthread=0, batch_size=10)
+    physics, ctrl, sensors = _run(models, initial, pushes, timing, nthread=0, batch_size=10)
     for nthread, batch_size in [(0, 1), (0, 3), (2, 4), (2, 10)]:
-        p, c = _run(models, initial, pushes, timing, nthread=nthread, batch_size=batch_size)
+        p, c, sd = _run(models, initial, pushes, timing, nthread=nthread, batch_size=batch_size)
         np.testing.assert_array_equal(p, physics)
+        np.testing.assert_array_equal(sd, sensors)
         np.testing.assert_array_equal(c, ctrl)
 
 
@@ -124,7 +130,7 @@ def test_latency_delays_the_observation(cartpole):
     step k*S - L: checked against the recorded states, independently of the engine's index."""
     models, initial, pushes = _episodes(cartpole, 2)
     timing = Timing(STEPS_PER_CONTROL, 40, 7)
-    physics, ctrl = _run(models, initial, pushes, timing, nthread=0, batch_size=2)
+    physics, ctrl, _ = _run(models, initial, pushes, timing, nthread=0, batch_size=2)
     policy = _policy(cartpole)
     policy.reset(2)
     states = np.concatenate([initial[:, None], physics], axis=1)  # row j: after step j
@@ -172,7 +178,7 @@ def test_lqr_balances_the_cartpole(cartpole):
     initial[0, 2], initial[0, 4] = 0.05, 0.0  # pole angle, rate
     timing = Timing(STEPS_PER_CONTROL, 300)
     no_push = Pushes(1, np.array([0]), np.array([0]), np.zeros((1, 6)))
-    physics, _ = _run([cartpole], initial, no_push, timing, nthread=0, batch_size=1)
+    physics, _, _ = _run([cartpole], initial, no_push, timing, nthread=0, batch_size=1)
     assert abs(physics[0, -1, 2]) < 1e-3 and abs(physics[0, -1, 1]) < 0.05
 
 

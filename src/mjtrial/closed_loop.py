@@ -110,10 +110,12 @@ class ClosedLoopBatch:
 
     Attributes:
       physics: (n_episodes, n_steps, nstate) mjSTATE_FULLPHYSICS after each physics step.
+      sensordata: (n_episodes, n_steps, nsensordata) sensor values after each physics step.
       ctrl: (n_episodes, n_controls, nu) the controls the policy chose at each instant.
     """
 
     physics: np.ndarray
+    sensordata: np.ndarray
     ctrl: np.ndarray
 
 
@@ -156,6 +158,7 @@ def run_batch(
     model = models[0]
     nu, nbody, s = model.nu, model.nbody, timing.steps_per_control
     physics = np.empty((n, timing.n_steps, nstate))
+    sensordata = np.empty((n, timing.n_steps, model.nsensordata))
     ctrl_log = np.empty((n, timing.n_controls, nu))
     # Preallocated rollout outputs and controls, reused every call (skip_checks needs them whole).
     step_states = np.empty((n, s, nstate))
@@ -183,8 +186,9 @@ def run_batch(
             sensordata=step_sensors,
         )
         physics[:, k * s : (k + 1) * s] = step_states
+        sensordata[:, k * s : (k + 1) * s] = step_sensors
         state = np.ascontiguousarray(step_states[:, -1])
-    return ClosedLoopBatch(physics=physics, ctrl=ctrl_log)
+    return ClosedLoopBatch(physics=physics, sensordata=sensordata, ctrl=ctrl_log)
 
 
 def reference_episode(
@@ -207,6 +211,7 @@ def reference_episode(
     mujoco.mj_setState(m, d, initial, FULLPHYSICS)
     nstate = initial.shape[0]
     states = [np.asarray(initial, dtype=np.float64)]
+    sensors = []
     ctrl_log = np.empty((timing.n_controls, m.nu))
     policy.reset(1)
     halted = False
@@ -227,7 +232,12 @@ def reference_episode(
             row = np.empty(nstate)
             mujoco.mj_getState(m, d, row, FULLPHYSICS)
             states.append(row)
-    return ClosedLoopBatch(physics=np.stack(states[1:])[None], ctrl=ctrl_log[None])
+            sensors.append(d.sensordata.copy())
+    return ClosedLoopBatch(
+        physics=np.stack(states[1:])[None],
+        sensordata=np.stack(sensors).reshape(1, len(sensors), m.nsensordata),
+        ctrl=ctrl_log[None],
+    )
 
 
 def check_batch_independence(policy: BatchPolicy, observations: np.ndarray) -> None:
@@ -239,7 +249,7 @@ def check_batch_independence(policy: BatchPolicy, observations: np.ndarray) -> N
     for i in range(n):
         policy.reset(1)
         alone = np.asarray(policy(observations[i : i + 1]), dtype=np.float64)
-        if not np.array_equal(alone[0], together[i]):
+        if not np.array_equal(alone[0], together[i], equal_nan=True):
             diff = float(np.max(np.abs(alone[0] - together[i])))
             raise PolicyError(
                 f"policy: row {i} alone gives other controls than in a batch of {n} "

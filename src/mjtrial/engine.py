@@ -1,0 +1,130 @@
+"""A task's episodes, in batches: models and initial states from the states' values, the physics
+by `mujoco.rollout` (open loop) or the lockstep closed-loop engine, then success, the task's
+measures and one failure category per failed episode.
+
+Every episode starts from its own full state with a zero warm start, so its results never
+depend on the batch it ran in or the number of threads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from mjtrial import closed_loop
+from mjtrial.model_spec import healthy
+from mjtrial.task import UNHEALTHY, BoundTask, ClosedLoop, Episodes, OpenLoop, TaskError, call
+
+UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
+
+
+@dataclass(frozen=True)
+class Batch:
+    """A batch of finished episodes: their state values, trajectories and outcome columns."""
+
+    values: dict[str, np.ndarray]  # state column -> (n,)
+    episodes: Episodes
+    outcome: dict[str, np.ndarray]  # success, failure_category and the task's measures
+
+
+def classify(bound: BoundTask, success: np.ndarray, healthy_rows: np.ndarray, measures, thresholds):
+    """Each failed episode's category (None for a success): unhealthy first, then the task's
+    categories in order, the first that applies; `UNCLASSIFIED` when none does."""
+    category = np.full(success.shape, None, dtype=object)
+    task = bound.task
+    tests = [
+        (
+            c.name,
+            np.asarray(call(task, f"failure category {c.name!r}", c.test, measures, thresholds)),
+        )
+        for c in task.failure_categories
+    ]
+    for i in np.flatnonzero(~success):
+        if not healthy_rows[i]:
+            category[i] = UNHEALTHY
+            continue
+        category[i] = next((name for name, hit in tests if hit[i]), UNCLASSIFIED)
+    return category
+
+
+def iter_batches(
+    bound: BoundTask,
+    values: Mapping[str, np.ndarray],
+    condition: Mapping[str, float],
+    *,
+    thresholds: Mapping[str, float],
+    nthread: int = 0,
+    batch_size: int = 64,
+) -> Iterator[Batch]:
+    """Run the episodes whose state values are the columns `values`, `batch_size` at a time.
+
+    Args:
+      bound: the task, its model loaded.
+      values: state column -> (n,) values (the states table without `state_id`, or with it).
+      condition: the condition's protocol parameters (defaults are filled in).
+      thresholds: the failure categories' thresholds by name.
+      nthread: rollout threads (0: the calling thread).
+      batch_size: episodes per batch (memory is bounded by it).
+    """
+    task, model = bound.task, bound.model
+    params = task.parameters(condition)
+    n = len(next(iter(values.values())))
+    scratch = mujoco.MjData(model)
+    controller = task.controller
+    if isinstance(controller, OpenLoop):
+        ctrl = np.asarray(
+            call(task, "controls", controller.controls, model, params), dtype=np.float64
+        )
+    else:
+        assert isinstance(controller, ClosedLoop)
+        timing = call(task, "timing", controller.timing, model, params)
+        observe = bound.observer(controller.observations)
+    datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
+    with rollout.Rollout(nthread=nthread) as runner:
+        for start in range(0, n, batch_size):
+            rows = {k: np.asarray(v[start : start + batch_size]) for k, v in values.items()}
+            size = len(next(iter(rows.values())))
+            models, initial = [], []
+            for i in range(size):
+                m, s = bound.episode({k: float(v[i]) for k, v in rows.items()}, scratch=scratch)
+                models.append(m)
+                initial.append(s)
+            initial_states = np.stack(initial)
+            if isinstance(controller, OpenLoop):
+                physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
+            else:
+                pushes = (
+                    call(task, "pushes", controller.pushes, model, rows)
+                    if controller.pushes
+                    else None
+                )
+                result = closed_loop.run_batch(
+                    models,
+                    initial_states,
+                    call(task, "policy", controller.policy, model, params),
+                    observe,
+                    timing,
+                    runner=runner,
+                    datas=datas,
+                    pushes=pushes,
+                )
+                physics, sensordata = result.physics, result.sensordata
+            ok = healthy(physics)
+            episodes = Episodes(model, params, physics, sensordata, ok)
+            measures = dict(call(task, "measure", task.measure, episodes))
+            missing = [m.name for m in task.measures if m.name not in measures]
+            if missing:
+                raise TaskError(
+                    f"{task.source or task.name}: measure: expected a value for {missing[0]!r}"
+                )
+            success = np.asarray(call(task, "success", task.success, episodes), dtype=bool) & ok
+            outcome = {
+                "success": success,
+                "failure_category": classify(bound, success, ok, measures, thresholds),
+                **{m.name: np.asarray(measures[m.name], dtype=np.float64) for m in task.measures},
+            }
+            yield Batch(rows, episodes, outcome)

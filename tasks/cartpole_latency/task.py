@@ -1,0 +1,185 @@
+"""Cart-pole balance under a push, with and without sensing latency: the closed-loop task.
+
+Question: does 20 ms of sensing latency lower balance success under push disturbances? An LQR
+controller, designed on MuJoCo's own linearization of the nominal model (`mjd_transitionFD`),
+holds the pole upright from encoder readings (cart position, pole angle), velocities by finite
+differences between control instants. Each episode starts tilted and turning, with a pole
+mass drawn from a stated range, and the pole is pushed once, sideways, for 0.1 s.
+
+Success: the pole within 0.25 rad of upright and the cart on the track (|x| < 1 m) at every
+physics step of the episode's last second.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from mjtrial.closed_loop import Pushes, Timing
+from mjtrial.controllers import EncoderFeedback, lqr_gain
+from mjtrial.model_spec import STATE_QPOS
+from mjtrial.task import (
+    DISTURBANCE,
+    BodyMass,
+    ClosedLoop,
+    Episodes,
+    FailureCategory,
+    JointPosition,
+    JointVelocity,
+    Measure,
+    Observation,
+    ProtocolParameter,
+    StateParameter,
+    Task,
+    Threshold,
+)
+
+# The model's elements (cartpole.xml).
+CART, POLE = "cart_slide", "pole_hinge"  # joints: qpos[0], qpos[1]
+POLE_BODY = "pole"
+# The success test: the design's metric, fixed here rather than in config.
+UPRIGHT = 0.25  # rad from vertical
+TRACK = 1.0  # m either side of the centre
+JUDGED_OVER = 1.0  # s: the last second of the episode
+# LQR weights on [x, angle, x rate, angle rate] and on the motor force.
+STATE_COST = np.diag([10.0, 50.0, 1.0, 1.0])
+CONTROL_COST = np.eye(1) * 0.02
+
+
+def _steps(seconds: float, model: mujoco.MjModel) -> int:
+    return round(seconds / model.opt.timestep)
+
+
+def timing(model: mujoco.MjModel, params) -> Timing:
+    per_control = _steps(params["control_period"], model)
+    return Timing(
+        steps_per_control=per_control,
+        n_controls=round(params["duration"] / params["control_period"]),
+        latency_steps=_steps(params["latency"], model),
+    )
+
+
+def policy(model: mujoco.MjModel, params) -> EncoderFeedback:
+    per_control = _steps(params["control_period"], model)
+    gain = lqr_gain(model, q=STATE_COST, r=CONTROL_COST, steps_per_control=per_control)
+    return EncoderFeedback(
+        gain, period=per_control * model.opt.timestep, ctrl_range=model.actuator_ctrlrange
+    )
+
+
+def pushes(model: mujoco.MjModel, values) -> Pushes:
+    """A sideways force on the pole's centre of mass for 0.1 s, from `push_time`."""
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, POLE_BODY)
+    start = np.round(np.asarray(values["push_time"]) / model.opt.timestep).astype(np.int64)
+    wrench = np.zeros((len(start), 6))
+    wrench[:, 0] = values["push_force"]
+    return Pushes(body, start, start + _steps(0.1, model), wrench)
+
+
+def _angles(episodes: Episodes) -> tuple[np.ndarray, np.ndarray]:
+    """Cart position and pole angle, (n, n_steps) each."""
+    m = episodes.model
+    x = episodes.physics[
+        :, :, STATE_QPOS + m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, CART)]
+    ]
+    angle = episodes.physics[
+        :, :, STATE_QPOS + m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, POLE)]
+    ]
+    return x, angle
+
+
+def success(episodes: Episodes) -> np.ndarray:
+    x, angle = _angles(episodes)
+    tail = slice(-_steps(JUDGED_OVER, episodes.model), None)
+    return ((np.abs(angle[:, tail]) < UPRIGHT) & (np.abs(x[:, tail]) < TRACK)).all(axis=1)
+
+
+def measure(episodes: Episodes) -> dict[str, np.ndarray]:
+    x, angle = _angles(episodes)
+
+    def first(mask: np.ndarray) -> np.ndarray:
+        return np.where(mask.any(axis=1), mask.argmax(axis=1), mask.shape[1])
+
+    return {
+        "peak_angle": np.abs(angle).max(axis=1),
+        "peak_cart_offset": np.abs(x).max(axis=1),
+        "final_angle": angle[:, -1],
+        # steps at which the cart first left the track, the pole first passed fall angles
+        "_left_track_step": first(np.abs(x) >= TRACK),
+        "_angles": np.abs(angle),
+    }
+
+
+def _fell(measures, thresholds) -> np.ndarray:
+    fallen = measures["_angles"] >= thresholds["fall_angle"]
+    when = np.where(fallen.any(axis=1), fallen.argmax(axis=1), fallen.shape[1])
+    return (when < fallen.shape[1]) & (when <= measures["_left_track_step"])
+
+
+TASK = Task(
+    name="cartpole_latency",
+    title="cart-pole balance under a push",
+    model="cartpole.xml",
+    state_parameters=(
+        StateParameter("pole_angle", "rad", -0.1, 0.1, JointPosition(POLE), "initial tilt"),
+        StateParameter("pole_rate", "rad/s", -0.5, 0.5, JointVelocity(POLE), "initial turn"),
+        StateParameter("pole_mass", "kg", 0.05, 0.3, BodyMass(POLE_BODY), "the pole's mass"),
+        StateParameter("push_force", "N", -6.0, 6.0, DISTURBANCE, "sideways push on the pole"),
+        StateParameter("push_time", "s", 0.5, 1.0, DISTURBANCE, "when the push starts"),
+    ),
+    protocol_parameters=(
+        ProtocolParameter(
+            "latency",
+            "s",
+            0.0,
+            minimum=0.0,
+            maximum=0.1,
+            description="sensing latency, a whole number of physics steps",
+        ),
+        ProtocolParameter(
+            "duration", "s", 3.0, minimum=1.5, maximum=30.0, description="episode length"
+        ),
+        ProtocolParameter(
+            "control_period",
+            "s",
+            0.01,
+            minimum=0.0,
+            maximum=0.1,
+            exclusive_minimum=True,
+            description="time between control instants",
+        ),
+    ),
+    controller=ClosedLoop(
+        policy=policy,
+        observations=("cart_position", "pole_angle"),
+        timing=timing,
+        pushes=pushes,
+    ),
+    observations=(
+        Observation.joint_position("cart_position", CART, source="cart encoder"),
+        Observation.joint_position("pole_angle", POLE, source="pole encoder"),
+        Observation.joint_velocity("cart_velocity", CART, source=None),
+        Observation.joint_velocity("pole_rate", POLE, source=None),
+    ),
+    success=success,
+    measure=measure,
+    measures=(
+        Measure("peak_angle", "rad", "largest |pole angle| over the episode"),
+        Measure("peak_cart_offset", "m", "largest |cart position| over the episode"),
+        Measure("final_angle", "rad", "pole angle at the end"),
+    ),
+    failure_categories=(
+        FailureCategory("fell", "the pole passed fall_angle before the cart left the track", _fell),
+        FailureCategory(
+            "left the track",
+            "the cart went past |x| = 1 m",
+            lambda m, t: m["_left_track_step"] < m["_angles"].shape[1],
+        ),
+        FailureCategory(
+            "not settled",
+            "still tilted past 0.25 rad in the last second",
+            lambda m, t: np.ones(len(m["_angles"]), dtype=bool),
+        ),
+    ),
+    thresholds=(Threshold("fall_angle", "rad", 0.5, "the pole counts as fallen past this"),),
+)
