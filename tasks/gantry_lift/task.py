@@ -1,0 +1,164 @@
+"""Grasp and lift on a gantry gripper with an imperfect grasp: the built-in open-loop task.
+
+Question: does a slower lift raise grasp-and-lift success when the grasp is imperfect? Each
+state puts the cube off the gripper's axis (dx, dy), turned (yaw) and with its own mass; the
+open-loop protocol descends, closes, lifts over `lift_time` and holds. Success: the cube's
+centre above 0.2 m at the end of the hold.
+
+The protocol's timings, the model's element names and the failure taxonomy still live in the
+package (`mjtrial.protocol`, `mjtrial.model_spec`, `mjtrial.taxonomy`) while the pipeline is
+moved onto tasks; this file states the experiment through the task interface, and its
+episodes equal the pipeline's bit for bit (tests/test_task_gantry.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+
+from mjtrial import taxonomy
+from mjtrial.model_spec import ModelSpec, steps_simulated
+from mjtrial.protocol import CONDITION_PARAMETERS, PROTOCOL, condition_protocol, control_sequence
+from mjtrial.simulate import yaw_quaternion
+from mjtrial.task import (
+    BodyMass,
+    Custom,
+    Episodes,
+    FailureCategory,
+    JointPosition,
+    Measure,
+    OpenLoop,
+    ProtocolParameter,
+    StateParameter,
+    Task,
+    Threshold,
+)
+
+CUBE = "cube"  # the cube's body and its free joint
+
+
+def _set_yaw(model: mujoco.MjModel, data: mujoco.MjData, yaw: float) -> None:
+    adr = ModelSpec.of(model).cube_qpos
+    data.qpos[adr + 3 : adr + 7] = yaw_quaternion(yaw)
+
+
+def _protocol(params):
+    return condition_protocol({k: params[k] for k in CONDITION_PARAMETERS})
+
+
+def controls(model: mujoco.MjModel, params) -> np.ndarray:
+    ctrl, _ = control_sequence(
+        params["lift_time"], timestep=model.opt.timestep, protocol=_protocol(params)
+    )
+    return ctrl
+
+
+def success(episodes: Episodes) -> np.ndarray:
+    height = episodes.physics[:, -1, ModelSpec.of(episodes.model).state_cube_z]
+    return height > _protocol(episodes.params).success_height
+
+
+def measure(episodes: Episodes) -> dict[str, np.ndarray]:
+    """The table's columns, and when each way of failing first happened (for the categories)."""
+    model, params = episodes.model, episodes.params
+    protocol = _protocol(params)
+    spec = ModelSpec.of(model)
+    final = episodes.physics[:, -1, :]
+    _, phase = control_sequence(params["lift_time"], timestep=model.opt.timestep, protocol=protocol)
+    batch = dataclasses.make_dataclass("Batch", ["physics", "sensordata"])(
+        episodes.physics, episodes.sensordata
+    )
+    traj = taxonomy.trajectories_from_batch(
+        model, batch, phase=phase, home_xy=(protocol.home_x, 0.0)
+    )
+    # the peaks do not depend on the thresholds or the outcome
+    peaks = taxonomy.classify(traj, np.ones(len(final), dtype=bool), taxonomy.Thresholds())
+    return {
+        "peak_slip": peaks["peak_slip"],
+        "peak_carriage_accel": peaks["peak_carriage_accel"],
+        "final_height": final[:, spec.state_cube_z],
+        "final_x": final[:, spec.state_cube_position.start],
+        "final_y": final[:, spec.state_cube_position.start + 1],
+        "steps_simulated": steps_simulated(episodes.physics),
+        "_trajectories": traj,
+    }
+
+
+def _classified(measures, thresholds) -> np.ndarray:
+    """The package's taxonomy, every episode classified as if it failed."""
+    traj = measures["_trajectories"]
+    fails = np.zeros(len(traj.healthy), dtype=bool)
+    return taxonomy.classify(
+        dataclasses.replace(traj, healthy=np.ones_like(traj.healthy)),
+        fails,
+        thresholds_of(thresholds),
+    )
+
+
+def thresholds_of(thresholds) -> taxonomy.Thresholds:
+    return taxonomy.Thresholds(**{k: float(v) for k, v in thresholds.items()})
+
+
+def _category(value: str):
+    return lambda measures, thresholds: (
+        _classified(measures, thresholds)["failure_category"] == value
+    )
+
+
+THRESHOLD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(taxonomy.Thresholds)}
+
+TASK = Task(
+    name="gantry_lift",
+    title="grasp and lift on a gantry gripper",
+    model="../../models/gantry_gripper/scene.xml",
+    keyframe=0,
+    state_parameters=(
+        StateParameter("dx", "m", -0.018, 0.018, JointPosition(CUBE, 0), "cube offset along x"),
+        StateParameter("dy", "m", -0.012, 0.012, JointPosition(CUBE, 1), "cube offset along y"),
+        StateParameter("yaw", "rad", -0.6, 0.6, Custom(_set_yaw), "cube yaw about z"),
+        StateParameter("mass", "kg", 0.05, 0.6, BodyMass(CUBE), "cube mass", nominal=0.3),
+    ),
+    protocol_parameters=(
+        ProtocolParameter(
+            "lift_time",
+            "s",
+            0.15,
+            minimum=0.0,
+            exclusive_minimum=True,
+            maximum=10.0,
+            description="duration of the lift",
+        ),
+        *(
+            ProtocolParameter(
+                name,
+                "m" if name == "gripper_closed" else "s",
+                getattr(PROTOCOL, name),
+                minimum=0.0,
+                maximum=10.0,
+            )
+            for name in CONDITION_PARAMETERS
+        ),
+    ),
+    controller=OpenLoop(controls),
+    success=success,
+    measure=measure,
+    measures=(
+        Measure("final_height", "m", "the cube's centre height at the end"),
+        Measure("final_x", "m"),
+        Measure("final_y", "m"),
+        Measure("steps_simulated", "steps", "physics steps before a warning stopped the episode"),
+        Measure("peak_slip", "m", "the cube's largest slide down the pads after the grasp"),
+        Measure("peak_carriage_accel", "m/s^2", "the carriage's largest vertical acceleration"),
+    ),
+    failure_categories=tuple(
+        FailureCategory(c.value, c.value, _category(c.value))
+        for c in taxonomy.FailureCategory
+        if c is not taxonomy.FailureCategory.UNHEALTHY
+    ),
+    thresholds=tuple(
+        Threshold(name, "m" if name != "max_tilt" else "rad", default)
+        for name, default in THRESHOLD_DEFAULTS.items()
+    ),
+)
