@@ -8,6 +8,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
+from mjtrial import analysis
 from mjtrial.analysis import band_index, band_labels, format_table, judge_falsifier, summarize
 
 ANALYSIS = {
@@ -204,3 +205,32 @@ def test_sample_size_plan_is_checked(n, met):
     )
     # 1.959964^2 * 0.25 / 0.07^2 = 195.99..., so 196 states are needed.
     assert summary["sample_size"] == {"target_halfwidth": 0.07, "required": 196, "n": n, "met": met}
+
+
+@pytest.mark.parametrize(
+    ("n_unhealthy", "allowed", "verdict"),
+    [(0, 0.0, "survives"), (1, 0.0, "invalid"), (2, 0.1, "survives"), (3, 0.1, "invalid")],
+)
+def test_unhealthy_share_past_the_design_makes_the_verdict_invalid(n_unhealthy, allowed, verdict):
+    """20 compared episodes; the design allows `allowed` of them unhealthy: 2 of 20 is 0.1."""
+    falsifier = {
+        "treatment": "slow",
+        "baseline": "fast",
+        "statistic": "paired_difference",
+        "threshold": 0.0,
+        "max_unhealthy_share": allowed,
+    }
+    paired = {"estimate": 0.5, "low": 0.2, "high": 0.8}
+    judged = analysis.judge_falsifier(falsifier, paired, n_unhealthy=n_unhealthy, n_episodes=20)
+    assert judged["verdict"] == verdict
+    if verdict == "invalid":
+        assert judged["reason"].startswith(f"{n_unhealthy} of 20 episodes unhealthy")
+
+
+def test_halted_episodes_count_as_unhealthy():
+    table = {
+        "nonfinite": np.array([False, True, False, False]),
+        "warning": np.array(["", "", "mjWARN_BADQACC", ""], dtype=object),
+        "failure_category": np.array([None, None, None, "simulation unhealthy"], dtype=object),
+    }
+    assert analysis.unhealthy(table).tolist() == [False, True, True, True]

@@ -17,6 +17,9 @@ from mjtrial.taxonomy import FailureCategory
 
 VERDICT_SURVIVES = "survives"
 VERDICT_REFUTED = "refuted"
+# Too many unhealthy episodes (a MuJoCo warning, a non-finite or halted state): the result is
+# no evidence either way, whatever the interval says.
+VERDICT_INVALID = "invalid"
 
 
 def rate_record(success: np.ndarray, *, confidence: float) -> dict[str, Any]:
@@ -88,11 +91,29 @@ def failure_counts(categories: np.ndarray) -> dict[str, int]:
     return {c.value: counts[c.value] for c in FailureCategory}
 
 
-def judge_falsifier(falsifier: Mapping[str, Any], paired: Mapping[str, float]) -> dict[str, Any]:
+def unhealthy(table: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Episodes of a rollout table that are unhealthy: a MuJoCo warning, a non-finite state, or
+    classified "simulation unhealthy" (halted), shape `(n,)` booleans."""
+    return (
+        np.asarray(table["nonfinite"], dtype=bool)
+        | (np.asarray(table["warning"], dtype=object) != "")
+        | (np.asarray(table["failure_category"], dtype=object) == FailureCategory.UNHEALTHY.value)
+    )
+
+
+def judge_falsifier(
+    falsifier: Mapping[str, Any],
+    paired: Mapping[str, float],
+    *,
+    n_unhealthy: int = 0,
+    n_episodes: int = 1,
+) -> dict[str, Any]:
     """Verdict of the preregistered falsifier on the paired-difference interval.
 
     Refuted when the interval's lower bound is at or below the threshold, i.e. the interval
-    includes the threshold or lies below it.
+    includes the threshold or lies below it; invalid, whatever the interval, when more than the
+    design's `max_unhealthy_share` (default 0) of the compared episodes (`n_episodes`, both
+    conditions) are unhealthy: an unstable simulation is no evidence either way.
     """
     threshold = float(falsifier["threshold"])
     refuted = paired["low"] <= threshold
@@ -103,6 +124,14 @@ def judge_falsifier(falsifier: Mapping[str, Any], paired: Mapping[str, float]) -
         f"{paired['estimate']:+.3f}, interval [{paired['low']:+.3f}, {paired['high']:+.3f}]: "
         f"lower bound {relation} the threshold {threshold:g}"
     )
+    allowed = float(falsifier.get("max_unhealthy_share", 0.0))
+    if n_unhealthy > allowed * n_episodes:
+        verdict = VERDICT_INVALID
+        reason = (
+            f"{n_unhealthy} of {n_episodes} episodes unhealthy (MuJoCo warning, non-finite state "
+            f"or halted), more than the design allows ({allowed:g}): not evidence either way; "
+            f"{reason}"
+        )
     return {**dict(falsifier), "verdict": verdict, "reason": reason}
 
 
@@ -142,13 +171,10 @@ def summarize(
 
     conditions = {}
     for name, table in outcomes.items():
-        unhealthy = np.asarray(table["nonfinite"], dtype=bool) | (
-            np.asarray(table["warning"], dtype=object) != ""
-        )
         conditions[name] = {
             "lift_time": lift_times[name],
             **rate_record(success[name], confidence=confidence),
-            "unhealthy": int(unhealthy.sum()),
+            "unhealthy": int(unhealthy(table).sum()),
         }
 
     treatment, baseline = falsifier["treatment"], falsifier["baseline"]
@@ -221,7 +247,12 @@ def summarize(
         },
         "failures": failures,
         "mistakes": mistakes,
-        "falsifier": judge_falsifier(falsifier, paired),
+        "falsifier": judge_falsifier(
+            falsifier,
+            paired,
+            n_unhealthy=conditions[treatment]["unhealthy"] + conditions[baseline]["unhealthy"],
+            n_episodes=2 * len(state_ids),
+        ),
         "sample_size": sample_size_check(sample_size, len(state_ids), confidence=confidence),
     }
 

@@ -14,21 +14,17 @@ from typing import Any
 import numpy as np
 
 from mjtrial import stats
-from mjtrial.analysis import VERDICT_REFUTED, VERDICT_SURVIVES, judge_falsifier, rate_record
+from mjtrial.analysis import (
+    VERDICT_INVALID,
+    VERDICT_REFUTED,
+    VERDICT_SURVIVES,
+    judge_falsifier,
+    rate_record,
+    unhealthy,
+)
 from mjtrial.taxonomy import FailureCategory
 
-VERDICT_INVALID = "invalid"
 NOMINAL = "nominal"
-
-
-def unhealthy(table: Mapping[str, np.ndarray]) -> np.ndarray:
-    """Episodes of a rollout table that are unhealthy: a MuJoCo warning, a non-finite state, or
-    classified "simulation unhealthy" (halted), shape `(n,)` booleans."""
-    return (
-        np.asarray(table["nonfinite"], dtype=bool)
-        | (np.asarray(table["warning"], dtype=object) != "")
-        | (np.asarray(table["failure_category"], dtype=object) == FailureCategory.UNHEALTHY.value)
-    )
 
 
 def paired_success(
@@ -89,16 +85,14 @@ def variant_record(
         seed=int(analysis["seed"]),
     )
     paired = {"estimate": estimate, "low": low, "high": high}
-    judged = judge_falsifier(falsifier, paired)
     n_unhealthy = sum(rec["unhealthy"] for rec in conditions.values())
+    judged = judge_falsifier(
+        falsifier,
+        paired,
+        n_unhealthy=n_unhealthy,
+        n_episodes=sum(rec["n"] for rec in conditions.values()),
+    )
     verdict, reason = judged["verdict"], judged["reason"]
-    if n_unhealthy:
-        n_total = sum(rec["n"] for rec in conditions.values())
-        verdict = VERDICT_INVALID
-        reason = (
-            f"{n_unhealthy} of {n_total} episodes unhealthy (MuJoCo warning, non-finite state or "
-            f"halted): not evidence either way; {reason}"
-        )
     return {
         "overrides": dict(overrides),
         "model_sha256": model_sha256,
