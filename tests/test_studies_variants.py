@@ -128,3 +128,35 @@ def test_bad_overrides_name_the_key(overrides, message):
         check_overrides(overrides, model_file=MODEL, key_prefix="v.x")
     assert str(err.value).startswith(message)
     assert "\n" not in str(err.value)
+
+
+def with_a_mesh(folder):
+    """A copy of the gantry's model folder whose scene adds a rock, a mesh in assets/."""
+    import shutil
+
+    shutil.copytree(model_path("gantry_gripper").parent, folder)
+    (folder / "assets").mkdir()
+    corners = [(x, y, z) for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (0.0, 0.1)]
+    (folder / "assets" / "rock.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in corners))
+    scene = folder / "scene.xml"
+    scene.write_text(
+        scene.read_text().replace(
+            "<worldbody>",
+            '<asset><mesh name="rock" file="assets/rock.obj"/></asset>\n  <worldbody>\n'
+            '    <geom name="rock" type="mesh" mesh="rock" pos="0.6 0.6 0"/>',
+        )
+    )
+    return scene
+
+
+def test_a_variant_of_a_model_with_a_mesh_compiles_in_the_model_folder(tmp_path):
+    """Survey case 11: the edited model is compiled where its meshes are."""
+    scene = with_a_mesh(tmp_path / "gantry")
+    committed = mujoco.MjModel.from_xml_path(str(scene))
+    model, sha256 = variant_model(scene, {"geom": {"rock": {"friction": [0.5, 0.01, 0.001]}}})
+    rock = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "rock")
+    assert model.geom_friction[rock, 0] == 0.5
+    np.testing.assert_array_equal(model.mesh_vert, committed.mesh_vert)
+    spec = mujoco.MjSpec.from_file(str(scene))
+    spec.geom("rock").friction = [0.5, 0.01, 0.001]
+    assert sha256 == hashlib.sha256(spec.to_xml().encode()).hexdigest()

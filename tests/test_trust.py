@@ -336,6 +336,29 @@ BAD_INPUT = [
         config_case(lambda c: c["sweep"].update(values=[0.15, 1.5, 20])),
         "sweep.values[2]: expected <= 10, got 20",
     ),
+    # variants that would inflate "survives N of M" (survey 2, case 8)
+    (
+        "variant named as the committed model",
+        config_case(lambda c: c.update(variants={"nominal": {"option": {"integrator": "RK4"}}})),
+        "variants.nominal: 'nominal' is reserved for the model as committed",
+    ),
+    (
+        "variant that changes nothing",
+        config_case(lambda c: c.update(variants={"same": {"option": {"timestep": 0.002}}})),
+        "variants.same: changes nothing: the edited model is the committed one",
+    ),
+    (
+        "two identical variants",
+        config_case(
+            lambda c: c.update(
+                variants={
+                    "rk4": {"option": {"integrator": "RK4"}},
+                    "rk4_again": {"option": {"integrator": "RK4"}},
+                }
+            )
+        ),
+        "variants.rk4_again: the same model as variants.rk4; expected each variant once",
+    ),
     (
         "YAML bomb",
         _yaml_bomb,

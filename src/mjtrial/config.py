@@ -18,13 +18,13 @@ import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.conditions import sweep_base
-from mjtrial.layout import CONFIG_FILE, Layout
+from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.model_spec import ModelError, ModelSpec
 from mjtrial.protocol import PROTOCOL
 from mjtrial.provenance import git_state
 from mjtrial.simulate import episode_outcomes, iter_episode_batches, load_model
 from mjtrial.states import InitialState
-from mjtrial.studies.variants import variant_model
+from mjtrial.studies.variants import nominal_model_hash, variant_model
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -363,16 +363,27 @@ def _check_studies(
     fail: Callable[[str, str], None],
 ) -> None:
     """Variants that apply to the model and keep the protocol's step; a sweep whose conditions
-    are valid ones. An unstable variant is not refused: its verdict is `invalid`."""
-    for name, overrides in (config.get("variants") or {}).items():
+    are valid ones. An unstable variant is not refused: its verdict is `invalid`. A variant
+    named as the committed model, one that changes nothing, and two that make the same model
+    are refused: each would be counted in "survives N of M" without testing anything new."""
+    variants = config.get("variants") or {}
+    seen = {nominal_model_hash(model_file): NOMINAL} if variants else {}
+    for name, overrides in variants.items():
         key = f"variants.{name}"
+        if name == NOMINAL:
+            fail(key, f"{NOMINAL!r} is reserved for the model as committed; expected another name")
         try:
-            model, _ = variant_model(model_file, overrides, key_prefix=key)
+            model, sha256 = variant_model(model_file, overrides, key_prefix=key)
         except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
             named, _, expectation = str(err).partition(": ")
             if named.startswith(key):
                 fail(named, expectation)
             fail(key, str(err))
+        if seen.get(sha256) == NOMINAL:
+            fail(key, "changes nothing: the edited model is the committed one; expected an edit")
+        if sha256 in seen:
+            fail(key, f"the same model as variants.{seen[sha256]}; expected each variant once")
+        seen[sha256] = name
         if model.opt.timestep > PROTOCOL.segment_time:
             fail(
                 f"{key}.option.timestep",

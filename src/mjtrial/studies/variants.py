@@ -138,10 +138,15 @@ def _spec(model_file: Path | str) -> mujoco.MjSpec:
 def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]:
     xml = spec.to_xml()
     try:
-        # Compiled from the recorded XML itself, so the hash names exactly what runs.
-        model = mujoco.MjModel.from_xml_string(xml)
+        # Compiled from the recorded XML itself, so the hash names exactly what runs; in the
+        # model's own folder, so its meshes, textures and height fields resolve as they do
+        # for the committed model.
+        recorded = mujoco.MjSpec.from_string(xml)
+        recorded.modelfiledir = spec.modelfiledir
+        model = recorded.compile()
     except ValueError as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else "compile error"
+        text = str(err).strip().replace(str(Path.cwd().resolve()) + "/", "")
+        first = text.splitlines()[0] if text else "compile error"
         raise ModelError(f"{source}: MuJoCo could not compile the model: {first}") from None
     ModelSpec.of(model, source=source)
     return model, hashlib.sha256(xml.encode()).hexdigest()
