@@ -394,4 +394,87 @@ def test_provenance_imports_no_other_mjtrial_module() -> None:
             elif isinstance(node, ast.ImportFrom) and node.level == 0:
                 imported.add(node.module)
     ours = {m for m in imported if m.split(".")[0] == "mjtrial"}
-    assert ours == {"mjtrial.atomic", "mjtrial.provenance.formats", "mjtrial.provenance.stamp"}
+    assert ours == {
+        "mjtrial.atomic",
+        "mjtrial.provenance.formats",
+        "mjtrial.provenance.model_closure",
+        "mjtrial.provenance.stamp",
+    }
+
+
+def _model_with_assets(root):
+    """A scene in root/robot/ that includes ../common/arm.xml (which includes parts.xml from its
+    own folder and names a mesh beside it), with a mesh and a binary height field in its meshdir
+    and a PNG texture; plus a file in the folder that the model does not load."""
+    import struct
+
+    from PIL import Image
+
+    (root / "robot" / "meshes").mkdir(parents=True)
+    (root / "common").mkdir()
+    tetra = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+    (root / "robot" / "meshes" / "base.obj").write_text(tetra)
+    (root / "common" / "link.obj").write_text(tetra)
+    Image.new("RGB", (4, 4), (200, 10, 10)).save(root / "robot" / "checker.png")
+    heights = struct.pack("<ii", 2, 2) + struct.pack("<4f", 0, 1, 1, 0)
+    (root / "robot" / "meshes" / "ground.bin").write_bytes(heights)
+    (root / "robot" / "unused.xml").write_text("<mujoco/>")
+    (root / "common" / "parts.xml").write_text(
+        '<mujoco><worldbody><geom name="part" size="0.01"/></worldbody></mujoco>'
+    )
+    (root / "common" / "arm.xml").write_text(
+        '<mujoco><include file="parts.xml"/><asset><mesh name="link" file="link.obj"/></asset>'
+        '<worldbody><body name="arm"><freejoint/><geom type="mesh" mesh="link"/></body>'
+        "</worldbody></mujoco>"
+    )
+    scene = root / "robot" / "scene.xml"
+    scene.write_text(
+        '<mujoco><compiler meshdir="meshes"/><include file="../common/arm.xml"/><asset>'
+        '<mesh name="base" file="base.obj"/><texture name="t" type="2d" file="checker.png"/>'
+        '<material name="m" texture="t"/>'
+        '<hfield name="ground" file="ground.bin" size="1 1 0.1 0.1"/>'
+        '</asset><worldbody><geom type="mesh" mesh="base" material="m"/>'
+        '<geom type="hfield" hfield="ground"/></worldbody></mujoco>'
+    )
+    return scene
+
+
+def test_model_closure_is_what_mujoco_loads(tmp_path):
+    """Survey case 1: the closure lists exactly the files MuJoCo reads, wherever they are:
+    a hand-written list, and removing any one of them makes MuJoCo fail to load the model."""
+    import mujoco
+
+    from mjtrial.provenance.model_closure import model_closure
+
+    scene = _model_with_assets(tmp_path)
+    mujoco.MjModel.from_xml_path(str(scene))  # the model loads as it is
+    expected = [
+        scene,
+        tmp_path / "common" / "arm.xml",
+        tmp_path / "common" / "link.obj",
+        tmp_path / "common" / "parts.xml",
+        tmp_path / "robot" / "checker.png",
+        tmp_path / "robot" / "meshes" / "ground.bin",
+        tmp_path / "robot" / "meshes" / "base.obj",
+    ]
+    closure = model_closure(scene)
+    assert closure[0] == scene
+    assert sorted(closure[1:]) == sorted(p.resolve() for p in expected[1:])
+    for path in expected[1:]:
+        saved = path.read_bytes()
+        path.unlink()
+        with pytest.raises(ValueError):
+            mujoco.MjModel.from_xml_path(str(scene))
+        path.write_bytes(saved)
+
+
+def test_model_hash_sees_an_edit_to_an_include_in_another_folder(tmp_path):
+    from mjtrial import provenance
+
+    scene = _model_with_assets(tmp_path)
+    before = provenance.model_sha256(scene)
+    (tmp_path / "robot" / "unused.xml").write_text("<mujoco><!-- not loaded --></mujoco>")
+    assert provenance.model_sha256(scene) == before
+    parts = tmp_path / "common" / "parts.xml"
+    parts.write_text(parts.read_text().replace('size="0.01"', 'size="0.02"'))
+    assert provenance.model_sha256(scene) != before

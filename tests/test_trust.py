@@ -69,6 +69,17 @@ def _model_outside(workdir: Path) -> None:
     edit_config(workdir, lambda c: c.update(model=str(outside / "scene.xml")))
 
 
+def _include_outside(workdir: Path) -> None:
+    """The scene includes the robot from a folder beside the repository."""
+    outside = workdir.parent / "elsewhere"
+    outside.mkdir()
+    (workdir / MODEL).rename(outside / "robot.xml")
+    scene = workdir / MODEL.parent / "scene.xml"
+    scene.write_text(
+        scene.read_text().replace('file="gantry_gripper.xml"', f'file="{outside / "robot.xml"}"')
+    )
+
+
 def _yaml_bomb(workdir: Path) -> None:
     """Nine levels of nine aliases: a billion values once expanded, a few lines of text."""
     lines = ['a0: &a0 ["lol"]']
@@ -358,6 +369,13 @@ BAD_INPUT = [
             )
         ),
         "variants.rk4_again: the same model as variants.rk4; expected each variant once",
+    ),
+    # the model is everything it loads (survey 2, case 1)
+    (
+        "model including a file outside the repository",
+        _include_outside,
+        "model: models/gantry_gripper/scene.xml loads ../elsewhere/robot.xml, outside the "
+        "repository",
     ),
     (
         "YAML bomb",

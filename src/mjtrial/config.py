@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.model_spec import ModelError, ModelSpec
 from mjtrial.protocol import PROTOCOL
 from mjtrial.provenance import git_state
+from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simulate import episode_outcomes, iter_episode_batches, load_model
 from mjtrial.states import InitialState
 from mjtrial.studies.variants import nominal_model_hash, variant_model
@@ -350,6 +352,15 @@ def check_config(
         model = load_model(model_file)
     except ModelError as err:
         fail("model", str(err).replace(str(model_file), config["model"]))
+    root = Path(repo_root).resolve()
+    for path in model_closure(model_file)[1:]:
+        if not path.is_relative_to(root):
+            fail(
+                "model",
+                f"{config['model']} loads {os.path.relpath(path, root)}, outside the repository; "
+                "expected every file it includes or names (meshes, textures) inside it, so that "
+                "stamps record them and mjtrial verify can check them",
+            )
     unstable = _unstable(model, config["conditions"])
     if unstable:
         fail("model", f"{config['model']}: {unstable}")

@@ -21,7 +21,6 @@ from mjtrial.provenance.formats import (
     write_svg,
 )
 from mjtrial.provenance.stamp import (
-    MODEL_FILE_SUFFIXES,
     RECORDING_FOLDER_BLUEPRINT,
     RECORDING_FOLDER_STAMP,
     STAMP_VERSION,
@@ -38,7 +37,6 @@ from mjtrial.provenance.stamp import (
 )
 
 __all__ = [
-    "MODEL_FILE_SUFFIXES",
     "RECORDING_FOLDER_BLUEPRINT",
     "RECORDING_FOLDER_STAMP",
     "STAMP_KEY",

@@ -19,8 +19,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from mjtrial.provenance.model_closure import model_closure
+
 __all__ = [
-    "MODEL_FILE_SUFFIXES",
     "RECORDING_FOLDER_BLUEPRINT",
     "STAMP_VERSION",
     "config_hash",
@@ -184,31 +185,25 @@ def _untracked_hash_entry(root: Path, rel: str) -> bytes:
     return b"untracked\0" + rel.encode("utf-8", "surrogateescape") + b"\0" + digest.encode()
 
 
-# Files a MuJoCo model can be built from: the scene, the files it includes, meshes, textures.
-MODEL_FILE_SUFFIXES = (".xml", ".stl", ".obj", ".msh", ".skn", ".png")
-
-
 def model_files(scene: str | os.PathLike[str]) -> list[Path]:
-    """Every file in the scene's folder a model can be built from, the scene first.
-
-    A scene includes other files (`<include file=...>`, meshes): hashing the scene alone would
-    miss an edit to the model it includes.
-    """
+    """Every file MuJoCo builds the model from, the scene first (`model_closure`): the files it
+    includes, meshes, textures, height fields and skins, wherever they are. Paths are given as
+    the scene's is (relative to the same folder when the scene's path is relative)."""
     scene = Path(scene)
-    others = sorted(
-        p
-        for p in scene.parent.rglob("*")
-        if p.is_file() and p.suffix.lower() in MODEL_FILE_SUFFIXES and p != scene
-    )
-    return [scene, *others]
+    origin = Path.cwd() if not scene.is_absolute() else None
+    closure = model_closure(scene)
+    if origin is None:
+        return closure
+    return [scene, *(Path(os.path.relpath(p, origin)) for p in closure[1:])]
 
 
 def model_sha256(scene: str | os.PathLike[str]) -> str:
-    """One hash of all the model's files (`model_files`): names relative to its folder, bytes."""
+    """One hash of all the model's files (`model_files`): names relative to the scene's folder,
+    bytes."""
     scene = Path(scene)
     digest = hashlib.sha256()
     for path in model_files(scene):
-        name = path.relative_to(scene.parent).as_posix()
+        name = Path(os.path.relpath(path, scene.parent)).as_posix()
         digest.update(f"{name}\0{file_sha256(path)}\n".encode())
     return digest.hexdigest()
 

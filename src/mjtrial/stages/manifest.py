@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,7 @@ def write_manifest(
             "path": config["model"],
             "sha256": provenance.model_sha256(model_file),
             "files": {
-                p.relative_to(model_file.parent).as_posix(): provenance.file_sha256(p)
+                Path(os.path.relpath(p, model_file.parent)).as_posix(): provenance.file_sha256(p)
                 for p in provenance.model_files(model_file)
             },
             "timestep": model.opt.timestep,
