@@ -90,7 +90,7 @@ def test_a_job_failing_at_run_time_loses_no_result(work, case, breaks, args, log
     assert "Traceback" in text.split(logged, 1)[1]
     assert provenance.read_stamp(logs[-1])["rule"].split(":")[0] in ("rollout", "failures")
     # A later run with the cause gone rebuilds; the results are then complete and verified.
-    assert not (work / ".snakemake" / "mjtrial-snapshot").exists()
+    assert not (work / LAYOUT.root / ".snapshot").exists()
 
 
 def test_every_log_begins_with_its_stamp(built):

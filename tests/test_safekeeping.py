@@ -6,19 +6,23 @@ The end-to-end cases (a real failing job under Snakemake) are in test_trust.py.
 from __future__ import annotations
 
 import base64
+import errno
+import json
 import os
 from pathlib import Path
 
 import pytest
 
-from mjtrial.safekeeping import METADATA, Snapshot, remove_stale_temporaries
+from mjtrial import safekeeping
+from mjtrial.safekeeping import INCOMPLETE, METADATA, Snapshot, remove_stale_temporaries
 
 RESULTS = Path("results/x")
 
 
-def record_path(workdir: Path, output: Path) -> Path:
-    """Where Snakemake keeps an output's metadata record: its path in urlsafe base64."""
-    return workdir / METADATA / base64.urlsafe_b64encode(str(output).encode()).decode()
+def record_path(workdir: Path, output: Path, folder: Path = METADATA) -> Path:
+    """Where Snakemake keeps an output's metadata record (or its incomplete mark): its path in
+    urlsafe base64."""
+    return workdir / folder / base64.urlsafe_b64encode(str(output).encode()).decode()
 
 
 def write(path: Path, text: str) -> None:
@@ -54,7 +58,7 @@ def replace(path: Path, text: str) -> None:
 
 def test_a_failed_job_gets_its_outputs_and_records_back_and_nothing_else(workdir):
     snap = snapshot(workdir)
-    assert snap.take() == []
+    snap.take()
     table = workdir / RESULTS / "table.parquet"
     # The failed job: Snakemake rewrote its record, then removed its output.
     record_path(workdir, RESULTS / "table.parquet").write_text("record of the failed job")
@@ -107,14 +111,112 @@ def test_the_snapshot_keeps_old_bytes_when_the_output_is_replaced(workdir):
     assert table.read_text() == "old table"
 
 
-def test_a_killed_run_is_repaired_by_the_next_start(workdir):
-    snapshot(workdir).take()
-    (workdir / RESULTS / "table.parquet").unlink()  # then the run was killed: no handler ran
+def _killed(snap: Snapshot, workdir: Path) -> None:
+    """The snapshot now belongs to a run that is dead (no process has its start time)."""
+    owner = snap.folder / "owner.json"
+    owner.write_text(json.dumps(json.loads(owner.read_text()) | {"created": 0.0}))
+
+
+def test_a_killed_run_gets_back_what_it_had_started_to_rebuild(workdir):
     snap = snapshot(workdir)
-    assert snap.take() == [RESULTS / "table.parquet"]
-    assert (workdir / RESULTS / "table.parquet").read_text() == "old table"
-    snap.drop()
+    snap.take()
+    table = RESULTS / "table.parquet"
+    # The killed run had started the table's job: marked incomplete, output removed.
+    write(record_path(workdir, table, INCOMPLETE), "")
+    (workdir / table).unlink()
+    _killed(snap, workdir)
+    recovery = snapshot(workdir).recover()
+    assert recovery.restored == (table,)
+    assert (workdir / table).read_text() == "old table"
+    assert not record_path(workdir, table, INCOMPLETE).exists()  # the mark is cleared
     assert not snap.folder.exists()
+
+
+def test_what_the_user_deleted_after_a_kill_stays_deleted(workdir):
+    """Survey case 7: only outputs the killed run marked incomplete come back."""
+    snap = snapshot(workdir)
+    snap.take()
+    (workdir / RESULTS / "table.parquet").unlink()  # the user, not the run: no mark
+    _killed(snap, workdir)
+    assert snapshot(workdir).recover().restored == ()
+    assert not (workdir / RESULTS / "table.parquet").exists()
+
+
+def test_a_deleted_results_folder_takes_its_snapshot_with_it(workdir):
+    """Survey case 7: the snapshot lives in the results folder, so deleting the folder deletes
+    it and nothing can come back into it."""
+    import shutil
+
+    snap = snapshot(workdir)
+    snap.take()
+    write(record_path(workdir, RESULTS / "table.parquet", INCOMPLETE), "")
+    shutil.rmtree(workdir / RESULTS)
+    assert snapshot(workdir).recover() is None
+    assert not (workdir / RESULTS).exists()
+
+
+def test_a_live_runs_snapshot_is_left_alone(workdir):
+    snap = snapshot(workdir)
+    snap.take()  # owned by this very process, which is alive
+    write(record_path(workdir, RESULTS / "table.parquet", INCOMPLETE), "")
+    (workdir / RESULTS / "table.parquet").unlink()  # the live run is rebuilding it
+    assert snapshot(workdir).recover() is None
+    assert not (workdir / RESULTS / "table.parquet").exists() and snap.folder.exists()
+
+
+def test_links_that_cannot_be_made_are_copies(workdir, monkeypatch):
+    """Survey case 5: results on another filesystem than the snapshot (os.link: EXDEV)."""
+
+    def cross_device(src, dst):
+        raise OSError(errno.EXDEV, "Invalid cross-device link")
+
+    monkeypatch.setattr(safekeeping.os, "link", cross_device)
+    snap = snapshot(workdir)
+    snap.take()
+    folder = workdir / RESULTS / "rollouts" / "fast"
+    for p in folder.iterdir():
+        p.unlink()
+    folder.rmdir()
+    (workdir / RESULTS / "table.parquet").unlink()
+    assert snap.restore() == [RESULTS / "rollouts" / "fast", RESULTS / "table.parquet"]
+    assert (folder / "ep-2.rrd").read_text() == "old 2"
+
+
+def test_a_snapshot_that_cannot_be_completed_stops_before_any_job(workdir, monkeypatch):
+    """Survey case 5: a full disk while snapshotting raises, and leaves no partial snapshot."""
+
+    def full(src, dst, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(safekeeping.os, "link", full)
+    monkeypatch.setattr(safekeeping.shutil, "copy2", full)
+    snap = snapshot(workdir)
+    with pytest.raises(OSError, match="No space left"):
+        snap.take()
+    assert not snap.folder.exists()
+    assert (workdir / RESULTS / "table.parquet").read_text() == "old table"
+
+
+def test_a_snapshot_that_cannot_be_used_is_set_aside(workdir, monkeypatch):
+    """Survey case 5: a killed run's snapshot that fails to restore never wedges later runs."""
+    snap = snapshot(workdir)
+    snap.take()
+    write(record_path(workdir, RESULTS / "table.parquet", INCOMPLETE), "")
+    (workdir / RESULTS / "table.parquet").unlink()
+    _killed(snap, workdir)
+
+    def broken(src, dst, **kwargs):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(safekeeping.os, "link", broken)
+    monkeypatch.setattr(safekeeping.shutil, "copy2", broken)
+    recovery = snapshot(workdir).recover()
+    assert "Input/output error" in recovery.error
+    assert recovery.set_aside.name.startswith(".snapshot-broken-")
+    assert recovery.set_aside.is_dir() and not snap.folder.exists()
+    monkeypatch.undo()
+    assert snapshot(workdir).recover() is None  # the next run is not in its way
+    snapshot(workdir).take()
 
 
 def test_hidden_temporaries_are_not_kept_and_stale_ones_are_removed(workdir):

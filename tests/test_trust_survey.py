@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import pytest
 from conftest import edit_config, run_snakemake
 
 RESULTS = Path("results") / "research_mode"
@@ -62,3 +63,123 @@ def test_an_edit_to_an_include_in_another_folder_reruns_and_is_stale(built, tmp_
     shard = (RESULTS / "rollouts" / "fast" / "shard-00000.parquet").as_posix()
     assert report[shard].status is Status.STALE, report.format()
     assert "models/common/robot.xml" in " ".join(report[shard].reasons)
+
+
+def digest(folder: Path) -> dict[str, str]:
+    """sha256 of every file under `folder`, logs and hidden files aside."""
+    import hashlib
+
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+        and "logs" not in p.parts
+        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+    }
+
+
+def verified(workdir: Path):
+    from mjtrial.verify import verify_results
+
+    return verify_results(
+        workdir / RESULTS, config_path=workdir / "config" / "config.yaml", repo_root=workdir
+    )
+
+
+@pytest.fixture
+def other_filesystem():
+    """A folder on another filesystem than the tests' temporary folders (a tmpfs)."""
+    import os
+    import tempfile
+
+    shm = Path("/dev/shm")
+    if not shm.is_dir() or os.stat(shm).st_dev == os.stat(tempfile.gettempdir()).st_dev:
+        pytest.skip("no tmpfs beside the temporary folder")
+    folder = Path(tempfile.mkdtemp(dir=shm, prefix="mjtrial-test-"))
+    yield folder
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_results_on_another_filesystem_lose_nothing_and_verify(built, tmp_path, other_filesystem):
+    """Survey case 5: `results` a symlink to a tmpfs; a failing job puts everything back, the
+    next run is not wedged, and verify accepts the symlinked folder."""
+    workdir = copy_of(built, tmp_path)
+    shutil.move(workdir / "results", other_filesystem / "results")
+    (workdir / "results").symlink_to(other_filesystem / "results")
+    states = workdir / RESULTS / "states.parquet"
+    good_states = states.read_bytes()
+    states.write_bytes(b"not a parquet file")  # the rollouts, forced, fail at run time
+    before = digest(workdir / RESULTS)
+    proc = run_snakemake(workdir, "--forcerun", "rollout", check=False)
+    assert proc.returncode != 0
+    assert "Invalid cross-device link" not in proc.stderr
+    assert "the previous results were put back unchanged" in proc.stderr, proc.stderr
+    assert digest(workdir / RESULTS) == before
+    states.write_bytes(good_states)
+    run_snakemake(workdir)  # not wedged
+    assert verified(workdir).ok, verified(workdir).format()
+
+
+def start_and_kill(workdir: Path, *args: str, when: Path) -> None:
+    """Start `snakemake -c2 *args`, SIGKILL its whole process group once the job log `when`
+    has been written anew (the job has started: its outputs are removed)."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    from conftest import SNAKEMAKE
+
+    when.unlink(missing_ok=True)
+    proc = subprocess.Popen(
+        [SNAKEMAKE, "-c2", *args],
+        cwd=workdir,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 120
+    while not when.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+
+def test_the_documented_recovery_after_a_kill_restores_everything(built, tmp_path):
+    """Survey case 6: edit lift_time, run, kill -9 during the rollouts, revert the config,
+    `snakemake --unlock && snakemake -c2 --rerun-incomplete`: everything back as it was,
+    nothing to rebuild, nothing left behind, verify ok."""
+    workdir = copy_of(built, tmp_path)
+    before = digest(workdir / RESULTS)
+    config = workdir / "config" / "config.yaml"
+    original = config.read_text()
+    edit_config(workdir, lambda c: c["conditions"]["fast"].update(lift_time=0.2))
+    start_and_kill(workdir, when=workdir / RESULTS / "logs" / "rollout_fast_00000.log")
+    config.write_text(original)
+    run_snakemake(workdir, "--unlock")
+    proc = run_snakemake(workdir, "--rerun-incomplete")
+    assert "Nothing to be done" in proc.stdout + proc.stderr, proc.stdout + proc.stderr
+    assert digest(workdir / RESULTS) == before
+    assert not list((workdir / RESULTS).rglob(".*.tmp-*"))
+    assert not (workdir / RESULTS / ".snapshot").exists()
+    assert verified(workdir).ok, verified(workdir).format()
+
+
+def test_a_deleted_results_folder_does_not_come_back(built, tmp_path):
+    """Survey case 7: kill a run, delete its results folder, switch to another experiment and
+    run: the deleted folder stays deleted."""
+    workdir = copy_of(built, tmp_path)
+    start_and_kill(
+        workdir,
+        "--forcerun",
+        "rollout",
+        when=workdir / RESULTS / "logs" / "rollout_fast_00000.log",
+    )
+    shutil.rmtree(workdir / RESULTS)
+    edit_config(workdir, lambda c: c.update(experiment="fresh"))
+    run_snakemake(workdir, "--unlock")
+    proc = run_snakemake(workdir)
+    assert "put back" not in proc.stderr
+    assert not (workdir / RESULTS).exists()
+    assert (workdir / "results" / "fresh" / "seal.json").is_file()

@@ -192,18 +192,42 @@ def figure_outputs():
 SAFEKEEPING = Snapshot(LAYOUT.root, logs=LAYOUT.logs_dir, workdir=Path.cwd())
 
 
+def recover_killed_run():
+    """Whatever the run does next (even nothing), put back what a killed run had removed: in
+    the main Snakemake process only, never in a cluster job's."""
+    recovery = SAFEKEEPING.recover()
+    if recovery is None:
+        return
+    if recovery.restored:
+        print(
+            f"mjtrial: the last run was killed; put back {len(recovery.restored)} output(s) it "
+            f"had removed: {', '.join(map(str, recovery.restored))}",
+            file=sys.stderr,
+        )
+    if recovery.error:
+        print(
+            f"mjtrial: the snapshot a killed run left could not be used ({recovery.error}); "
+            f"it is kept in {recovery.set_aside} and this run goes on without it",
+            file=sys.stderr,
+        )
+
+
+if workflow.is_main_process:
+    recover_killed_run()
+
+
 def on_start():
-    """Clear what killed jobs left, put back what a killed run removed, take the snapshot;
+    """Clear what killed jobs left and take the snapshot before any job removes an output;
     load the later stages' libraries while the rollouts run."""
     import_in_background()
     for path in remove_stale_temporaries(LAYOUT.root):
         print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
-    restored = SAFEKEEPING.take()
-    if restored:
-        print(
-            f"mjtrial: the last run was killed; put back {len(restored)} output(s) it had "
-            f"removed: {', '.join(map(str, restored))}",
-            file=sys.stderr,
+    try:
+        SAFEKEEPING.take()
+    except OSError as err:
+        sys.exit(
+            f"mjtrial: could not snapshot {LAYOUT.root} before the run ({err}); no job was "
+            "started, so nothing was removed"
         )
 
 

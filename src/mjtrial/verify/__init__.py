@@ -25,6 +25,7 @@ reading and hashing.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -124,7 +125,13 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
     ``mjtrial.config.ConfigError`` for a config the pipeline would refuse.
     """
     repo_root = Path(repo_root).resolve()
-    results_dir = Path(results_dir).resolve()
+    # Not resolved: a results folder may be a symlink to another disk, and stamps record the
+    # path through the link.
+    results_dir = Path(os.path.normpath(Path(results_dir).absolute()))
+    if not results_dir.is_relative_to(repo_root) and results_dir.resolve().is_relative_to(
+        repo_root
+    ):
+        results_dir = results_dir.resolve()  # the repository reached through a symlink
     if results_dir != repo_root and repo_root not in results_dir.parents:
         raise ValueError(
             f"{results_dir}: not inside the repository root {repo_root}; stamps record paths "
