@@ -107,6 +107,7 @@ def experiment(tmp_path_factory) -> dict:
         summary=summary,
         rollout_tables=tables,
         recordings=recordings,
+        conditions=config["conditions"],
         timestep=manifest["model"]["timestep"],
         stamp=stamp,
     )
@@ -274,11 +275,12 @@ def test_figure_links_point_to_files(experiment):
 
 def test_cube_height_traces_are_the_lowest_ids_recordings_on_the_protocol_clock(experiment):
     args, timestep = experiment["figure_args"], experiment["manifest"]["model"]["timestep"]
-    lift_times = {name: c["lift_time"] for name, c in experiment["config"]["conditions"].items()}
+    conditions = experiment["config"]["conditions"]
+    lift_times = {name: c["lift_time"] for name, c in conditions.items()}
     traces = cube_height_traces(
         rollout_tables=args["rollout_tables"],
         recordings=args["recordings"],
-        lift_times=lift_times,
+        conditions=conditions,
         timestep=timestep,
     )
     p = PROTOCOL
@@ -321,7 +323,7 @@ def test_cube_height_traces_refuse_a_table_the_recordings_disagree_with(experime
         cube_height_traces(
             rollout_tables={name: stale},
             recordings=args["recordings"],
-            lift_times={name: experiment["summary"]["conditions"][name]["lift_time"]},
+            conditions={name: experiment["config"]["conditions"][name]},
             timestep=args["timestep"],
             per_outcome=1,
         )
@@ -329,7 +331,7 @@ def test_cube_height_traces_refuse_a_table_the_recordings_disagree_with(experime
         cube_height_traces(
             rollout_tables={name: path},
             recordings=args["recordings"],
-            lift_times={name: experiment["summary"]["conditions"][name]["lift_time"] * 2},
+            conditions={name: {"lift_time": 2 * args["conditions"][name]["lift_time"]}},
             timestep=args["timestep"],
             per_outcome=1,
         )

@@ -407,7 +407,11 @@ def _check_studies(
     base = sweep_base(config)
     if base not in config["conditions"]:
         fail("sweep.base", f"expected one of the conditions {sorted(config['conditions'])}")
-    condition_schema = schema["properties"]["conditions"]["additionalProperties"]
+    # The condition's schema with the definitions it refers to ($defs/hold).
+    condition_schema = {
+        **schema["properties"]["conditions"]["additionalProperties"],
+        "$defs": schema["$defs"],
+    }
     for i, value in enumerate(sweep["values"]):
         condition = {**config["conditions"][base], sweep["parameter"]: value}
         error = jsonschema.exceptions.best_match(

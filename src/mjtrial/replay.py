@@ -28,6 +28,7 @@ from mjtrial.stages.rollout import (
     condition_outcomes,
     episode_records,
     read_states,
+    slice_protocol,
 )
 from mjtrial.stages.stamping import config_slice, model_inputs
 
@@ -156,6 +157,7 @@ def replay_episode(
     if not states:
         raise KeyError(f"{layout.states}: no state {state_id}")
     lift_time = float(slice_["lift_time"])
+    protocol = slice_protocol(slice_)
     batch, outcome = next(
         condition_outcomes(
             model,
@@ -163,6 +165,7 @@ def replay_episode(
             lift_time=lift_time,
             thresholds=taxonomy.Thresholds.from_config(slice_["failure_taxonomy"]),
             nthread=1,
+            protocol=protocol,
         )
     )
     replayed = {c: outcome[c][0] for c in ROLLOUT_COLUMNS}
@@ -184,7 +187,7 @@ def replay_episode(
         model=model,
         condition=condition,
         episode=episode,
-        ctrl=control_sequence(lift_time, timestep=model.opt.timestep)[0],
+        ctrl=control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)[0],
         stamp=stamp,
         log_every=1,
     )

@@ -380,6 +380,7 @@ def write_figures(
     summary: Mapping[str, Any],
     rollout_tables: Mapping[str, Path],
     recordings: Mapping[str, Path],
+    conditions: Mapping[str, Mapping[str, float]],
     timestep: float,
     out_dir: Path,
     stamp: Mapping[str, Any],
@@ -391,6 +392,7 @@ def write_figures(
       rollout_tables: condition -> its rollout table, which picks the cube-height episodes.
       recordings: condition -> its folder of recordings (`rollouts/<condition>/`), from which
         the cube-height traces are read.
+      conditions: condition -> its protocol parameters (config `conditions`).
       timestep: the model's timestep, s (`manifest.json` `model.timestep`).
       out_dir: the figures' folder.
       stamp: the provenance stamp of every file written.
@@ -401,7 +403,7 @@ def write_figures(
     traces = cube_height_traces(
         rollout_tables=rollout_tables,
         recordings=recordings,
-        lift_times={name: rec["lift_time"] for name, rec in summary["conditions"].items()},
+        conditions={name: conditions[name] for name in summary["conditions"]},
         timestep=timestep,
     )
     figures = {

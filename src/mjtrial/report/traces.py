@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial.protocol import Phase, control_sequence
+from mjtrial.protocol import Phase, condition_protocol, control_sequence
 from mjtrial.recording import read_episode
 
 # Episodes of each outcome per condition drawn in the cube-height figure.
@@ -67,7 +67,7 @@ def cube_height_traces(
     *,
     rollout_tables: Mapping[str, Path],
     recordings: Mapping[str, Path],
-    lift_times: Mapping[str, float],
+    conditions: Mapping[str, Mapping[str, float]],
     timestep: float,
     per_outcome: int = TRACES_PER_OUTCOME,
 ) -> dict[str, HeightTraces]:
@@ -76,7 +76,7 @@ def cube_height_traces(
     Args:
       rollout_tables: condition -> its rollout table (`state_id`, `success`, `final_height`).
       recordings: condition -> its folder of recordings, one .rrd per episode.
-      lift_times: condition -> its lift duration, s.
+      conditions: condition -> its protocol parameters (config `conditions.<name>`).
       timestep: the model's timestep, s; the time axis is the step clock, not the logged
         physics time, which stops advancing when a MuJoCo warning halts an episode.
       per_outcome: episodes of each outcome per condition.
@@ -89,8 +89,10 @@ def cube_height_traces(
     """
     traces = {}
     for name, table_path in rollout_tables.items():
-        lift_time = float(lift_times[name])
-        _, phase = control_sequence(lift_time, timestep=timestep)
+        lift_time = float(conditions[name]["lift_time"])
+        _, phase = control_sequence(
+            lift_time, timestep=timestep, protocol=condition_protocol(conditions[name])
+        )
         chosen = _chosen_episodes(Path(table_path), per_outcome)
         steps: np.ndarray | None = None
         heights = []

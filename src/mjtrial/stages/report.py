@@ -48,6 +48,7 @@ def write_report_stage(
         summary=summary,
         rollout_tables=rollout_tables,
         recordings=recordings,
+        conditions=config["conditions"],
         timestep=manifest["model"]["timestep"],
         out_dir=figures_dir,
         stamp=stamp,

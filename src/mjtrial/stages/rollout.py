@@ -155,7 +155,8 @@ def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> Any
     return model
 
 
-def _protocol(condition_slice: Mapping[str, Any]) -> Protocol:
+def slice_protocol(condition_slice: Mapping[str, Any]) -> Protocol:
+    """The protocol of a rollout config slice: its condition's parameters set."""
     return condition_protocol(
         {
             k: condition_slice[k]
@@ -192,7 +193,7 @@ def run_shard(
         raise ValueError(f"{states_path}: expected states {first}..{stop - 1}, found {len(states)}")
     condition = condition_slice["condition"]
     lift_time = float(condition_slice["lift_time"])
-    protocol = _protocol(condition_slice)
+    protocol = slice_protocol(condition_slice)
     thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
     recorded = condition_slice["recording"].get("episodes", "all")
     inputs = {"states": states_path, **model_inputs(model_file)}
@@ -281,7 +282,7 @@ def gather_condition(
             lift_time=float(condition_slice["lift_time"]),
             thresholds=taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"]),
             nthread=1,
-            protocol=_protocol(condition_slice),
+            protocol=slice_protocol(condition_slice),
         )
     )
     inputs = {"shards": list(shard_tables), **model_inputs(model_file)}
