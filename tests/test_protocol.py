@@ -33,3 +33,12 @@ def test_targets():
 def test_rejects_nonpositive_lift_time():
     with pytest.raises(ValueError, match="lift_time"):
         control_sequence(0.0, timestep=0.002)
+
+
+@pytest.mark.parametrize("lift_time", [0.0123, 0.15, 0.3, 1.5])
+@pytest.mark.parametrize("timestep", [0.0003, 0.001, 0.002])
+def test_episode_steps_is_the_control_sequence_length(lift_time, timestep):
+    from mjtrial.protocol import episode_steps
+
+    ctrl, _ = control_sequence(lift_time, timestep=timestep)
+    assert episode_steps(lift_time, timestep=timestep) == len(ctrl)

@@ -377,6 +377,32 @@ BAD_INPUT = [
         "model: models/gantry_gripper/scene.xml loads ../elsewhere/robot.xml, outside the "
         "repository",
     ),
+    # the work a config may cost, bounded before any (survey 2, case 12)
+    (
+        "variant timestep of a microsecond",
+        config_case(lambda c: c.update(variants={"fine": {"option": {"timestep": 1e-6}}})),
+        "variants.fine.option.timestep: timestep 1e-06 s gives 2,850,000 steps per episode",
+    ),
+    (
+        "model timestep of a microsecond",
+        text_case(MODEL, lambda t: t.replace('timestep="0.002"', 'timestep="0.000001"')),
+        "model: models/gantry_gripper/scene.xml: timestep 1e-06 s gives 2,850,000 steps",
+    ),
+    (
+        "a rollout job per state",
+        config_case(lambda c: (c["states"].update(n=20000), c["rollout"].update(shard_size=1))),
+        "rollout.shard_size: 1 states per shard make 520,000 rollout jobs for 20,000 states",
+    ),
+    (
+        "a hold shorter than a step",
+        config_case(lambda c: c["conditions"]["slow"].update(hold_time=0.0004)),
+        "conditions.slow.hold_time: a hold_time of 0.0004 s is 0 steps of 0.002 s",
+    ),
+    (
+        "a logging rate that logs nothing",
+        config_case(lambda c: c["recording"].update(rate_hz=0.1)),
+        "recording.rate_hz: 0.1 Hz logs one step every 10 s",
+    ),
     (
         "YAML bomb",
         _yaml_bomb,

@@ -17,8 +17,8 @@ import jsonschema
 import mujoco
 import yaml
 
-from mjtrial import REPO_ROOT
-from mjtrial.conditions import sweep_base
+from mjtrial import REPO_ROOT, budget
+from mjtrial.conditions import all_conditions, sweep_base
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.model_spec import ModelError, ModelSpec
 from mjtrial.protocol import PROTOCOL
@@ -339,6 +339,9 @@ def check_config(
             fail(key, f"expected edges covering the range of {name} [{low}, {high}], got {edges}")
     if config["analysis"]["first_k"] > config["states"]["n"]:
         fail("analysis.first_k", f"expected at most states.n ({config['states']['n']})")
+    too_many = budget.job_count_problem(config, len(all_conditions(config)))
+    if too_many:
+        fail(*too_many)
     model_file = (repo_root / config["model"]).resolve()
     if not model_file.is_relative_to(Path(repo_root).resolve()):
         fail(
@@ -361,6 +364,12 @@ def check_config(
                 "expected every file it includes or names (meshes, textures) inside it, so that "
                 "stamps record them and mjtrial verify can check them",
             )
+    rate_hz = float(config["recording"]["rate_hz"])
+    coarse = model.opt.timestep > PROTOCOL.segment_time  # said by _unstable, in its words
+    for key, expectation in [] if coarse else budget.episode_problems(
+        all_conditions(config), model, timestep_key="model", rate_hz=rate_hz
+    ):
+        fail(key, f"{config['model']}: {expectation}" if key == "model" else expectation)
     unstable = _unstable(model, config["conditions"])
     if unstable:
         fail("model", f"{config['model']}: {unstable}")
@@ -401,6 +410,13 @@ def _check_studies(
                 f"expected at most {PROTOCOL.segment_time:g} s (the protocol's control step), "
                 f"got {model.opt.timestep:g}",
             )
+        for problem in budget.episode_problems(
+            config["conditions"],
+            model,
+            timestep_key=f"{key}.option.timestep",
+            rate_hz=float(config["recording"]["rate_hz"]),
+        ):
+            fail(*problem)
     if "sweep" not in config:
         return
     sweep = config["sweep"]

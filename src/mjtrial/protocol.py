@@ -97,6 +97,26 @@ def hold_steps(duration: float, timestep: float) -> int:
     return round(duration / timestep)
 
 
+def hold_durations(lift_time: float, protocol: Protocol = PROTOCOL) -> dict[str, float]:
+    """Every hold of an episode by the parameter that sets it, s (one descent or lift set-point
+    for the segments): each must last at least one physics step."""
+    return {
+        "settle_time": protocol.settle_time,
+        "descend segment": protocol.segment_time,
+        "pre_close_time": protocol.pre_close_time,
+        "close_time": protocol.close_time,
+        "lift_time": lift_time / protocol.lift_segments(lift_time),
+        "hold_time": protocol.hold_time,
+    }
+
+
+def episode_steps(lift_time: float, *, timestep: float, protocol: Protocol = PROTOCOL) -> int:
+    """Physics steps of an episode: the length of `control_sequence`, without building it."""
+    p, holds = protocol, hold_durations(lift_time, protocol)
+    segments = {"descend segment": p.descend_segments, "lift_time": p.lift_segments(lift_time)}
+    return sum(segments.get(k, 1) * hold_steps(v, timestep) for k, v in holds.items())
+
+
 def control_sequence(
     lift_time: float, *, timestep: float, protocol: Protocol = PROTOCOL
 ) -> tuple[np.ndarray, np.ndarray]:
