@@ -624,3 +624,20 @@ def test_mcnemar_agrees_with_scipy_binomtest():
         expected = binomtest(k, n, 0.5).pvalue if n else 1.0
         result = mcnemar(*paired_outcomes(only_a, only_b))
         assert result.p_value == pytest.approx(expected, rel=1e-12, abs=0.0), (only_a, only_b)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--halfwidth", "1e-300"], "halfwidth 1e-300 needs more than 1e+15 episodes"),
+        (["--halfwidth", "1e-160"], "halfwidth 1e-160 needs more than 1e+15 episodes"),
+        (["--effect", "1e-300", "--discordant", "0.3"], "effect 1e-300 needs more than 1e+15"),
+    ],
+)
+def test_plan_with_a_tiny_width_is_one_line(argv, message, capsys):
+    """Survey 2 (minor): these gave a ZeroDivisionError or OverflowError traceback."""
+    from mjtrial import cli
+
+    assert cli.main(["plan", *argv]) != 0
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err

@@ -226,3 +226,16 @@ def test_a_sweep_over_a_hold_is_planned(built, tmp_path):
     proc = run_snakemake(workdir, "-n", "dose_response")
     assert "PointerToNowhere" not in proc.stderr
     assert "rollout" in proc.stdout
+
+
+def test_design_text_cannot_end_a_script_of_the_html_report(built, tmp_path):
+    """Survey 2 (minor): the rules' params (config slices with the design's text) were written
+    raw into a <script> element of `snakemake --report`'s page."""
+    workdir = copy_of(built, tmp_path)
+    injected = "</script><script>window.injected = 1</script>"
+    edit_config(workdir, lambda c: c["design"].update(question=f"Does it {injected} hold?"))
+    run_snakemake(workdir)
+    run_snakemake(workdir, "--report", "report.html")
+    page = (workdir / "report.html").read_text()
+    assert "window.injected" in page  # the question is in the page...
+    assert injected not in page  # ...but cannot close the script it sits in

@@ -414,6 +414,10 @@ def mcnemar(a: Any, b: Any) -> McNemarResult:
 # --------------------------------------------------------------------------------------------
 
 
+# Beyond any experiment: a plan past it is a typo in the half-width, said in one line.
+MAX_PLANNED_EPISODES = 1e15
+
+
 def episodes_for_halfwidth(halfwidth: float, p: float = 0.5, confidence: float = 0.95) -> int:
     """Episodes needed for a normal-approximation interval of the given half-width.
 
@@ -435,7 +439,14 @@ def episodes_for_halfwidth(halfwidth: float, p: float = 0.5, confidence: float =
     p = _check_open_unit("p", p)
     confidence = _check_open_unit("confidence", confidence)
     z = _z_two_sided(confidence)
-    return _ceil_count(z * z * p * (1.0 - p) / (halfwidth * halfwidth))
+    # Divided stepwise: halfwidth squared underflows to zero long before halfwidth does.
+    need = z * z * p * (1.0 - p) / halfwidth / halfwidth
+    if not need <= MAX_PLANNED_EPISODES:
+        raise ValueError(
+            f"halfwidth {halfwidth:g} needs more than {MAX_PLANNED_EPISODES:.0e} episodes; "
+            "expected a wider interval"
+        )
+    return _ceil_count(need)
 
 
 def mcnemar_pairs_needed(
@@ -471,4 +482,10 @@ def mcnemar_pairs_needed(
     z_power = NormalDist().inv_cdf(power)
     delta2 = effect * effect
     root = z_alpha * math.sqrt(discordant) + z_power * math.sqrt(max(0.0, discordant - delta2))
-    return _ceil_count(root * root / delta2)
+    need = root / effect / effect * root  # stepwise: effect squared underflows first
+    if not need <= MAX_PLANNED_EPISODES:
+        raise ValueError(
+            f"effect {effect:g} needs more than {MAX_PLANNED_EPISODES:.0e} pairs; expected a "
+            "larger effect"
+        )
+    return _ceil_count(need)

@@ -65,10 +65,12 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
         try:
             stage(**kwargs)
         except Exception as err:  # noqa: BLE001 - every failure is reported the same way
-            message = " ".join(str(err).split()) or type(err).__name__
+            # Paths relative to the working folder: a log travels with the results.
+            here = f"{Path.cwd()}{os.sep}"
+            message = " ".join(str(err).split()).replace(here, "") or type(err).__name__
             log.error("error: %s: %s", rule, message)
             with open(log_path, "a", encoding="utf-8") as f:
-                f.write("".join(traceback.format_exception(err)))
+                f.write("".join(traceback.format_exception(err)).replace(here, ""))
             if in_process:
                 release_memory()
                 raise JobFailed(f"{rule}: {message} (traceback in {log_path})") from None

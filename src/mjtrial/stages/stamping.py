@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
@@ -12,14 +13,32 @@ from mjtrial.conditions import all_conditions
 from mjtrial.layout import STAGES
 
 
+class ConfigSlice(dict):
+    """A config slice whose text form is JSON with `<`, `>` and `&` escaped: Snakemake writes
+    a rule's params with `repr` into its metadata (what decides reruns) and into the JSON of
+    `snakemake --report`'s page, where design text with "</script>" would end the script."""
+
+    def __repr__(self) -> str:
+        text = json.dumps(self, ensure_ascii=False, default=str)
+        return text.replace("&", "\\u0026").replace("<", "\\u003c").replace(">", "\\u003e")
+
+    __str__ = __repr__
+
+
 def config_slice(
     stage: str, config: Mapping[str, Any], *, condition: str | None = None
-) -> dict[str, Any]:
+) -> ConfigSlice:
     """The part of the config a stage depends on: its rule's params and its stamp's record.
 
     Changing a value outside a stage's slice never reruns that stage. The failures stage
     and the seal depend on no config value.
     """
+    return ConfigSlice(_slice(stage, config, condition=condition))
+
+
+def _slice(
+    stage: str, config: Mapping[str, Any], *, condition: str | None = None
+) -> dict[str, Any]:
     if stage == "states":
         return dict(config["states"])
     if stage in ("rollout", "gather"):  # condition: "<condition>" or "<variant>/<condition>"
