@@ -136,6 +136,7 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
 
     rollouts = built / "results" / "research_mode" / "rollouts"
     folders = {c: rollouts / c for c in ("fast", "slow")}
+    shards = {c: sorted(p for p in folders[c].glob("shard-*") if p.is_dir()) for c in folders}
     tables = {c: rollouts / f"{c}.parquet" for c in ("fast", "slow")}
     out = tmp_path / "failures.rrd"
     failed = sum(not r["success"] for t in tables.values() for r in pq.read_table(t).to_pylist())
@@ -145,6 +146,7 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
             recordings=folders,
             tables=tables,
             failures_max=200,
+            shard_folders=shards,
             output=out,
             output_table=tmp_path / "failures.parquet",
         )
@@ -156,6 +158,7 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
             recordings=folders,
             tables=tables,
             failures_max=1,
+            shard_folders=shards,
             output=tmp_path / "one.rrd",
             output_table=tmp_path / "one.parquet",
         )
@@ -180,6 +183,7 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
             recordings=folders,
             tables={"fast": tables["fast"], "slow": edited},
             failures_max=200,
+            shard_folders=shards,
             output=tmp_path / "bad.rrd",
             output_table=tmp_path / "bad.parquet",
         )

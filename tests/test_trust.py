@@ -69,6 +69,11 @@ def _model_outside(workdir: Path) -> None:
     edit_config(workdir, lambda c: c.update(model=str(outside / "scene.xml")))
 
 
+def _truncated_manifest(workdir: Path) -> None:
+    manifest = workdir / RESULTS / "manifest.json"
+    manifest.write_bytes(manifest.read_bytes()[:200])
+
+
 def _include_outside(workdir: Path) -> None:
     """The scene includes the robot from a folder beside the repository."""
     outside = workdir.parent / "elsewhere"
@@ -369,6 +374,12 @@ BAD_INPUT = [
             )
         ),
         "variants.rk4_again: the same model as variants.rk4; expected each variant once",
+    ),
+    # a corrupt manifest is named so, not as another experiment's (survey 2, case 4)
+    (
+        "truncated manifest",
+        _truncated_manifest,
+        "results/research_mode/manifest.json: corrupt (JSONDecodeError",
     ),
     # the model is everything it loads (survey 2, case 1)
     (

@@ -239,3 +239,22 @@ def test_design_text_cannot_end_a_script_of_the_html_report(built, tmp_path):
     page = (workdir / "report.html").read_text()
     assert "window.injected" in page  # the question is in the page...
     assert injected not in page  # ...but cannot close the script it sits in
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda c: c["states"].update(n=8),  # shard-00002 of the 12 states is left over
+        lambda c: c["rollout"].update(shard_size=4),  # three shards of another range
+    ],
+    ids=["fewer states", "another shard size"],
+)
+def test_leftovers_of_an_earlier_configuration_raise_no_false_alarm(built, tmp_path, edit):
+    """Survey case 4: outputs an earlier configuration left in the folder are not the current
+    run's inputs: the stamps do not list them, and verify passes."""
+    workdir = copy_of(built, tmp_path)
+    edit_config(workdir, lambda c: (edit(c), c["analysis"].update(first_k=8)))
+    run_snakemake(workdir)
+    assert "Nothing to be done" in run_snakemake(workdir, "-n").stdout
+    report = verified(workdir)
+    assert report.ok, report.format()

@@ -249,9 +249,13 @@ def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
     manifest = repo_root / layout.manifest
     if manifest.is_file():
         try:
-            recorded = json.loads(manifest.read_text()).get("experiment")
-        except (ValueError, AttributeError):
-            recorded = None
+            recorded = json.loads(manifest.read_text())["experiment"]
+        except (ValueError, TypeError, KeyError, UnicodeDecodeError) as err:
+            raise ConfigError(
+                f"{layout.manifest}: corrupt ({type(err).__name__}: not the manifest this "
+                "pipeline writes); expected a manifest.json naming its experiment: delete it to "
+                "rebuild it"
+            ) from None
         if recorded != config["experiment"]:
             raise ConfigError(
                 f"{layout.root}/: written by experiment {recorded!r} (manifest.json); expected "

@@ -96,6 +96,16 @@ def shard_recordings(conditions, variant=NOMINAL):
     return [LAYOUT.shard_recordings(c, s, variant) for c in conditions for s in SHARDS]
 
 
+def shard_folders(conditions):
+    """Condition -> its shards' recordings folders, as the layout names them for this config
+    (stages never glob for shards: a folder left by an earlier shard size is not theirs).
+    """
+    return {
+        c: [str(LAYOUT.shard_recordings(c, s)) for s in SHARDS] if RECORDED else []
+        for c in conditions
+    }
+
+
 def one_of(names):
     """A wildcard constraint matching exactly one of `names`."""
     return "|".join(map(re.escape, names)) or "(?!)"

@@ -13,6 +13,7 @@ rule failures:
         slice=config_slice("failures", config),
         conditions=CONDITIONS,
         recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
+        shard_folders=shard_folders(CONDITIONS),
         code=stage_code_hash("failures"),
     run:
         run_script("failures", input, output, params, wildcards, threads, log, rule)

@@ -64,6 +64,7 @@ def gather_failures(
     recordings: Mapping[str, Path],
     tables: Mapping[str, Path],
     failures_max: int,
+    shard_folders: Mapping[str, Sequence[Path]],
     output: Path,
     output_table: Path,
     repo_root: Path = REPO_ROOT,
@@ -74,6 +75,8 @@ def gather_failures(
       recordings: condition -> its folder of shards (`rollouts/<condition>/`).
       tables: condition -> its rollout table; the tables say which episodes failed, so only
         the chosen episodes' files are opened.
+      shard_folders: condition -> its shards' folders as the layout names them (the stamp's
+        inputs; never a glob, which would pick up an earlier configuration's leftovers).
 
     A recording that does not say it failed is an error (`write_failures_rrd`'s
     `only_failures`).
@@ -91,7 +94,7 @@ def gather_failures(
         if (c, s) in chosen
     ]
     inputs = {f"{c}_table": p for c, p in tables.items()}
-    inputs |= {c: sorted(Path(p).glob("shard-*")) for c, p in recordings.items()}
+    inputs |= {c: list(shard_folders[c]) for c in recordings}
     stamp = make_stage_stamp(
         "failures", {"failures_max": failures_max}, inputs, repo_root=repo_root
     )

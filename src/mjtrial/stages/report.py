@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,7 @@ def write_report_stage(
     manifest_path: Path,
     rollout_tables: Mapping[str, Path],
     recordings: Mapping[str, Path],
+    shard_folders: Mapping[str, Sequence[Path]],
     model_file: Path,
     figures_dir: Path,
     output: Path,
@@ -37,8 +38,8 @@ def write_report_stage(
         **model_inputs(model_file),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
         **{
-            f"recordings:{k}": sorted(p for p in Path(v).glob("shard-*") if p.is_dir())
-            for k, v in recordings.items()
+            f"recordings:{k}": [p for p in shard_folders[k] if Path(p).is_dir()]
+            for k in recordings
         },
     }
     stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)

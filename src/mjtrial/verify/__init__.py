@@ -24,14 +24,17 @@ reading and hashing.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from mjtrial import provenance, recording  # noqa: F401 - recording registers the .rrd reader
+from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, read_config_file
-from mjtrial.layout import STUDIES, Layout
+from mjtrial.layout import STUDIES, Layout, shard_ids
 from mjtrial.verify.chain import (
     STAMPED_SUFFIXES,
     Current,
@@ -109,6 +112,27 @@ def _why_unreadable(err: BaseException, path: Path) -> str:
     return f"{type(err).__name__}: {text}"[:120]
 
 
+def _rollout_outputs(layout: Layout, config: Mapping[str, Any]) -> set[Path]:
+    """Every rollout output the configuration names (the nominal model's conditions, sweep
+    included, and each variant's)."""
+    shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+    recorded = config["recording"]["episodes"] != "none"
+    out = set(layout.rollout_outputs(list(all_conditions(config)), shards, recorded=recorded))
+    for variant in variant_names(config):
+        out |= set(
+            layout.rollout_outputs(
+                list(config["conditions"]), shards, recorded=recorded, variant=variant
+            )
+        )
+    return out
+
+
+def _is_rollout_output(layout: Layout, path: Path) -> bool:
+    """Whether `path` lies where rollouts go (`rollouts/`, `variants/*/rollouts/`)."""
+    rel = path.relative_to(layout.root).parts
+    return rel[:1] == ("rollouts",) or (rel[:1] == ("variants",) and rel[2:3] == ("rollouts",))
+
+
 def _seals(layout: Layout) -> list[Path]:
     """The seals a results folder must hold: the built-in experiment's, and each study's
     whose summary is there."""
@@ -140,10 +164,18 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
     config = load_checked_config(Path(config_path), repo_root=repo_root)
     current = Current.of_environment(config)
 
+    layout = Layout(results_dir)
+    ours = _rollout_outputs(layout, config)
     stamps: dict[str, dict[str, Any]] = {}
     unreadable: dict[str, str] = {}
+    leftovers: list[Skipped] = []
     for file in _stamped_files(results_dir):
         rel = _relative(file, repo_root)
+        if _is_rollout_output(layout, file) and file not in ours:
+            leftovers.append(
+                Skipped(rel, "left by an earlier configuration; not one of its outputs")
+            )
+            continue
         try:
             stamps[rel] = provenance.read_stamp(file)
         except FileNotFoundError:
@@ -152,7 +184,6 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
             if file.exists():
                 unreadable[rel] = _why_unreadable(err, file)
 
-    layout = Layout(results_dir)
     manifest_file = layout.manifest
     manifest: dict[str, Any] | None = None
     try:
@@ -169,7 +200,7 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         except OSError:
             return None
 
-    return check_stamps(
+    report = check_stamps(
         stamps,
         current=current,
         current_sha256=current_sha256,
@@ -179,3 +210,4 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         manifest_path=_relative(manifest_file, repo_root),
         seal_paths=[_relative(p, repo_root) for p in _seals(layout)],
     )
+    return dataclasses.replace(report, skipped=(*report.skipped, *leftovers))
