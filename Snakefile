@@ -3,6 +3,7 @@
 import sys
 from pathlib import Path
 
+from mjtrial import foreign_package
 from mjtrial.config import (
     ConfigError,
     check_config,
@@ -12,6 +13,10 @@ from mjtrial.config import (
     read_config_file,
 )
 from mjtrial.layout import CONFIG_FILE
+
+# The code that runs must be the code this checkout stamps and hashes.
+if foreign_package(Path.cwd()):
+    sys.exit(f"mjtrial: {foreign_package(Path.cwd())}")
 
 # The config file is read here rather than with `configfile:` so that a YAML error or a
 # duplicated key is one line too; --configfile and --config values still take precedence.

@@ -258,3 +258,33 @@ def test_leftovers_of_an_earlier_configuration_raise_no_false_alarm(built, tmp_p
     assert "Nothing to be done" in run_snakemake(workdir, "-n").stdout
     report = verified(workdir)
     assert report.ok, report.format()
+
+
+def test_a_checkout_run_with_another_checkouts_package_is_refused(tmp_path):
+    """Survey case 3: a checkout whose own src/mjtrial is not the imported package (another
+    checkout's editable install) is refused in one line naming both, by the pipeline and by
+    verify; with its own package on the path it runs."""
+    import subprocess
+    import sys
+
+    from conftest import REPO_ROOT, WORKFLOW_FILES
+
+    checkout = tmp_path / "other"
+    checkout.mkdir()
+    for name in (*WORKFLOW_FILES, "src"):
+        src = REPO_ROOT / name
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, checkout / name)
+    own = (checkout / "src" / "mjtrial").resolve()
+    proc = run_snakemake(checkout, "-n", check=False)
+    lines = [x for x in proc.stderr.splitlines() if x.strip() and not x.startswith("Using ")]
+    assert proc.returncode != 0 and len(lines) == 1, proc.stderr
+    assert str(own) in lines[0] and str(REPO_ROOT / "src" / "mjtrial") in lines[0]
+    verify = subprocess.run(
+        [sys.executable, "-m", "mjtrial.cli", "verify"],
+        cwd=checkout,
+        capture_output=True,
+        text=True,
+    )
+    assert verify.returncode == 2 and str(own) in verify.stderr
+    ran = run_snakemake(checkout, "-n", env={"PYTHONPATH": str(checkout / "src")})
+    assert "states" in ran.stdout

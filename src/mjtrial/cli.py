@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from mjtrial import provenance, stats
+from mjtrial import foreign_package, provenance, stats
 from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 
 
@@ -93,6 +93,10 @@ def _verify(args: argparse.Namespace) -> int:
 
     repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
     config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
+    foreign = foreign_package(repo_root)
+    if foreign:
+        print(f"mjtrial verify: {foreign}", file=sys.stderr)
+        return 2
     try:
         if args.results_dir:
             results_dir = Path(args.results_dir)
