@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from conftest import edit_config, run_snakemake
+from test_nothing_lost import digest
 
 RESULTS = Path("results") / "research_mode"
 
@@ -63,19 +64,6 @@ def test_an_edit_to_an_include_in_another_folder_reruns_and_is_stale(built, tmp_
     shard = (RESULTS / "rollouts" / "fast" / "shard-00000.parquet").as_posix()
     assert report[shard].status is Status.STALE, report.format()
     assert "models/common/robot.xml" in " ".join(report[shard].reasons)
-
-
-def digest(folder: Path) -> dict[str, str]:
-    """sha256 of every file under `folder`, logs and hidden files aside."""
-    import hashlib
-
-    return {
-        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-        and "logs" not in p.parts
-        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
-    }
 
 
 def verified(workdir: Path):
