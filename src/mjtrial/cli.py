@@ -86,10 +86,21 @@ def _replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _count(text: str) -> int:
+    """A count argument: a whole number, 0 or more."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value
+
+
 def _verify(args: argparse.Namespace) -> int:
     # Imported here (mujoco, rerun-sdk, jsonschema): `mjtrial plan` need not pay for them.
     from mjtrial.config import ConfigError
-    from mjtrial.verify import load_checked_config, verify_results
+    from mjtrial.verify import DEFAULT_RESIMULATE, load_checked_config, verify_results
 
     repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
     config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
@@ -103,7 +114,12 @@ def _verify(args: argparse.Namespace) -> int:
         else:
             config = load_checked_config(config_path, repo_root=repo_root)
             results_dir = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR).root
-        report = verify_results(results_dir, config_path=config_path, repo_root=repo_root)
+        report = verify_results(
+            results_dir,
+            config_path=config_path,
+            repo_root=repo_root,
+            resimulate=DEFAULT_RESIMULATE if args.resimulate is None else args.resimulate,
+        )
     except (ConfigError, OSError, ValueError) as err:
         print(f"mjtrial verify: {err}", file=sys.stderr)
         return 2
@@ -151,6 +167,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--repo-root",
         help="folder the pipeline ran in; stamps record paths relative to it (default: .)",
+    )
+    p.add_argument(
+        "--resimulate",
+        type=_count,
+        metavar="K",
+        help="episodes re-simulated per shard and compared with its table (default: "
+        "mjtrial.verify.DEFAULT_RESIMULATE; 0: none)",
     )
     p.set_defaults(run=_verify)
     args = parser.parse_args(argv)

@@ -5,6 +5,6 @@ every number from `summary.json`, `manifest.json`, the config and the model the 
 """
 
 from mjtrial.report.figures import write_figures
-from mjtrial.report.text import write_report
+from mjtrial.report.text import report_text, write_report
 
-__all__ = ["write_figures", "write_report"]
+__all__ = ["report_text", "write_figures", "write_report"]

@@ -510,6 +510,28 @@ def write_report(
     `figure_paths` may hold each figure's PNG and SVG; the PNG is embedded, the SVG linked.
     Returns the Markdown written (without its front matter).
     """
+    text = report_text(
+        summary_path=summary_path,
+        config=config,
+        manifest_path=manifest_path,
+        figure_paths=figure_paths,
+        output=output,
+        repo_root=repo_root,
+    )
+    provenance.write_markdown(text, output, stamp)
+    return text
+
+
+def report_text(
+    *,
+    summary_path: Path,
+    config: Mapping[str, Any],
+    manifest_path: Path,
+    figure_paths: Sequence[Path],
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> str:
+    """The Markdown `write_report` writes to `output` (`mjtrial verify` checks against it)."""
     output = Path(output)
     summary = json.loads(Path(summary_path).read_text(encoding="utf-8"))
     manifest = json.loads(Path(manifest_path).read_text(encoding="utf-8"))
@@ -528,5 +550,4 @@ def write_report(
             Path(manifest_path), repo_root=Path(repo_root), report_dir=output.parent
         ),
     )
-    provenance.write_markdown(text, output, stamp)
     return text

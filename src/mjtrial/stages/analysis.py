@@ -26,6 +26,35 @@ def run_analysis(
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """Compute the summary, write `summary.json`, and log the table."""
+    summary = summarize_tables(
+        states_path=states_path,
+        rollout_tables=rollout_tables,
+        nominal_files=nominal_files,
+        analysis_slice=analysis_slice,
+    )
+    inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
+    inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
+    stamp = make_stage_stamp(
+        "analysis",
+        dict(analysis_slice),
+        inputs,
+        seeds={"bootstrap": analysis_slice["analysis"]["seed"]},
+        repo_root=repo_root,
+    )
+    provenance.write_json(summary, output, stamp)
+    log.info("analysis -> %s\n%s", output, analysis.format_table(summary))
+    return summary
+
+
+def summarize_tables(
+    *,
+    states_path: Path,
+    rollout_tables: Mapping[str, Path],
+    nominal_files: Mapping[str, Path],
+    analysis_slice: Mapping[str, Any],
+) -> dict[str, Any]:
+    """The summary the analysis stage writes, from its input files (`mjtrial verify` checks
+    `summary.json` against it)."""
     conditions = analysis_slice["conditions"]
     analysis_config = analysis_slice["analysis"]
     states_table = pq.read_table(states_path)
@@ -46,15 +75,4 @@ def run_analysis(
         analysis=analysis_config,
         sample_size=analysis_slice.get("sample_size"),
     )
-    inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
-    inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
-    stamp = make_stage_stamp(
-        "analysis",
-        dict(analysis_slice),
-        inputs,
-        seeds={"bootstrap": analysis_config["seed"]},
-        repo_root=repo_root,
-    )
-    provenance.write_json(summary, output, stamp)
-    log.info("analysis -> %s\n%s", output, analysis.format_table(summary))
     return summary

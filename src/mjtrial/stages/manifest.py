@@ -29,6 +29,29 @@ def write_manifest(
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """Gather the reproducibility record and the stamp of every output into `manifest.json`."""
+    manifest, inputs = manifest_record(
+        config=config,
+        summary_path=summary_path,
+        outputs=outputs,
+        model_file=model_file,
+        repo_root=repo_root,
+    )
+    stamp = make_stage_stamp("manifest", dict(config), inputs, repo_root=repo_root)
+    provenance.write_json(manifest, output, stamp)
+    log.info("manifest -> %s", output)
+    return manifest
+
+
+def manifest_record(
+    *,
+    config: Mapping[str, Any],
+    summary_path: Path,
+    outputs: Sequence[Path],
+    model_file: Path,
+    repo_root: Path = REPO_ROOT,
+) -> tuple[dict[str, Any], dict[str, Path]]:
+    """The manifest the stage writes and its stamp's inputs (`mjtrial verify` checks
+    `manifest.json` against it)."""
     model = load_model(model_file)
     summary = json.loads(Path(summary_path).read_text())
 
@@ -82,12 +105,4 @@ def write_manifest(
         },
         "stamps": stamps,
     }
-    stamp = make_stage_stamp(
-        "manifest",
-        dict(config),
-        {rel(p): p for p in [*outputs, summary_path]},
-        repo_root=repo_root,
-    )
-    provenance.write_json(manifest, output, stamp)
-    log.info("manifest -> %s", output)
-    return manifest
+    return manifest, {rel(p): p for p in [*outputs, summary_path]}

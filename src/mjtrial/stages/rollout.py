@@ -273,6 +273,24 @@ def gather_condition(
             f"{rule}: the shards' state ids are not 0..{len(ids) - 1} in order; expected every "
             "shard once"
         )
+    nominal = nominal_episode(condition_slice, model_file)
+    inputs = {"shards": list(shard_tables), **model_inputs(model_file)}
+    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
+    provenance.write_parquet(table, output_table, stamp)
+    provenance.write_json(nominal, output_nominal, stamp)
+    log.info(
+        "%s: %d shards, %d/%d successes -> %s",
+        rule,
+        len(shard_tables),
+        int(np.asarray(table.column("success")).sum()),
+        table.num_rows,
+        output_table,
+    )
+    return table
+
+
+def nominal_episode(condition_slice: Mapping[str, Any], model_file: Path) -> dict[str, Any]:
+    """The nominal state's episode under a condition: what a careless evaluation runs alone."""
     model = condition_model(condition_slice, model_file)
     nominal = nominal_state(model)
     _, outcome = next(
@@ -285,26 +303,10 @@ def gather_condition(
             protocol=slice_protocol(condition_slice),
         )
     )
-    inputs = {"shards": list(shard_tables), **model_inputs(model_file)}
-    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
-    provenance.write_parquet(table, output_table, stamp)
-    provenance.write_json(
-        {
-            "condition": condition_slice["condition"],
-            "state": nominal.__dict__ | {"state_id": None},
-            "success": bool(outcome["success"][0]),
-            "final_height": float(outcome["final_height"][0]),
-            "failure_category": outcome["failure_category"][0],
-        },
-        output_nominal,
-        stamp,
-    )
-    log.info(
-        "%s: %d shards, %d/%d successes -> %s",
-        rule,
-        len(shard_tables),
-        int(np.asarray(table.column("success")).sum()),
-        table.num_rows,
-        output_table,
-    )
-    return table
+    return {
+        "condition": condition_slice["condition"],
+        "state": nominal.__dict__ | {"state_id": None},
+        "success": bool(outcome["success"][0]),
+        "final_height": float(outcome["final_height"][0]),
+        "failure_category": outcome["failure_category"][0],
+    }

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.layout import NOMINAL
+from mjtrial.layout import NOMINAL, STUDY_FIGURES
 from mjtrial.report import studies as study_report
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs
 from mjtrial.studies.dose_response import summarize_dose_response
@@ -46,21 +47,7 @@ def run_sensitivity(
     Args:
       tables: per variant (`NOMINAL` first), per condition, its rollout table.
     """
-    variants = {}
-    for name, by_condition in tables.items():
-        overrides = {} if name == NOMINAL else study_slice["variants"][name]
-        if name == NOMINAL:
-            sha = nominal_model_hash(model_file)
-        else:
-            sha = variant_model(model_file, overrides, key_prefix=f"variants.{name}")[1]
-        variants[name] = {
-            "tables": {c: _columns(p) for c, p in by_condition.items()},
-            "overrides": overrides,
-            "model_sha256": sha,
-        }
-    summary = summarize_sensitivity(
-        variants, falsifier=study_slice["falsifier"], analysis=study_slice["analysis"]
-    )
+    summary = sensitivity_summary(study_slice=study_slice, tables=tables, model_file=model_file)
     inputs = {f"{v}/{c}": p for v, by in tables.items() for c, p in by.items()}
     return _write(
         "sensitivity",
@@ -90,15 +77,8 @@ def run_dose_response(
     Args:
       tables: per swept value, the rollout table of the condition that runs it.
     """
-    sweep = study_slice["sweep"]
-    summary = summarize_dose_response(
-        {v: _columns(p) for v, p in tables.items()},
-        parameter=sweep["parameter"],
-        states=_columns(states_path),
-        mass_edges=study_slice["mass_bands"],
-        analysis=study_slice["analysis"],
-        margin=sweep["margin"],
-        reference=sweep.get("reference"),
+    summary = dose_response_summary(
+        study_slice=study_slice, states_path=states_path, tables=tables
     )
     inputs = {"states": states_path, **{f"{v:g}": p for v, p in tables.items()}}
     return _write(
@@ -132,13 +112,64 @@ def _write(
         out_dir=figures_dir,
         stamp=stamp,
     )
-    png = next(p for p in figures if p.suffix == ".png")
-    figure = Path(png).relative_to(Path(report).parent).as_posix()
+    text = study_report_text(study, summary, report=report, figures_dir=figures_dir)
+    provenance.write_markdown(text, report, stamp)
+    log.info("%s -> %s, %s, %d figure files", study, output, report, len(figures))
+    return summary
+
+
+def sensitivity_summary(
+    *,
+    study_slice: Mapping[str, Any],
+    tables: Mapping[str, Mapping[str, Path]],
+    model_file: Path,
+) -> dict[str, Any]:
+    """`analysis/sensitivity.json` from the rollout tables (`mjtrial verify` checks against
+    it)."""
+    variants = {}
+    for name, by_condition in tables.items():
+        overrides = {} if name == NOMINAL else study_slice["variants"][name]
+        if name == NOMINAL:
+            sha = nominal_model_hash(model_file)
+        else:
+            sha = variant_model(model_file, overrides, key_prefix=f"variants.{name}")[1]
+        variants[name] = {
+            "tables": {c: _columns(p) for c, p in by_condition.items()},
+            "overrides": overrides,
+            "model_sha256": sha,
+        }
+    summary = summarize_sensitivity(
+        variants, falsifier=study_slice["falsifier"], analysis=study_slice["analysis"]
+    )
+    return summary
+
+
+def dose_response_summary(
+    *, study_slice: Mapping[str, Any], states_path: Path, tables: Mapping[float, Path]
+) -> dict[str, Any]:
+    """`analysis/dose_response.json` from the rollout tables (`mjtrial verify` checks against
+    it)."""
+    sweep = study_slice["sweep"]
+    summary = summarize_dose_response(
+        {v: _columns(p) for v, p in tables.items()},
+        parameter=sweep["parameter"],
+        states=_columns(states_path),
+        mass_edges=study_slice["mass_bands"],
+        analysis=study_slice["analysis"],
+        margin=sweep["margin"],
+        reference=sweep.get("reference"),
+    )
+    return summary
+
+
+def study_report_text(
+    study: str, summary: Mapping[str, Any], *, report: Path, figures_dir: Path
+) -> str:
+    """A study's report (its figure's PNG linked from the report's folder)."""
+    png = Path(figures_dir) / f"{STUDY_FIGURES[study]}.png"
+    figure = Path(os.path.relpath(png, Path(report).parent)).as_posix()
     render = {
         "sensitivity": study_report.render_sensitivity_section,
         "dose_response": study_report.render_dose_response_section,
     }[study]
-    text = render(json.loads(json.dumps(summary)), figure=figure)
-    provenance.write_markdown(text + "\n", report, stamp)
-    log.info("%s -> %s, %s, %d figure files", study, output, report, len(figures))
-    return summary
+    return render(json.loads(json.dumps(summary)), figure=figure) + "\n"

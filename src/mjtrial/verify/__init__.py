@@ -25,6 +25,7 @@ reading and hashing.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 from collections.abc import Mapping
@@ -45,9 +46,11 @@ from mjtrial.verify.chain import (
     check_stamps,
     parse_rule,
 )
+from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
 
 __all__ = [
     "STAMPED_SUFFIXES",
+    "DEFAULT_RESIMULATE",
     "Current",
     "OutputResult",
     "Skipped",
@@ -135,14 +138,32 @@ def _is_rollout_output(layout: Layout, path: Path) -> bool:
 
 def _seals(layout: Layout) -> list[Path]:
     """The seals a results folder must hold: the built-in experiment's, and each study's
-    whose summary is there."""
-    return [layout.seal] + [
-        layout.study_seal(s) for s in STUDIES if layout.study_summary(s).exists()
+    that has been run."""
+    return [layout.seal] + [layout.study_seal(s) for s in _studies_run(layout)]
+
+
+def _studies_run(layout: Layout) -> list[str]:
+    """The studies any of whose outputs (summary, report, seal) is there: then all must be."""
+    return [
+        s
+        for s in STUDIES
+        if any(
+            p.exists()
+            for p in (layout.study_summary(s), layout.study_report(s), layout.study_seal(s))
+        )
     ]
 
 
-def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> VerifyReport:
-    """Read every stamp under ``results_dir`` and check the chain (see :func:`check_stamps`).
+def verify_results(
+    results_dir: Path,
+    *,
+    config_path: Path,
+    repo_root: Path,
+    resimulate: int = DEFAULT_RESIMULATE,
+) -> VerifyReport:
+    """Read every stamp under ``results_dir`` and check the chain (see :func:`check_stamps`),
+    then recompute what the stamps judge current and re-simulate ``resimulate`` episodes per
+    shard (:mod:`mjtrial.verify.recompute`): an output that differs is tampered.
 
     ``repo_root`` is the folder Snakemake ran in: stamps record paths relative to it, and the
     model path in the config is resolved in it.  ``results_dir`` must lie inside it.  Raises
@@ -192,6 +213,7 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
     except (OSError, ValueError):
         manifest = None
 
+    @functools.cache
     def current_sha256(rel: str) -> str | None:
         p = Path(rel)
         p = p if p.is_absolute() else repo_root / p
@@ -200,14 +222,34 @@ def verify_results(results_dir: Path, *, config_path: Path, repo_root: Path) -> 
         except OSError:
             return None
 
-    report = check_stamps(
-        stamps,
-        current=current,
-        current_sha256=current_sha256,
-        outputs_prefix=_relative(results_dir, repo_root),
-        unreadable=unreadable,
-        manifest=manifest,
-        manifest_path=_relative(manifest_file, repo_root),
-        seal_paths=[_relative(p, repo_root) for p in _seals(layout)],
+    def check(differs: Mapping[str, str] | None = None) -> VerifyReport:
+        return check_stamps(
+            stamps,
+            current=current,
+            current_sha256=current_sha256,
+            outputs_prefix=_relative(results_dir, repo_root),
+            unreadable=unreadable,
+            manifest=manifest,
+            manifest_path=_relative(manifest_file, repo_root),
+            seal_paths=[_relative(p, repo_root) for p in _seals(layout)],
+            expected_paths=[
+                _relative(p, repo_root)
+                for s in _studies_run(layout)
+                for p in (layout.study_summary(s), layout.study_report(s))
+            ],
+            recomputed_differs=differs,
+        )
+
+    report = check()
+    found = recompute(
+        layout,
+        config,
+        repo_root=repo_root,
+        current=report.with_status(Status.OK),
+        resimulate=resimulate,
     )
-    return dataclasses.replace(report, skipped=(*report.skipped, *leftovers))
+    if found.differs:
+        report = check(found.differs)
+    return dataclasses.replace(
+        report, skipped=(*report.skipped, *leftovers), checks=(found.line(),)
+    )

@@ -27,6 +27,7 @@ __all__ = [
     "Status",
     "VerifyReport",
     "check_stamps",
+    "dict_diff",
     "parse_rule",
 ]
 
@@ -83,6 +84,7 @@ class VerifyReport:
     outputs: tuple[OutputResult, ...]
     warnings: tuple[str, ...] = ()
     skipped: tuple[Skipped, ...] = ()
+    checks: tuple[str, ...] = ()  # what was checked beyond the stamps (recomputation)
 
     @property
     def ok(self) -> bool:
@@ -122,11 +124,12 @@ class VerifyReport:
         )
 
     def lines(self) -> list[str]:
-        """One line per output, then skipped files, warnings, and the summary line."""
+        """One line per output, then skipped files, warnings, checks and the summary line."""
         return [
             *(o.line() for o in self.outputs),
             *(s.line() for s in self.skipped),
             *(f"warning  {w}" for w in self.warnings),
+            *(f"checked  {c}" for c in self.checks),
             self.summary(),
         ]
 
@@ -228,13 +231,13 @@ def _short(value: Any, width: int = 40) -> str:
 _ABSENT = object()
 
 
-def _dict_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
+def dict_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
     """Dotted keys whose values differ, as ``key: old -> new``."""
     if isinstance(old, Mapping) and isinstance(new, Mapping):
         out: list[str] = []
         for key in sorted(set(old) | set(new), key=str):
             dotted = f"{prefix}.{key}" if prefix else str(key)
-            out += _dict_diff(old.get(key, _ABSENT), new.get(key, _ABSENT), dotted)
+            out += dict_diff(old.get(key, _ABSENT), new.get(key, _ABSENT), dotted)
         return out
     if old is _ABSENT:
         return [f"{prefix or '(slice)'}: added {_short(new)}"]
@@ -242,8 +245,8 @@ def _dict_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
         return [f"{prefix or '(slice)'}: removed"]
     try:
         same = provenance.config_hash(old) == provenance.config_hash(new)
-    except (TypeError, ValueError):
-        same = old == new
+    except (TypeError, ValueError):  # NaN: equal when JSON writes them the same
+        same = old == new or json.dumps(old, sort_keys=True) == json.dumps(new, sort_keys=True)
     return [] if same else [f"{prefix or '(slice)'}: {_short(old)} -> {_short(new)}"]
 
 
@@ -374,6 +377,8 @@ def check_stamps(
     manifest: Mapping[str, Any] | None = None,
     manifest_path: str | None = None,
     seal_paths: Iterable[str] = (),
+    expected_paths: Iterable[str] = (),
+    recomputed_differs: Mapping[str, str] | None = None,
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -384,7 +389,9 @@ def check_stamps(
     (the model) are source files.  ``manifest`` is the parsed ``manifest.json`` (its ``stamps``
     name the outputs expected besides ``manifest_path`` itself). ``seal_paths`` are the seals
     expected, whose stamps record the sha256 of every output, reports and figures included: an
-    edit to any of them is seen there.
+    edit to any of them is seen there. ``expected_paths`` are further outputs that must be
+    there (a study's summary beside its report). ``recomputed_differs`` maps outputs that
+    differ from their recomputation (:mod:`mjtrial.verify.recompute`) to why: tampered.
     """
     unreadable = dict(unreadable or {})
     prefix = outputs_prefix.rstrip("/") + "/"
@@ -410,7 +417,7 @@ def check_stamps(
     found = set(pipeline_stamps) | set(unreadable)
     expected: set[str] = set()
     manifest_rules: dict[str, Any] = {}
-    expected.update(p for p in (manifest_path, *seal_paths) if p is not None)
+    expected.update(p for p in (manifest_path, *seal_paths, *expected_paths) if p is not None)
     recorded = manifest.get("stamps") if isinstance(manifest, Mapping) else None
     if isinstance(recorded, Mapping):
         for path, stamp in recorded.items():
@@ -423,6 +430,8 @@ def check_stamps(
     recorders: dict[str, list[str]] = defaultdict(list)  # output -> stamps whose sha differs
     for path, why in unreadable.items():
         tampered[path].append(f"no readable stamp ({why})")
+    for path, why in (recomputed_differs or {}).items():
+        tampered[path].append(why)
 
     model_path = current.config.get("model")
     for path, stamp in pipeline_stamps.items():
@@ -448,7 +457,7 @@ def check_stamps(
             stale[path].append(f"config slice changed: {rule}: {gone}")
         else:
             if provenance.config_hash(now) != recorded_hash:
-                diff = _dict_diff(stamp.get("config_slice"), now) if consistent else []
+                diff = dict_diff(stamp.get("config_slice"), now) if consistent else []
                 more = f" and {len(diff) - 3} more" if len(diff) > 3 else ""
                 detail = f" ({', '.join(diff[:3])}{more})" if diff else ""
                 stale[path].append(f"config slice changed: {rule}{detail}")

@@ -1,0 +1,414 @@
+"""Recompute, do not trust the seal: what `mjtrial verify` checks beyond the stamps.
+
+A stamp or a seal records what a file was when it was written, not that it is right: a
+forged `summary.json` restamped, or a report edited with its seal deleted, passes every check
+on stamps. So verify also rebuilds, in memory, every output that is cheap to rebuild from its
+own inputs (the states, each condition's table from its shards, the analysis, the manifest,
+the report's text, the studies' summaries and reports) and compares, and re-simulates a
+deterministic sample of episodes of every shard (`resimulate` per shard) against its table.
+By induction a forged link anywhere in the chain is named: each output is what its inputs
+give, and the roots (states, episodes) are what the seeds and the simulator give.
+
+Only outputs the stamps judge current are recomputed: for a stale one (a config value, the
+code or the model changed) a difference is expected, and the rebuild fixes it.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import zlib
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mjtrial import provenance, taxonomy
+from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.layout import NOMINAL, STUDIES, Layout, shard_ids, shard_range
+from mjtrial.report import report_text
+from mjtrial.stages.analysis import summarize_tables
+from mjtrial.stages.manifest import manifest_record
+from mjtrial.stages.rollout import (
+    ROLLOUT_COLUMNS,
+    condition_model,
+    condition_outcomes,
+    nominal_episode,
+    read_states,
+    slice_protocol,
+)
+from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
+from mjtrial.states import generate_initial_states
+from mjtrial.verify.chain import dict_diff
+
+__all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
+
+# Episodes re-simulated per shard by default: at the built-in N = 200 (one shard per
+# condition) verify takes a few seconds more; at 100,000 states (200 shards) about a minute.
+DEFAULT_RESIMULATE = 20
+
+# How many differing keys, lines or rows a reason names.
+_SHOWN = 3
+
+
+@dataclass
+class Recomputation:
+    """What the recomputation found: per output (repository-relative), why it differs."""
+
+    differs: dict[str, str] = field(default_factory=dict)
+    recomputed: int = 0
+    resimulated: int = 0
+
+    def line(self) -> str:
+        return (
+            f"recomputed {self.recomputed} outputs from their inputs and re-simulated "
+            f"{self.resimulated} episodes: {len(self.differs)} differ"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Comparing an output with its recomputation
+# --------------------------------------------------------------------------------------------
+
+
+def _json_payload(path: Path) -> dict[str, Any]:
+    obj = json.loads(path.read_text(encoding="utf-8"))
+    return {k: v for k, v in obj.items() if k != "provenance"}
+
+
+def _roundtrip(obj: Any) -> Any:
+    """`obj` as JSON gives it back (tuples as lists, numpy scalars as numbers)."""
+    return json.loads(json.dumps(obj, default=lambda v: v.item()))
+
+
+def json_difference(path: Path, expected: Mapping[str, Any]) -> str | None:
+    """Why a JSON output is not `expected` (its stamp aside), or None."""
+    have, want = _json_payload(path), _roundtrip(dict(expected))
+    if json.dumps(have, sort_keys=True) == json.dumps(want, sort_keys=True):
+        return None
+    diff = dict_diff(have, want) or ["(in a value that compares equal)"]
+    more = f" and {len(diff) - _SHOWN} more" if len(diff) > _SHOWN else ""
+    return f"{'; '.join(diff[:_SHOWN])}{more} (file -> recomputed)"
+
+
+def markdown_difference(path: Path, expected: str) -> str | None:
+    """Why a Markdown output's text is not `expected` (its front matter aside), or None."""
+    _, body = provenance.formats._split_front_matter(path.read_text(encoding="utf-8"))
+    if body == expected:
+        return None
+    have, want = body.splitlines(), expected.splitlines()
+    for i in range(max(len(have), len(want))):
+        a = have[i] if i < len(have) else "(end of file)"
+        b = want[i] if i < len(want) else "(end of text)"
+        if a != b:
+            return f"line {i + 1}: {a[:60]!r} in the file, {b[:60]!r} recomputed"
+    return "differs in line endings"
+
+
+def _column_equal(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Element-wise equality, NaN equal to NaN and None to None."""
+    if a.dtype.kind == "f" and b.dtype.kind == "f":
+        return (a == b) | (np.isnan(a) & np.isnan(b))
+    return np.array([x == y for x, y in zip(a.tolist(), b.tolist(), strict=True)], dtype=bool)
+
+
+def table_difference(
+    table: pa.Table, expected: Mapping[str, np.ndarray], *, what: str = "rows"
+) -> str | None:
+    """Why `table`'s rows are not `expected` (column -> values, state ids aligned), or None."""
+    if table.num_rows != len(next(iter(expected.values()))):
+        return f"{table.num_rows} rows, {len(next(iter(expected.values())))} recomputed"
+    bad_rows = np.zeros(table.num_rows, dtype=bool)
+    bad_columns = []
+    for name, values in expected.items():
+        if name not in table.column_names:
+            return f"no column {name!r}"
+        have = table.column(name).to_numpy(zero_copy_only=False)
+        unequal = ~_column_equal(have, np.asarray(values))
+        if unequal.any():
+            bad_columns.append(name)
+            bad_rows |= unequal
+    if not bad_columns:
+        return None
+    ids = table.column("state_id").to_numpy()[bad_rows].tolist()
+    shown = ", ".join(map(str, ids[:_SHOWN])) + (
+        f" and {len(ids) - _SHOWN} more" if len(ids) > _SHOWN else ""
+    )
+    return f"{what} for states {shown} differ in {', '.join(bad_columns)}"
+
+
+def _platform_note(stamp: Mapping[str, Any]) -> str:
+    """Where the record was made, when that is not here: another CPU or MuJoCo build may
+    explain a re-simulation that differs."""
+    then = (stamp.get("versions", {}).get("mujoco"), stamp.get("platform", {}).get("cpu_model"))
+    now = (provenance.library_versions()["mujoco"], provenance.platform_fingerprint()["cpu_model"])
+    if then == now:
+        return ""
+    return (
+        f" (recorded with MuJoCo {then[0]} on {then[1]}; re-simulated with MuJoCo {now[0]} "
+        f"on {now[1]})"
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# The recomputation
+# --------------------------------------------------------------------------------------------
+
+
+def sample_ids(first: int, stop: int, k: int, *, key: str) -> list[int]:
+    """A deterministic sample of `k` state ids in [first, stop), fixed by `key` (the shard)."""
+    ids = np.arange(first, stop)
+    if k >= ids.size:
+        return ids.tolist()
+    rng = np.random.default_rng(zlib.crc32(key.encode()))
+    return sorted(rng.choice(ids, size=k, replace=False).tolist())
+
+
+class _Checker:
+    """Runs each check whose outputs the stamps judged current, recording differences."""
+
+    def __init__(
+        self, layout: Layout, config: Mapping[str, Any], repo_root: Path, current: Iterable[str]
+    ) -> None:
+        self.layout, self.config, self.repo_root = layout, config, repo_root
+        self.current = set(current)
+        self.model_file = repo_root / config["model"]
+        self.found = Recomputation()
+
+    def rel(self, path: Path) -> str:
+        return Path(path).relative_to(self.repo_root).as_posix()
+
+    def is_current(self, *paths: Path) -> bool:
+        return all(self.rel(p) in self.current for p in paths)
+
+    def check(self, path: Path, difference: Callable[[], str | None]) -> None:
+        if not self.is_current(path):
+            return
+        self.found.recomputed += 1
+        try:
+            why = difference()
+        except Exception as err:  # noqa: BLE001 - an output that cannot be read back is named
+            why = f"cannot be recomputed ({type(err).__name__}: {' '.join(str(err).split())[:100]})"
+        if why:
+            self.found.differs[self.rel(path)] = f"differs from its recomputation: {why}"
+
+    # -- the checks --------------------------------------------------------------------------
+
+    def states(self) -> None:
+        states = self.config["states"]
+        for path, seed in (
+            (self.layout.states, states["seed"]),
+            (self.layout.development_states, states["development_seed"]),
+        ):
+
+            def difference(path: Path = path, seed: int = seed) -> str | None:
+                table = generate_initial_states(seed=seed, n=states["n"], ranges=states["ranges"])
+                expected = {c: table.column(c).to_numpy() for c in table.column_names}
+                return table_difference(pq.read_table(path), expected)
+
+            self.check(path, difference)
+
+    def conditions(self) -> Iterable[tuple[str, str]]:
+        """(variant, condition) of every rollout the config names."""
+        for c in all_conditions(self.config):
+            yield NOMINAL, c
+        for v in variant_names(self.config):
+            for c in self.config["conditions"]:
+                yield v, c
+
+    def rollouts(self, resimulate: int) -> None:
+        n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
+        shards = shard_ids(n, size)
+        for variant, condition in self.conditions():
+            qualified = condition if variant == NOMINAL else f"{variant}/{condition}"
+            slice_ = config_slice("rollout", self.config, condition=qualified)
+            tables = [self.layout.shard_table(condition, s, variant) for s in shards]
+            gathered = self.layout.rollout_table(condition, variant)
+            if self.is_current(*tables):
+
+                def concatenated(
+                    tables: list[Path] = tables, gathered: Path = gathered
+                ) -> str | None:
+                    parts = [pq.read_table(p) for p in tables]
+                    expected = {
+                        c: np.concatenate(
+                            [t.column(c).to_numpy(zero_copy_only=False) for t in parts]
+                        )
+                        for c in ROLLOUT_COLUMNS
+                    }
+                    return table_difference(
+                        pq.read_table(gathered), expected, what="rows of its shards"
+                    )
+
+                self.check(gathered, concatenated)
+            nominal = self.layout.nominal_episode(condition, variant)
+            self.check(
+                nominal,
+                lambda s=slice_, p=nominal: json_difference(p, nominal_episode(s, self.model_file)),
+            )
+            if resimulate > 0:
+                for shard, table in zip(shards, tables, strict=True):
+                    first, stop = shard_range(shard, size, n)
+                    ids = sample_ids(first, stop, resimulate, key=self.rel(table))
+                    self.check(table, lambda s=slice_, t=table, i=ids: self.resimulated(s, t, i))
+
+    def resimulated(
+        self, slice_: Mapping[str, Any], table_path: Path, ids: list[int]
+    ) -> str | None:
+        states = {s.state_id: s for s in read_states(self.layout.states)}
+        table = pq.read_table(table_path)
+        rows = {sid: i for i, sid in enumerate(table.column("state_id").to_numpy().tolist())}
+        missing = [i for i in ids if i not in rows]
+        if missing:
+            return f"no row for states {missing[:_SHOWN]}"
+        outcome: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
+        for _, out in condition_outcomes(
+            condition_model(slice_, self.model_file),
+            [states[i] for i in ids],
+            lift_time=float(slice_["lift_time"]),
+            thresholds=taxonomy.Thresholds.from_config(slice_["failure_taxonomy"]),
+            nthread=1,
+            protocol=slice_protocol(slice_),
+        ):
+            for c in ROLLOUT_COLUMNS:
+                outcome[c].append(out[c])
+        self.found.resimulated += len(ids)
+        sampled = table.take(pa.array([rows[i] for i in ids]))
+        why = table_difference(
+            sampled,
+            {c: np.concatenate(v) for c, v in outcome.items()},
+            what="re-simulated episodes",
+        )
+        return why and why + _platform_note(provenance.read_stamp(table_path))
+
+    def analysis(self) -> None:
+        layout, conditions = self.layout, list(self.config["conditions"])
+        self.check(
+            layout.summary,
+            lambda: json_difference(
+                layout.summary,
+                summarize_tables(
+                    states_path=layout.states,
+                    rollout_tables={c: layout.rollout_table(c) for c in conditions},
+                    nominal_files={c: layout.nominal_episode(c) for c in conditions},
+                    analysis_slice=config_slice("analysis", self.config),
+                ),
+            ),
+        )
+
+    def manifest(self) -> None:
+        layout, conditions = self.layout, list(self.config["conditions"])
+        shards = shard_ids(self.config["states"]["n"], self.config["rollout"]["shard_size"])
+        recorded = self.config["recording"]["episodes"] != "none"
+        outputs = [layout.states]
+        for c in conditions:
+            outputs += [layout.rollout_table(c), layout.nominal_episode(c)]
+            outputs += layout.shard_outputs(c, shards, recorded=recorded)
+        if recorded:
+            outputs += [layout.failures, layout.failures_table]
+        if not self.is_current(layout.summary, *outputs):
+            return
+        self.check(
+            layout.manifest,
+            lambda: json_difference(
+                layout.manifest,
+                manifest_record(
+                    config=config_slice("manifest", self.config),
+                    summary_path=layout.summary,
+                    outputs=outputs,
+                    model_file=self.model_file,
+                    repo_root=self.repo_root,
+                )[0],
+            ),
+        )
+
+    def report(self) -> None:
+        layout = self.layout
+        if not self.is_current(layout.summary, layout.manifest):
+            return
+        self.check(
+            layout.report,
+            lambda: markdown_difference(
+                layout.report,
+                report_text(
+                    summary_path=layout.summary,
+                    config=config_slice("report", self.config),
+                    manifest_path=layout.manifest,
+                    figure_paths=layout.figure_files(),
+                    output=layout.report,
+                    repo_root=self.repo_root,
+                ),
+            ),
+        )
+
+    def studies(self) -> None:
+        layout, config = self.layout, self.config
+        for study in STUDIES:
+            summary_path, report_path = layout.study_summary(study), layout.study_report(study)
+            if study == "sensitivity":
+                if not variant_names(config):
+                    continue
+                falsifier = config["design"]["falsifier"]
+                pair = [falsifier["treatment"], falsifier["baseline"]]
+                tables = {
+                    v: {c: layout.rollout_table(c, v) for c in pair}
+                    for v in [NOMINAL, *variant_names(config)]
+                }
+                inputs = [p for by in tables.values() for p in by.values()]
+
+                def summarize(tables: Any = tables) -> dict[str, Any]:
+                    return sensitivity_summary(
+                        study_slice=config_slice("sensitivity", config),
+                        tables=tables,
+                        model_file=self.model_file,
+                    )
+            else:
+                sweep = sweep_conditions(config)
+                if not sweep:
+                    continue
+                tables = {v: layout.rollout_table(c) for v, c in sweep.items()}
+                inputs = [layout.states, *tables.values()]
+
+                def summarize(tables: Any = tables) -> dict[str, Any]:
+                    return dose_response_summary(
+                        study_slice=config_slice("dose_response", config),
+                        states_path=layout.states,
+                        tables=tables,
+                    )
+
+            if not self.is_current(*inputs):
+                continue
+            summary = functools.cache(summarize)
+            self.check(summary_path, lambda p=summary_path, f=summary: json_difference(p, f()))
+            self.check(
+                report_path,
+                lambda s=study, p=report_path, f=summary: markdown_difference(
+                    p, study_report_text(s, f(), report=p, figures_dir=layout.figures_dir)
+                ),
+            )
+
+
+def recompute(
+    layout: Layout,
+    config: Mapping[str, Any],
+    *,
+    repo_root: Path,
+    current: Iterable[str],
+    resimulate: int = DEFAULT_RESIMULATE,
+) -> Recomputation:
+    """Recompute every light output of `layout` that the stamps judged current (`current`,
+    repository-relative paths) and re-simulate `resimulate` episodes per shard.
+    """
+    checker = _Checker(layout, config, Path(repo_root), current)
+    checker.states()
+    checker.rollouts(resimulate)
+    checker.analysis()
+    checker.manifest()
+    checker.report()
+    checker.studies()
+    return checker.found

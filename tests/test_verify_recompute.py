@@ -1,0 +1,196 @@
+"""`mjtrial verify` recomputes, it does not trust the seal (survey case 2): forged links that
+every stamp and seal agree with are named, by recomputing the light stages from their inputs
+and re-simulating episodes. Each end-to-end test failed before the recomputation existed."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from conftest import edit_config, run_snakemake
+
+from mjtrial import provenance
+from mjtrial.verify import Status, verify_results
+from mjtrial.verify.recompute import (
+    json_difference,
+    markdown_difference,
+    sample_ids,
+    table_difference,
+)
+
+RESULTS = Path("results") / "research_mode"
+REPORT = (RESULTS / "report.md").as_posix()
+SUMMARY = (RESULTS / "analysis" / "summary.json").as_posix()
+MANIFEST = (RESULTS / "manifest.json").as_posix()
+
+
+def copy_of(built: Path, tmp_path: Path) -> Path:
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+    return workdir
+
+
+def verified(workdir: Path, **kwargs):
+    return verify_results(
+        workdir / RESULTS,
+        config_path=workdir / "config" / "config.yaml",
+        repo_root=workdir,
+        **kwargs,
+    )
+
+
+def now_utc() -> str:
+    time.sleep(1.1)  # stamps have a resolution of one second
+    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def test_a_fresh_build_recomputes_equal(built):
+    report = verified(built, resimulate=5)
+    assert report.ok, report.format()
+    [line] = report.checks
+    # states, 2 gathered tables, 2 nominal episodes, 6 shard tables, summary, manifest, report
+    assert line.startswith("recomputed 14 outputs from their inputs and re-simulated 24 episodes")
+    assert line.endswith(": 0 differ")
+
+
+def test_an_edited_report_with_its_seal_deleted_is_named(built, tmp_path):
+    """Edit report.md, delete seal.json, rebuild: only the seal reran and sealed the edit."""
+    workdir = copy_of(built, tmp_path)
+    report_md = workdir / REPORT
+    text = report_md.read_text()
+    assert "Verdict: **REFUTED**" in text  # 12 states are too few to support the hypothesis
+    report_md.write_text(text.replace("Verdict: **REFUTED**", "Verdict: **SUPPORTED**"))
+    (workdir / RESULTS / "seal.json").unlink()
+    run_snakemake(workdir)
+    report = verified(workdir)
+    assert report[REPORT].status is Status.TAMPERED, report.format()
+    why = " ".join(report[REPORT].reasons)
+    assert "differs from its recomputation" in why and "REFUTED" in why and "SUPPORTED" in why
+    assert report.with_status(Status.TAMPERED) == [REPORT]
+
+
+def test_a_forged_summary_restamped_with_the_manifest_forced_is_named(built, tmp_path):
+    """Rewrite summary.json with another verdict, refresh its stamp's time, rebuild the
+    manifest (and so the report): every stamp agrees, and the report says SUPPORTED."""
+    workdir = copy_of(built, tmp_path)
+    path = workdir / SUMMARY
+    summary = json.loads(path.read_text())
+    stamp = dict(summary.pop("provenance"), created_utc=now_utc())
+    assert summary["falsifier"]["verdict"] == "refuted"
+    summary["falsifier"]["verdict"] = "supported"
+    provenance.write_json(summary, path, stamp)
+    run_snakemake(workdir, "--forcerun", "manifest")
+    assert "**SUPPORTED**" in (workdir / REPORT).read_text()
+
+    report = verified(workdir)
+    assert report[SUMMARY].status is Status.TAMPERED, report.format()
+    assert 'falsifier.verdict: "supported" -> "refuted"' in " ".join(report[SUMMARY].reasons)
+    # Built from the forgery: stale, a rebuild fixes them.
+    for downstream in (MANIFEST, REPORT):
+        assert report[downstream].status is Status.STALE
+        assert "input tampered" in " ".join(report[downstream].reasons)
+
+
+def test_a_forged_episode_rebuilt_downstream_is_found_by_resimulation(built, tmp_path):
+    """Nudge an episode's final height in a shard table under a fresh stamp and let Snakemake
+    rebuild everything after it: only re-simulating the episode can tell. (Flipping its
+    success is caught by the failures stage already: its recording says otherwise.)"""
+    workdir = copy_of(built, tmp_path)
+    shard = workdir / RESULTS / "rollouts" / "slow" / "shard-00001.parquet"
+    stamp = dict(provenance.read_stamp(shard), created_utc=now_utc())
+    table = pq.read_table(shard).replace_schema_metadata(None)
+    height = table.column("final_height").to_numpy().copy()
+    height[2] += 1e-6  # state 7
+    table = table.set_column(
+        table.column_names.index("final_height"), "final_height", pa.array(height)
+    )
+    provenance.write_parquet(table, shard, stamp)
+    run_snakemake(workdir)
+
+    assert verified(workdir, resimulate=0).ok  # every stamp and seal agrees
+    report = verified(workdir, resimulate=5)  # shards hold 5 states: all re-simulated
+    rel = shard.relative_to(workdir).as_posix()
+    assert report[rel].status is Status.TAMPERED, report.format()
+    assert "re-simulated episodes for states 7 differ in final_height" in " ".join(report[rel].reasons)
+    assert report[SUMMARY].status is Status.STALE
+
+
+@pytest.fixture(scope="module")
+def studied(built, tmp_path_factory) -> Path:
+    workdir = tmp_path_factory.mktemp("recompute-studies") / "copy"
+    shutil.copytree(built, workdir, symlinks=True)
+
+    def one_variant(config):
+        config["variants"] = {"small_step": {"option": {"timestep": 0.001}}}
+
+    edit_config(workdir, one_variant)
+    run_snakemake(workdir, "sensitivity")
+    return workdir
+
+
+def test_an_edited_study_report_beside_a_deleted_summary_is_named(studied, tmp_path):
+    """Change "survives 0 of 1" in the sensitivity report, delete its summary and its seal:
+    the summary is missing and the report differs from what the tables give."""
+    workdir = copy_of(studied, tmp_path)
+    assert verified(workdir, resimulate=1).ok
+    report_md = workdir / RESULTS / "report_sensitivity.md"
+    text = report_md.read_text()
+    assert "survives 0 of 1" in text, text
+    report_md.write_text(text.replace("survives 0 of 1", "survives 1 of 1"))
+    (workdir / RESULTS / "analysis" / "sensitivity.json").unlink()
+    (workdir / RESULTS / "seal_sensitivity.json").unlink()
+
+    report = verified(workdir, resimulate=1)
+    rel = (RESULTS / "report_sensitivity.md").as_posix()
+    assert report[rel].status is Status.TAMPERED, report.format()
+    assert "survives 1 of 1" in " ".join(report[rel].reasons)
+    assert report[(RESULTS / "analysis" / "sensitivity.json").as_posix()].status is Status.MISSING
+    assert report[(RESULTS / "seal_sensitivity.json").as_posix()].status is Status.MISSING
+
+
+# --------------------------------------------------------------------------------------------
+# The comparisons, against hand-made references
+# --------------------------------------------------------------------------------------------
+
+
+def test_json_difference_ignores_the_stamp_and_names_the_keys(tmp_path):
+    path = tmp_path / "a.json"
+    path.write_text(json.dumps({"a": {"b": 1, "c": [1, 2]}, "nan": float("nan"), "provenance": 1}))
+    assert json_difference(path, {"a": {"b": 1, "c": (1, 2)}, "nan": float("nan")}) is None
+    assert json_difference(path, {"a": {"b": 2, "c": [1, 2]}, "nan": float("nan")}) == (
+        "a.b: 1 -> 2 (file -> recomputed)"
+    )
+
+
+def test_markdown_difference_names_the_first_differing_line(tmp_path):
+    path = tmp_path / "r.md"
+    path.write_text("---\nprovenance: {}\n---\n# Title\nsame\nold line\n")
+    assert markdown_difference(path, "# Title\nsame\nold line\n") is None
+    assert markdown_difference(path, "# Title\nsame\nnew line\n") == (
+        "line 3: 'old line' in the file, 'new line' recomputed"
+    )
+
+
+def test_table_difference_names_states_and_columns():
+    table = pa.table({"state_id": [0, 1, 2], "x": [0.5, np.nan, 2.0], "c": ["a", None, "b"]})
+    assert table_difference(table, {"x": np.array([0.5, np.nan, 2.0])}) is None
+    assert table_difference(table, {"c": np.array(["a", None, "b"], dtype=object)}) is None
+    assert table_difference(table, {"x": np.array([0.5, np.nan, 3.0])}) == (
+        "rows for states 2 differ in x"
+    )
+    assert table_difference(table, {"x": np.array([0.5])}) == "3 rows, 1 recomputed"
+
+
+def test_the_resimulated_sample_is_fixed_by_the_shard_and_covers_small_shards():
+    a = sample_ids(1000, 2000, 20, key="results/x/rollouts/fast/shard-00001.parquet")
+    assert a == sample_ids(1000, 2000, 20, key="results/x/rollouts/fast/shard-00001.parquet")
+    assert a != sample_ids(1000, 2000, 20, key="results/x/rollouts/slow/shard-00001.parquet")
+    assert len(set(a)) == 20 and all(1000 <= i < 2000 for i in a) and a == sorted(a)
+    assert sample_ids(10, 12, 20, key="k") == [10, 11]
