@@ -1,5 +1,6 @@
 # mjtrial: the research-mode experiment. `snakemake -c2` rebuilds every result under
 # results/<experiment>/; the design and parameters live in config/config.yaml.
+import os
 import sys
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from mjtrial.config import (
     read_config_file,
 )
 from mjtrial.layout import CONFIG_FILE
+from mjtrial.stages.manifest import rerun_command
 
 # The code that runs must be the code this checkout stamps and hashes.
 if foreign_package(Path.cwd()):
@@ -23,16 +25,22 @@ if foreign_package(Path.cwd()):
 # Then it is validated before any work, with one line naming the file, the key and the
 # expectation (snakemake's validate() prints a multi-line jsonschema dump instead).
 # Values given with --config are read as YAML again: Snakemake leaves nested ones as strings.
+# The manifest records the command-line values (COMMAND_LINE_CONFIG), so that `mjtrial
+# verify` checks the results against the configuration the run used.
 try:
-    overrides = merge_config(
+    COMMAND_LINE_CONFIG = merge_config(
         config, parse_config_args(workflow.config_settings.config_args)
     )
-    config.update(merge_config(read_config_file(CONFIG_FILE), overrides))
+    config.update(merge_config(read_config_file(CONFIG_FILE), COMMAND_LINE_CONFIG))
     check_config(
         config,
         source=", ".join(map(str, [CONFIG_FILE, *workflow.configfiles])),
         repo_root=Path.cwd(),
-        overrides=overrides,
+        overrides=COMMAND_LINE_CONFIG,
+    )
+    RERUN_COMMAND = rerun_command(
+        [os.path.relpath(f) for f in workflow.configfiles],
+        workflow.config_settings.config_args or [],
     )
     for warning in preflight(config, repo_root=Path.cwd()):
         print(warning, file=sys.stderr)

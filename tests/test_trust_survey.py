@@ -282,3 +282,49 @@ def test_a_checkout_run_with_another_checkouts_package_is_refused(tmp_path):
     assert verify.returncode == 2 and str(own) in verify.stderr
     ran = run_snakemake(checkout, "-n", env={"PYTHONPATH": str(checkout / "src")})
     assert "states" in ran.stdout
+
+
+def test_leftovers_of_a_removed_variant_and_sweep_value_raise_no_false_alarm(built, tmp_path):
+    """Survey case 4: a variant and a sweep value removed after the studies ran leave their
+    rollouts behind; verify names them skipped and passes."""
+    workdir = copy_of(built, tmp_path)
+
+    def studies(variants, values):
+        def edit(config):
+            config["variants"] = {v: {"option": {"timestep": dt}} for v, dt in variants.items()}
+            config["sweep"]["values"] = values
+
+        return edit
+
+    edit_config(workdir, studies({"step_1ms": 0.001, "step_4ms": 0.004}, [0.15, 0.3, 0.6, 1.5]))
+    run_snakemake(workdir, "studies")
+    edit_config(workdir, studies({"step_1ms": 0.001}, [0.15, 0.6, 1.5]))
+    run_snakemake(workdir, "studies")
+    assert "Nothing to be done" in run_snakemake(workdir, "-n", "studies").stdout
+    report = verified(workdir)
+    assert report.ok, report.format()
+    skipped = " ".join(s.path for s in report.skipped)
+    assert "variants/step_4ms/rollouts/" in skipped and "0.3" in skipped, skipped
+
+
+def test_a_run_given_command_line_values_verifies_against_them(built, tmp_path):
+    """Survey case 4: a run with --config is checked against the configuration it used (the
+    manifest records the values), and verify says how it differs from the file."""
+    workdir = copy_of(built, tmp_path)
+    run_snakemake(workdir, "--config", "analysis={n_resamples: 300}")
+    manifest = json.loads((workdir / RESULTS / "manifest.json").read_text())
+    command = "snakemake -c2 --config 'analysis={n_resamples: 300}'"
+    assert manifest["rerun"]["command"] == command
+    assert manifest["rerun"]["command_line"] == {"analysis": {"n_resamples": 300}}
+    assert "Nothing to be done" in run_snakemake(
+        workdir, "-n", "--config", "analysis={n_resamples: 300}"
+    ).stdout
+
+    report = verified(workdir)
+    assert report.ok, report.format()
+    [warning] = [w for w in report.warnings if "command line" in w]
+    assert command in warning and "analysis.n_resamples: 500 -> 300" in warning
+
+    run_snakemake(workdir)  # the file's configuration again: no warning
+    report = verified(workdir)
+    assert report.ok and not report.warnings, report.format()

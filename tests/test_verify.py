@@ -109,7 +109,8 @@ def test_fresh_build_verifies(built, monkeypatch, capsys):
     monkeypatch.chdir(built)
     assert cli.main(["verify"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[:-1] == [f"ok  {o.path}" for o in report.outputs]
+    assert lines[:-2] == [f"ok  {o.path}" for o in report.outputs]
+    assert lines[-2].startswith("checked  recomputed ")
     assert lines[0] == f"ok  {STATES}"
     assert lines[-1].startswith("verified: results/research_mode: ")
     assert f"{len(stamped)} ok, 0 stale, 0 tampered, 0 missing" in lines[-1]

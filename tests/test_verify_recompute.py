@@ -118,7 +118,8 @@ def test_a_forged_episode_rebuilt_downstream_is_found_by_resimulation(built, tmp
     report = verified(workdir, resimulate=5)  # shards hold 5 states: all re-simulated
     rel = shard.relative_to(workdir).as_posix()
     assert report[rel].status is Status.TAMPERED, report.format()
-    assert "re-simulated episodes for states 7 differ in final_height" in " ".join(report[rel].reasons)
+    reasons = " ".join(report[rel].reasons)
+    assert "re-simulated episodes for states 7 differ in final_height" in reasons
     assert report[SUMMARY].status is Status.STALE
 
 

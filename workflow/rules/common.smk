@@ -14,7 +14,7 @@ from mjtrial.layout import (
 )
 from mjtrial.provenance import model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
-from mjtrial.stages.stamping import config_slice, stage_code_hash
+from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.workflow_script import import_in_background, run_in_process
 
 # Every path comes from the layout; rules pass wildcards ("{condition}") to its methods.

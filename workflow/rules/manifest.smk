@@ -23,6 +23,8 @@ rule manifest:
         folders=shard_recordings(CONDITIONS),
         # The manifest records the whole config, so it depends on all of it.
         slice=config_slice("manifest", config),
+        command_line=ConfigSlice(COMMAND_LINE_CONFIG),
+        command=RERUN_COMMAND,
         code=stage_code_hash("manifest"),
     run:
         run_script("manifest", input, output, params, wildcards, threads, log, rule)

@@ -11,6 +11,8 @@ run_job(
     write_manifest,
     rule="manifest",
     config=snakemake.params.slice,
+    command_line=dict(snakemake.params.command_line),
+    command=snakemake.params.command,
     summary_path=Path(snakemake.input.summary),
     outputs=[
         Path(snakemake.input.states),

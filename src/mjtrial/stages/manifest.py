@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -26,11 +27,20 @@ def write_manifest(
     outputs: Sequence[Path],
     model_file: Path,
     output: Path,
+    command_line: Mapping[str, Any] | None = None,
+    command: str = "snakemake -c2",
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
-    """Gather the reproducibility record and the stamp of every output into `manifest.json`."""
+    """Gather the reproducibility record and the stamp of every output into `manifest.json`.
+
+    `command_line` holds the config values the run was given with `--config` or
+    `--configfile`, on top of config/config.yaml; `command` is the command that ran them
+    (`rerun_command`).
+    """
     manifest, inputs = manifest_record(
         config=config,
+        command_line=command_line or {},
+        command=command,
         summary_path=summary_path,
         outputs=outputs,
         model_file=model_file,
@@ -48,6 +58,8 @@ def manifest_record(
     summary_path: Path,
     outputs: Sequence[Path],
     model_file: Path,
+    command_line: Mapping[str, Any],
+    command: str,
     repo_root: Path = REPO_ROOT,
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """The manifest the stage writes and its stamp's inputs (`mjtrial verify` checks
@@ -67,8 +79,9 @@ def manifest_record(
         "experiment": config["experiment"],
         "design": config["design"],
         "rerun": {
-            "command": "snakemake -c2",
+            "command": command,
             "config": dict(config),
+            "command_line": dict(command_line),
             "commit": next(iter(stamps.values()))["git"].get("commit"),
         },
         "versions": provenance.library_versions(),
@@ -106,3 +119,11 @@ def manifest_record(
         "stamps": stamps,
     }
     return manifest, {rel(p): p for p in [*outputs, summary_path]}
+
+
+def rerun_command(configfiles: Sequence[str], config_args: Sequence[str]) -> str:
+    """`snakemake -c2` with the run's `--configfile` and `--config` arguments, as given."""
+    words = ["snakemake", "-c2"]
+    words += [w for f in configfiles for w in ("--configfile", f)]
+    words += ["--config", *config_args] if config_args else []
+    return shlex.join(words)

@@ -77,9 +77,7 @@ def run_dose_response(
     Args:
       tables: per swept value, the rollout table of the condition that runs it.
     """
-    summary = dose_response_summary(
-        study_slice=study_slice, states_path=states_path, tables=tables
-    )
+    summary = dose_response_summary(study_slice=study_slice, states_path=states_path, tables=tables)
     inputs = {"states": states_path, **{f"{v:g}": p for v, p in tables.items()}}
     return _write(
         "dose_response",

@@ -34,7 +34,7 @@ from typing import Any
 
 from mjtrial import provenance, recording  # noqa: F401 - recording registers the .rrd reader
 from mjtrial.conditions import all_conditions, variant_names
-from mjtrial.config import check_config, read_config_file
+from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.layout import STUDIES, Layout, shard_ids
 from mjtrial.verify.chain import (
     STAMPED_SUFFIXES,
@@ -44,6 +44,7 @@ from mjtrial.verify.chain import (
     Status,
     VerifyReport,
     check_stamps,
+    dict_diff,
     parse_rule,
 )
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
@@ -154,6 +155,46 @@ def _studies_run(layout: Layout) -> list[str]:
     ]
 
 
+def _recorded_command(manifest: Mapping[str, Any] | None) -> str:
+    """The command the manifest says the run was (not derived from any input: not checked)."""
+    rerun = manifest.get("rerun") if isinstance(manifest, Mapping) else None
+    command = rerun.get("command") if isinstance(rerun, Mapping) else None
+    return command if isinstance(command, str) else "snakemake -c2"
+
+
+def _config_of_the_run(
+    config_path: Path, manifest: Mapping[str, Any] | None, *, repo_root: Path
+) -> tuple[dict[str, Any], dict[str, Any], list[str]]:
+    """The configuration the results are checked against, the command-line values in it, and
+    a warning when those make it differ from the file.
+
+    A run given `--config` or `--configfile` values records them in its manifest
+    (`rerun.command_line`); they are applied on top of the file, as the run did. Without
+    them, the file alone: an edit since the run makes what it touches stale.
+    """
+    file_config = load_checked_config(config_path, repo_root=repo_root)
+    rerun = manifest.get("rerun") if isinstance(manifest, Mapping) else None
+    command_line = rerun.get("command_line") if isinstance(rerun, Mapping) else None
+    if not isinstance(command_line, dict) or not command_line:
+        return file_config, {}, []
+    config = merge_config(file_config, command_line)
+    check_config(
+        config,
+        source=f"{config_path} with the command-line values recorded in the manifest",
+        repo_root=repo_root,
+        overrides=command_line,
+    )
+    differ = dict_diff(file_config, config)
+    more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+    warning = (
+        f"the run was given config values on the command line ({rerun.get('command')}); "
+        f"checked against {config_path.name} with them, as the run used it"
+    )
+    if differ:
+        warning += f"; they differ from the file: {', '.join(differ[:3])}{more}"
+    return config, command_line, [warning]
+
+
 def verify_results(
     results_dir: Path,
     *,
@@ -182,10 +223,19 @@ def verify_results(
             f"{results_dir}: not inside the repository root {repo_root}; stamps record paths "
             "relative to it (pass --repo-root)"
         )
-    config = load_checked_config(Path(config_path), repo_root=repo_root)
+    layout = Layout(results_dir)
+    manifest_file = layout.manifest
+    manifest: dict[str, Any] | None = None
+    try:
+        loaded = json.loads(manifest_file.read_text(encoding="utf-8"))
+        manifest = loaded if isinstance(loaded, dict) else None
+    except (OSError, ValueError):
+        manifest = None
+    config, command_line, config_warnings = _config_of_the_run(
+        Path(config_path), manifest, repo_root=repo_root
+    )
     current = Current.of_environment(config)
 
-    layout = Layout(results_dir)
     ours = _rollout_outputs(layout, config)
     stamps: dict[str, dict[str, Any]] = {}
     unreadable: dict[str, str] = {}
@@ -204,14 +254,6 @@ def verify_results(
         except Exception as err:  # noqa: BLE001 - any failure to read it is "no readable stamp"
             if file.exists():
                 unreadable[rel] = _why_unreadable(err, file)
-
-    manifest_file = layout.manifest
-    manifest: dict[str, Any] | None = None
-    try:
-        loaded = json.loads(manifest_file.read_text(encoding="utf-8"))
-        manifest = loaded if isinstance(loaded, dict) else None
-    except (OSError, ValueError):
-        manifest = None
 
     @functools.cache
     def current_sha256(rel: str) -> str | None:
@@ -247,9 +289,14 @@ def verify_results(
         repo_root=repo_root,
         current=report.with_status(Status.OK),
         resimulate=resimulate,
+        command_line=command_line,
+        command=_recorded_command(manifest),
     )
     if found.differs:
         report = check(found.differs)
     return dataclasses.replace(
-        report, skipped=(*report.skipped, *leftovers), checks=(found.line(),)
+        report,
+        skipped=(*report.skipped, *leftovers),
+        warnings=(*config_warnings, *report.warnings),
+        checks=(found.line(),),
     )

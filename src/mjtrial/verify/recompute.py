@@ -173,9 +173,16 @@ class _Checker:
     """Runs each check whose outputs the stamps judged current, recording differences."""
 
     def __init__(
-        self, layout: Layout, config: Mapping[str, Any], repo_root: Path, current: Iterable[str]
+        self,
+        layout: Layout,
+        config: Mapping[str, Any],
+        repo_root: Path,
+        current: Iterable[str],
+        command_line: Mapping[str, Any],
+        command: str,
     ) -> None:
         self.layout, self.config, self.repo_root = layout, config, repo_root
+        self.command_line, self.command = command_line, command
         self.current = set(current)
         self.model_file = repo_root / config["model"]
         self.found = Recomputation()
@@ -319,6 +326,8 @@ class _Checker:
                 layout.manifest,
                 manifest_record(
                     config=config_slice("manifest", self.config),
+                    command_line=self.command_line,
+                    command=self.command,
                     summary_path=layout.summary,
                     outputs=outputs,
                     model_file=self.model_file,
@@ -400,11 +409,16 @@ def recompute(
     repo_root: Path,
     current: Iterable[str],
     resimulate: int = DEFAULT_RESIMULATE,
+    command_line: Mapping[str, Any] | None = None,
+    command: str = "snakemake -c2",
 ) -> Recomputation:
     """Recompute every light output of `layout` that the stamps judged current (`current`,
     repository-relative paths) and re-simulate `resimulate` episodes per shard.
+
+    `command_line` and `command` are what the manifest records of the run's command line
+    (`mjtrial.stages.manifest`): the config values it was given, and the command itself.
     """
-    checker = _Checker(layout, config, Path(repo_root), current)
+    checker = _Checker(layout, config, Path(repo_root), current, command_line or {}, command)
     checker.states()
     checker.rollouts(resimulate)
     checker.analysis()
