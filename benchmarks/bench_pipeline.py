@@ -150,7 +150,7 @@ def main() -> None:
     # replay of every failed episode from its results.
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        for name in ("Snakefile", "workflow", "config", "models", "profiles"):
+        for name in ("Snakefile", "workflow", "config", "models", "tasks", "profiles"):
             src = REPO_ROOT / name
             (shutil.copytree if src.is_dir() else shutil.copy)(src, work / name)
         if args.n or args.rate_hz:

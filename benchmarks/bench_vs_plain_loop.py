@@ -54,7 +54,7 @@ from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
 from mjtrial.states import generate_initial_states, states_from_table
 
-WORKFLOW = ("Snakefile", "workflow", "config", "models", "profiles")
+WORKFLOW = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")
 RESOURCES = re.compile(r"# resources: wall ([\d.]+) s, cpu ([\d.]+) s")
 
 

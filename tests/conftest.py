@@ -43,7 +43,7 @@ def evaluation_states():
 
 
 SNAKEMAKE = str(Path(__import__("sys").executable).parent / "snakemake")
-WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "profiles")
+WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")
 
 
 def edit_config(workdir: Path, edit) -> None:

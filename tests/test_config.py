@@ -111,6 +111,28 @@ SEMANTIC_CASES = [
         "got [0.1, 0.3, 0.6]",
     ),
     (
+        "task file not found",
+        lambda c: c.update(task="tasks/nowhere/task.py"),
+        "task: tasks/nowhere/task.py: task file not found",
+    ),
+    (
+        "a state parameter of the task without a range",
+        lambda c: c["states"]["ranges"].pop("yaw"),
+        "states.ranges.yaw: missing; expected a range for each of ['dx', 'dy', 'yaw', 'mass']",
+    ),
+    (
+        "a range for no state parameter of the task",
+        lambda c: c["states"]["ranges"].update(spin=[0.0, 1.0]),
+        "states.ranges.spin: not a state parameter of the task; expected "
+        "['dx', 'dy', 'yaw', 'mass']",
+    ),
+    (
+        "a task of another model",
+        lambda c: c.update(task="tasks/cartpole_latency/task.py"),
+        "task: its model is tasks/cartpole_latency/cartpole.xml; expected the config's model "
+        "models/gantry_gripper/scene.xml",
+    ),
+    (
         "missing model file",
         lambda c: c.update(model="models/nowhere/scene.xml"),
         "model: expected an existing model file, got 'models/nowhere/scene.xml' (not found)",

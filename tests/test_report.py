@@ -39,6 +39,7 @@ def experiment(tmp_path_factory) -> dict:
     repository."""
     root = tmp_path_factory.mktemp("report_experiment")
     shutil.copytree(REPO_ROOT / "models", root / "models")
+    shutil.copytree(REPO_ROOT / "tasks", root / "tasks")
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     config["states"]["n"] = 12
     config["rollout"]["shard_size"] = 5

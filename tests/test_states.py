@@ -49,3 +49,37 @@ def test_states_from_table_checks_columns_and_values():
     bad = table.set_column(4, "mass", pa.array(mass))
     with pytest.raises(ValueError, match="'mass' has non-finite values"):
         states_from_table(bad)
+
+
+def test_the_task_declares_the_parameters_and_their_draw_order():
+    """The states stage draws the task's state parameters, in the order it declares them."""
+    from conftest import REPO_ROOT
+
+    from mjtrial.stages.states import draw_states
+
+    ranges = {
+        "push_time": [0.5, 1.0],
+        "pole_angle": [-0.1, 0.1],
+        "pole_rate": [-0.5, 0.5],
+        "pole_mass": [0.05, 0.3],
+        "push_force": [-6.0, 6.0],
+    }
+    states_slice = {
+        "seed": 7,
+        "development_seed": 8,
+        "n": 30,
+        "ranges": ranges,
+        "task": "tasks/cartpole_latency/task.py",
+    }
+    table, tuning = draw_states(states_slice, repo_root=REPO_ROOT)
+    order = ["pole_angle", "pole_rate", "pole_mass", "push_force", "push_time"]
+    assert table.column_names == ["state_id", *order]
+    for drawn, seed in ((table, 7), (tuning, 8)):
+        rng = np.random.default_rng(seed)
+        for name in order:
+            expected = rng.uniform(*ranges[name], 30)
+            np.testing.assert_array_equal(drawn.column(name).to_numpy(), expected)
+
+    gantry = {"seed": 2026, "development_seed": 1, "n": 50, "ranges": RANGES}
+    table, _ = draw_states(gantry | {"task": "tasks/gantry_lift/task.py"}, repo_root=REPO_ROOT)
+    assert table.equals(generate_initial_states(seed=2026, n=50, ranges=RANGES))

@@ -27,6 +27,7 @@ from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simulate import episode_outcomes, iter_episode_batches, load_model
 from mjtrial.states import InitialState
 from mjtrial.studies.variants import nominal_model_hash, variant_model
+from mjtrial.task import BodyMass, TaskError, load_task
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -282,6 +283,33 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
     return config
 
 
+def _check_task_states(
+    config: Mapping[str, Any], *, repo_root: Path, fail: Callable[[str, str], None]
+) -> None:
+    """The task loads, and `states.ranges` gives a range to each of its state parameters (a
+    body's mass a positive one) and to nothing else."""
+    try:
+        task = load_task(config["task"], repo_root=repo_root)
+    except TaskError as err:
+        fail("task", str(err))
+    model_file = (repo_root / config["model"]).resolve()
+    if model_file.is_file() and Path(task.model).resolve() != model_file:
+        shown = os.path.relpath(Path(task.model).resolve(), repo_root.resolve())
+        fail("task", f"its model is {shown}; expected the config's model {config['model']}")
+    names = [p.name for p in task.state_parameters]
+    ranges = config["states"]["ranges"]
+    for name in names:
+        if name not in ranges:
+            fail(f"states.ranges.{name}", f"missing; expected a range for each of {names}")
+    for name in ranges:
+        if name not in names:
+            fail(f"states.ranges.{name}", f"not a state parameter of the task; expected {names}")
+    for p in task.state_parameters:
+        low = ranges[p.name][0]
+        if isinstance(p.apply, BodyMass) and not low > 0:
+            fail(f"states.ranges.{p.name}[0]", f"expected > 0, got {low}")
+
+
 def check_config(
     config: Mapping[str, Any],
     *,
@@ -320,6 +348,7 @@ def check_config(
             )
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
+    _check_task_states(config, repo_root=Path(repo_root), fail=fail)
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
             fail(

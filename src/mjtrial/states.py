@@ -25,23 +25,29 @@ class InitialState:
 
 
 def generate_initial_states(
-    *, seed: int, n: int, ranges: Mapping[str, Sequence[float]]
+    *,
+    seed: int,
+    n: int,
+    ranges: Mapping[str, Sequence[float]],
+    parameters: Sequence[str] = STATE_PARAMETERS,
 ) -> pa.Table:
     """N initial states: `default_rng(seed)`, then one `uniform` draw of n values per parameter.
 
     Args:
       seed: generator seed.
       n: number of states (>= 1).
-      ranges: [low, high] for each of dx (m), dy (m), yaw (rad), mass (kg).
+      ranges: [low, high] of each parameter.
+      parameters: the parameters in draw order (a task's `state_parameters`; default the
+        gantry's dx (m), dy (m), yaw (rad), mass (kg)).
 
     Returns:
-      Table with columns state_id (0..n-1), dx, dy, yaw, mass; n rows.
+      Table with columns state_id (0..n-1) and the parameters; n rows.
     """
     if n < 1:
         raise ValueError(f"n: expected at least 1 state, got {n}")
     rng = np.random.default_rng(seed)
     columns: dict[str, np.ndarray] = {"state_id": np.arange(n, dtype=np.int64)}
-    for name in STATE_PARAMETERS:
+    for name in parameters:
         if name not in ranges:
             raise ValueError(f"ranges.{name}: missing; expected [low, high]")
         low, high = ranges[name]

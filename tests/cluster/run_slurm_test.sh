@@ -220,7 +220,7 @@ analysis:
 EOF
 for copy in slurm local; do
     mkdir -p "$work/$copy"
-    cp -r "$repo"/{Snakefile,workflow,config,models,profiles} "$work/$copy/"
+    cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles} "$work/$copy/"
 done
 
 # The local run goes alongside: the SLURM run spends most of its time waiting for jobs to be

@@ -12,7 +12,7 @@ from mjtrial.layout import (
     shard_ids,
     shard_range,
 )
-from mjtrial.provenance import model_sha256
+from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.workflow_script import import_in_background, run_in_process
@@ -178,6 +178,13 @@ def study_figure_outputs(study):
 def model_content(wildcards=None):
     """Content of the model, so a checkout that only touches its mtime reruns nothing."""
     return model_sha256(config["model"])
+
+
+def task_content(wildcards=None):
+    """Content of the task file (or the name of an installed task), so that an edit to it
+    reruns what it defines and a `touch` reruns nothing."""
+    reference = config["task"]
+    return file_sha256(reference) if reference.endswith(".py") else reference
 
 
 def per_condition(path_of):

@@ -5,6 +5,7 @@ rule states:
         LAYOUT.log("states"),
     params:
         slice=config_slice("states", config),
+        task_sha256=task_content,
         development=False,
         code=stage_code_hash("states"),
     run:
@@ -19,6 +20,7 @@ rule development_states:
         LAYOUT.log("development_states"),
     params:
         slice=config_slice("states", config),
+        task_sha256=task_content,
         development=True,
         code=stage_code_hash("states"),
     run:

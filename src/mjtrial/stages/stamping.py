@@ -39,8 +39,8 @@ def config_slice(
 def _slice(
     stage: str, config: Mapping[str, Any], *, condition: str | None = None
 ) -> dict[str, Any]:
-    if stage == "states":
-        return dict(config["states"])
+    if stage == "states":  # the task declares the parameters and their draw order
+        return {**config["states"], "task": config["task"]}
     if stage in ("rollout", "gather"):  # condition: "<condition>" or "<variant>/<condition>"
         variant, _, name = condition.rpartition("/")
         condition_slice = {
@@ -109,6 +109,12 @@ def model_inputs(model_file: Path) -> dict[str, Any]:
     """A stamp's record of the model: the scene, and the other files it is built from."""
     scene, *included = provenance.model_files(model_file)
     return {"model": scene, "model_files": included}
+
+
+def task_inputs(reference: str, *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:
+    """A stamp's record of the task: its file, when the config names it by path (a task
+    named by module is code of an installed package, recorded by the library versions)."""
+    return {"task": Path(repo_root) / reference} if str(reference).endswith(".py") else {}
 
 
 def make_stage_stamp(

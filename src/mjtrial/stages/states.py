@@ -11,8 +11,9 @@ import numpy as np
 import pyarrow as pa
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.stages.stamping import make_stage_stamp
-from mjtrial.states import STATE_PARAMETERS, generate_initial_states
+from mjtrial.stages.stamping import make_stage_stamp, task_inputs
+from mjtrial.states import generate_initial_states
+from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -29,23 +30,11 @@ def build_states(
     Both sets are drawn, to refuse a configuration whose development and evaluation states
     share a state: no reported number may come from a state used for tuning.
     """
-    table = generate_initial_states(
-        seed=states_slice["seed"], n=states_slice["n"], ranges=states_slice["ranges"]
-    )
-    tuning = generate_initial_states(
-        seed=states_slice["development_seed"], n=states_slice["n"], ranges=states_slice["ranges"]
-    )
-    rows = {tuple(r) for r in np.column_stack([table.column(c) for c in STATE_PARAMETERS])}
-    dev_rows = np.column_stack([tuning.column(c) for c in STATE_PARAMETERS])
-    if any(tuple(r) in rows for r in dev_rows):
-        raise ValueError(
-            "states.development_seed: development and evaluation states overlap; "
-            "expected disjoint seeds"
-        )
+    table, tuning = draw_states(states_slice, repo_root=repo_root)
     stamp = make_stage_stamp(
         "states:development" if development else "states",
         dict(states_slice),
-        {},
+        task_inputs(states_slice["task"], repo_root=repo_root),
         seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
         repo_root=repo_root,
     )
@@ -59,3 +48,28 @@ def build_states(
         output,
     )
     return chosen
+
+
+def draw_states(states_slice: Mapping[str, Any], *, repo_root: Path) -> tuple[pa.Table, pa.Table]:
+    """The evaluation and development states of a states slice, the task's parameters drawn
+    in its order; refused when the two sets share a state."""
+    parameters = [
+        p.name for p in load_task(states_slice["task"], repo_root=repo_root).state_parameters
+    ]
+    table, tuning = (
+        generate_initial_states(
+            seed=states_slice[key],
+            n=states_slice["n"],
+            ranges=states_slice["ranges"],
+            parameters=parameters,
+        )
+        for key in ("seed", "development_seed")
+    )
+    rows = {tuple(r) for r in np.column_stack([table.column(c) for c in parameters])}
+    dev_rows = np.column_stack([tuning.column(c) for c in parameters])
+    if any(tuple(r) in rows for r in dev_rows):
+        raise ValueError(
+            "states.development_seed: development and evaluation states overlap; "
+            "expected disjoint seeds"
+        )
+    return table, tuning

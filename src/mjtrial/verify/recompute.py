@@ -42,8 +42,8 @@ from mjtrial.stages.rollout import (
     slice_protocol,
 )
 from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
-from mjtrial.states import generate_initial_states
 from mjtrial.verify.chain import dict_diff
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
@@ -207,18 +207,21 @@ class _Checker:
     # -- the checks --------------------------------------------------------------------------
 
     def states(self) -> None:
-        states = self.config["states"]
-        for path, seed in (
-            (self.layout.states, states["seed"]),
-            (self.layout.development_states, states["development_seed"]),
-        ):
+        states = config_slice("states", self.config)
+        drawn = {}
 
-            def difference(path: Path = path, seed: int = seed) -> str | None:
-                table = generate_initial_states(seed=seed, n=states["n"], ranges=states["ranges"])
-                expected = {c: table.column(c).to_numpy() for c in table.column_names}
-                return table_difference(pq.read_table(path), expected)
+        def difference(path: Path, development: bool) -> str | None:
+            if not drawn:
+                drawn["tables"] = draw_states(states, repo_root=self.repo_root)
+            table = drawn["tables"][1 if development else 0]
+            expected = {c: table.column(c).to_numpy() for c in table.column_names}
+            return table_difference(pq.read_table(path), expected)
 
-            self.check(path, difference)
+        self.check(self.layout.states, lambda: difference(self.layout.states, False))
+        self.check(
+            self.layout.development_states,
+            lambda: difference(self.layout.development_states, True),
+        )
 
     def conditions(self) -> Iterable[tuple[str, str]]:
         """(variant, condition) of every rollout the config names."""
