@@ -33,7 +33,9 @@ from mjtrial.provenance.stamp import (
     make_stamp,
     model_files,
     model_sha256,
+    path_in_repo,
     platform_fingerprint,
+    repo_relative,
 )
 
 __all__ = [
@@ -54,9 +56,11 @@ __all__ = [
     "markdown_with_stamp",
     "model_files",
     "model_sha256",
+    "path_in_repo",
     "platform_fingerprint",
     "read_stamp",
     "register_reader",
+    "repo_relative",
     "write_figure",
     "write_json",
     "write_markdown",

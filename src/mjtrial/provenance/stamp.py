@@ -356,23 +356,30 @@ def _utc_now() -> str:
     return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def _input_record(path: str | os.PathLike[str], repo_root: Path) -> dict[str, str]:
+def repo_relative(path: str | os.PathLike[str], repo_root: Path) -> str:
+    """How a stamp names a file: relative to the repository as the path is written (through
+    a symlinked results folder), else as resolved, else its name alone."""
+    return path_in_repo(path, repo_root) or Path(path).name
+
+
+def path_in_repo(path: str | os.PathLike[str], repo_root: Path) -> str | None:
+    """`path` relative to the repository, as written or else as resolved; None if outside."""
     p = Path(path)
-    shown: str | None = None
     candidates = [(Path(os.path.abspath(p)), Path(os.path.abspath(repo_root)))]
     try:
-        candidates.append((p.resolve(), repo_root.resolve()))
+        candidates.append((p.resolve(), Path(repo_root).resolve()))
     except OSError:
         pass
     for absolute, root in candidates:
         try:
-            shown = absolute.relative_to(root).as_posix()
-            break
+            return absolute.relative_to(root).as_posix()
         except ValueError:
             continue
-    if shown is None:
-        shown = p.name
-    return {"path": shown, "sha256": file_sha256(p)}
+    return None
+
+
+def _input_record(path: str | os.PathLike[str], repo_root: Path) -> dict[str, str]:
+    return {"path": repo_relative(path, repo_root), "sha256": file_sha256(path)}
 
 
 def make_stamp(

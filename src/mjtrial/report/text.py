@@ -488,11 +488,9 @@ def _relative(path: Path, start: Path) -> str:
 
 
 def _shown_path(path: Path, *, repo_root: Path, report_dir: Path) -> str:
-    """`path` relative to the repository when inside it, else to the report's folder."""
-    try:
-        return Path(path).resolve().relative_to(Path(repo_root).resolve()).as_posix()
-    except ValueError:
-        return _relative(path, report_dir)
+    """`path` relative to the repository when inside it (as written, or resolved), else to the
+    report's folder."""
+    return provenance.path_in_repo(path, repo_root) or _relative(path, report_dir)
 
 
 def write_report(

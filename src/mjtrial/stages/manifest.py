@@ -68,11 +68,7 @@ def manifest_record(
     summary = json.loads(Path(summary_path).read_text())
 
     def rel(path: Path) -> str:
-        path = Path(path).resolve()
-        try:
-            return path.relative_to(repo_root.resolve()).as_posix()
-        except ValueError:
-            return path.name
+        return provenance.repo_relative(path, repo_root)
 
     stamps = {rel(p): provenance.read_stamp(p) for p in [*outputs, summary_path]}
     manifest = {
