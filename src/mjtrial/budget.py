@@ -15,10 +15,11 @@ from typing import Any
 import mujoco
 import psutil
 
+from mjtrial import engine
+from mjtrial.engine import BATCH_SIZE
 from mjtrial.layout import shard_ids
 from mjtrial.model_spec import FULLPHYSICS
-from mjtrial.protocol import condition_protocol, episode_steps, hold_durations, hold_steps
-from mjtrial.simulate import BATCH_SIZE
+from mjtrial.task import BoundTask, call
 
 # Steps of one episode: the preflight steps every condition's nominal episode, and a batch holds
 # every step's state; the built-in episode is about 2,100 steps (2 ms), 10 s holds at 0.1 ms
@@ -46,27 +47,26 @@ def batch_bytes(model: mujoco.MjModel, steps: int) -> float:
 
 def episode_problems(
     conditions: Mapping[str, Mapping[str, Any]],
-    model: mujoco.MjModel,
+    bound: BoundTask,
     *,
     timestep_key: str,
     rate_hz: float,
 ) -> Iterator[tuple[str, str]]:
-    """(key, expectation) for each condition the model cannot afford or resolve: too many
-    steps, too much memory per job, a hold shorter than one step, a logging rate slower than
-    the episode. `timestep_key` names where the timestep comes from (`model`,
-    `variants.<name>.option.timestep`)."""
+    """(key, expectation) for each condition the model cannot afford or resolve: what the
+    task's `check_condition` says (a hold shorter than one step), too many steps, too much
+    memory per job, a logging rate slower than the episode. `timestep_key` names where the
+    timestep comes from (`model`, `variants.<name>.option.timestep`)."""
+    task, model = bound.task, bound.model
     dt = float(model.opt.timestep)
     limit = job_memory_limit()
+    parameters = {p.name for p in task.protocol_parameters}
     for name, condition in conditions.items():
-        protocol = condition_protocol(condition)
-        lift_time = float(condition["lift_time"])
-        for what, seconds in hold_durations(lift_time, protocol).items():
-            if hold_steps(seconds, dt) < 1:
-                key = f"conditions.{name}.{what}" if " " not in what else timestep_key
-                yield key, (
-                    f"a {what} of {seconds:g} s is 0 steps of {dt:g} s; expected at least one"
-                )
-        steps = episode_steps(lift_time, timestep=dt, protocol=protocol)
+        params = task.parameters(condition)
+        check = task.check_condition
+        problems = list(call(task, "check_condition", check, model, params)) if check else []
+        for what, expectation in problems:
+            yield (f"conditions.{name}.{what}" if what in parameters else timestep_key), expectation
+        steps = engine.episode_steps(bound, condition)
         if steps > MAX_STEPS_PER_EPISODE:
             yield timestep_key, (
                 f"timestep {dt:g} s gives {steps:,} steps per episode under condition {name!r}; "

@@ -112,11 +112,14 @@ class ClosedLoopBatch:
       physics: (n_episodes, n_steps, nstate) mjSTATE_FULLPHYSICS after each physics step.
       sensordata: (n_episodes, n_steps, nsensordata) sensor values after each physics step.
       ctrl: (n_episodes, n_controls, nu) the controls the policy chose at each instant.
+      warnings: (mjNWARNING,) warning counters of a `reference_episode` (None from the engine,
+        which, like `mujoco.rollout`, reports only the frozen state).
     """
 
     physics: np.ndarray
     sensordata: np.ndarray
     ctrl: np.ndarray
+    warnings: np.ndarray | None = None
 
 
 def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
@@ -237,6 +240,7 @@ def reference_episode(
         physics=np.stack(states[1:])[None],
         sensordata=np.stack(sensors).reshape(1, len(sensors), m.nsensordata),
         ctrl=ctrl_log[None],
+        warnings=np.array([w.number for w in d.warning]),
     )
 
 

@@ -15,19 +15,19 @@ from typing import Any
 
 import jsonschema
 import mujoco
+import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, budget
 from mjtrial.conditions import all_conditions, sweep_base
+from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
-from mjtrial.model_spec import ModelError, ModelSpec
-from mjtrial.protocol import PROTOCOL
+from mjtrial.model_spec import ModelError
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
-from mjtrial.simulate import episode_outcomes, iter_episode_batches, load_model
-from mjtrial.states import InitialState
+from mjtrial.simulate import load_model
 from mjtrial.studies.variants import nominal_model_hash, variant_model
-from mjtrial.task import BodyMass, TaskError, load_task
+from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -285,7 +285,7 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
 
 def _check_task_states(
     config: Mapping[str, Any], *, repo_root: Path, fail: Callable[[str, str], None]
-) -> None:
+) -> Task:
     """The task loads, and `states.ranges` gives a range to each of its state parameters (a
     body's mass a positive one) and to nothing else."""
     try:
@@ -308,6 +308,7 @@ def _check_task_states(
         low = ranges[p.name][0]
         if isinstance(p.apply, BodyMass) and not low > 0:
             fail(f"states.ranges.{p.name}[0]", f"expected > 0, got {low}")
+    return task
 
 
 def check_config(
@@ -348,7 +349,7 @@ def check_config(
             )
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
-    _check_task_states(config, repo_root=Path(repo_root), fail=fail)
+    task = _check_task_states(config, repo_root=Path(repo_root), fail=fail)
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
             fail(
@@ -388,6 +389,12 @@ def check_config(
         model = load_model(model_file)
     except ModelError as err:
         fail("model", str(err).replace(str(model_file), config["model"]))
+    try:
+        bound = BoundTask.of(task, model)
+    except ModelCheckError as err:
+        fail("model", f"{config['model']}: {err.problem}")
+    except TaskError as err:
+        fail("task", str(err))
     root = Path(repo_root).resolve()
     for path in model_closure(model_file)[1:]:
         if not path.is_relative_to(root):
@@ -398,21 +405,27 @@ def check_config(
                 "stamps record them and mjtrial verify can check them",
             )
     rate_hz = float(config["recording"]["rate_hz"])
-    coarse = model.opt.timestep > PROTOCOL.segment_time  # said by _unstable, in its words
-    for key, expectation in [] if coarse else budget.episode_problems(
-        all_conditions(config), model, timestep_key="model", rate_hz=rate_hz
-    ):
+    try:
+        problems = list(
+            budget.episode_problems(
+                all_conditions(config), bound, timestep_key="model", rate_hz=rate_hz
+            )
+        )
+    except TaskError as err:
+        fail("task", str(err))
+    for key, expectation in problems:
         fail(key, f"{config['model']}: {expectation}" if key == "model" else expectation)
-    unstable = _unstable(model, config["conditions"])
+    unstable = _unstable(bound, config["conditions"], config["failure_taxonomy"])
     if unstable:
         fail("model", f"{config['model']}: {unstable}")
-    _check_studies(config, schema, model_file, fail)
+    _check_studies(config, schema, model_file, task, fail)
 
 
 def _check_studies(
     config: Mapping[str, Any],
     schema: Mapping[str, Any],
     model_file: Path,
+    task: Task,
     fail: Callable[[str, str], None],
 ) -> None:
     """Variants that apply to the model and keep the protocol's step; a sweep whose conditions
@@ -437,15 +450,9 @@ def _check_studies(
         if sha256 in seen:
             fail(key, f"the same model as variants.{seen[sha256]}; expected each variant once")
         seen[sha256] = name
-        if model.opt.timestep > PROTOCOL.segment_time:
-            fail(
-                f"{key}.option.timestep",
-                f"expected at most {PROTOCOL.segment_time:g} s (the protocol's control step), "
-                f"got {model.opt.timestep:g}",
-            )
         for problem in budget.episode_problems(
             config["conditions"],
-            model,
+            BoundTask.of(task, model),
             timestep_key=f"{key}.option.timestep",
             rate_hz=float(config["recording"]["rate_hz"]),
         ):
@@ -472,26 +479,25 @@ def _check_studies(
         fail("sweep.reference", f"expected one of sweep.values, got {sweep['reference']}")
 
 
-def _unstable(model: Any, conditions: Mapping[str, Mapping[str, Any]]) -> str | None:
-    """Why the model cannot run the protocol, or None: it steps the nominal episode (no offset,
-    no yaw, the mass as compiled) under every condition, a few thousand steps in all."""
-    timestep = float(model.opt.timestep)
-    if timestep > PROTOCOL.segment_time:
-        return (
-            f"timestep {timestep:g} s; expected at most {PROTOCOL.segment_time:g} s, the "
-            "protocol's control step"
-        )
-    nominal = InitialState(-1, 0.0, 0.0, 0.0, float(model.body_mass[ModelSpec.of(model).cube_body]))
+def _unstable(
+    bound: BoundTask,
+    conditions: Mapping[str, Mapping[str, Any]],
+    thresholds: Mapping[str, float],
+) -> str | None:
+    """Why the model cannot run the task, or None: it runs the nominal episode (each state
+    parameter at its nominal value) under every condition."""
+    task = bound.task
+    nominal = {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
+    given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
     for name, condition in conditions.items():
-        lift_time = float(condition["lift_time"])
         # MuJoCo prints each warning; the one line below says it instead.
         printer = mujoco.get_mju_user_warning()
         mujoco.set_mju_user_warning(lambda _: None)
         try:
-            [batch] = iter_episode_batches(model, [nominal], lift_time=lift_time, nthread=1)
-            outcome = episode_outcomes(model, batch, lift_time=lift_time)
+            batch = next(iter_batches(bound, nominal, condition, thresholds=given, nthread=0))
         finally:
             mujoco.set_mju_user_warning(printer)
+        outcome = batch.outcome
         if outcome["nonfinite"][0] or outcome["warning"][0]:
             what = outcome["warning"][0] or "a non-finite state"
             return (

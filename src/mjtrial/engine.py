@@ -16,9 +16,14 @@ import numpy as np
 from mujoco import rollout
 
 from mjtrial import closed_loop
-from mjtrial.model_spec import healthy
+from mjtrial.model_spec import FULLPHYSICS, halted, nonfinite, steps_simulated
 from mjtrial.task import UNHEALTHY, BoundTask, ClosedLoop, Episodes, OpenLoop, TaskError, call
 
+# Episodes per batch in the pipeline. Each episode of a batch holds its own model copy and
+# trajectories until the batch is classified and handed to the recording writer: 16 keep a
+# rollout job's working memory near 20-30 MB (64 took about 85 MB), and the per-call cost is
+# still small beside 16 episodes' stepping.
+BATCH_SIZE = 16
 UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
 
 
@@ -29,6 +34,24 @@ class Batch:
     values: dict[str, np.ndarray]  # state column -> (n,)
     episodes: Episodes
     outcome: dict[str, np.ndarray]  # success, failure_category and the task's measures
+
+
+def warning_names(counters: np.ndarray) -> str:
+    """MuJoCo warnings that fired, by name (e.g. "mjWARN_BADQACC"), comma-separated."""
+    return ",".join(mujoco.mjtWarning(i).name for i, n in enumerate(counters) if n)
+
+
+def open_loop_warnings(model: mujoco.MjModel, initial: np.ndarray, ctrl: np.ndarray) -> str:
+    """The warnings that stop an open-loop episode, from a plain `mj_step` run of it that ends
+    at the first one (as `mujoco.rollout` does): rollout reports only the frozen state."""
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, initial, FULLPHYSICS)
+    for row in ctrl:
+        if any(w.number for w in data.warning):
+            break
+        data.ctrl[:] = row
+        mujoco.mj_step(model, data)
+    return warning_names(np.array([w.number for w in data.warning]))
 
 
 def classify(bound: BoundTask, success: np.ndarray, healthy_rows: np.ndarray, measures, thresholds):
@@ -51,6 +74,18 @@ def classify(bound: BoundTask, success: np.ndarray, healthy_rows: np.ndarray, me
     return category
 
 
+def episode_steps(bound: BoundTask, condition: Mapping[str, float]) -> int:
+    """Physics steps of an episode under a condition."""
+    task, model = bound.task, bound.model
+    params = task.parameters(condition)
+    controller = task.controller
+    if isinstance(controller, OpenLoop):
+        if controller.n_steps is not None:
+            return int(call(task, "n_steps", controller.n_steps, model, params))
+        return len(call(task, "controls", controller.controls, model, params))
+    return call(task, "timing", controller.timing, model, params).n_steps
+
+
 def iter_batches(
     bound: BoundTask,
     values: Mapping[str, np.ndarray],
@@ -58,7 +93,7 @@ def iter_batches(
     *,
     thresholds: Mapping[str, float],
     nthread: int = 0,
-    batch_size: int = 64,
+    batch_size: int = BATCH_SIZE,
 ) -> Iterator[Batch]:
     """Run the episodes whose state values are the columns `values`, `batch_size` at a time.
 
@@ -83,6 +118,7 @@ def iter_batches(
         assert isinstance(controller, ClosedLoop)
         timing = call(task, "timing", controller.timing, model, params)
         observe = bound.observer(controller.observations)
+        policy = call(task, "policy", controller.policy, model, params)
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
     with rollout.Rollout(nthread=nthread) as runner:
         for start in range(0, n, batch_size):
@@ -96,6 +132,7 @@ def iter_batches(
             initial_states = np.stack(initial)
             if isinstance(controller, OpenLoop):
                 physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
+                applied = np.broadcast_to(ctrl, (size, *ctrl.shape))
             else:
                 pushes = (
                     call(task, "pushes", controller.pushes, model, rows)
@@ -105,7 +142,7 @@ def iter_batches(
                 result = closed_loop.run_batch(
                     models,
                     initial_states,
-                    call(task, "policy", controller.policy, model, params),
+                    policy,
                     observe,
                     timing,
                     runner=runner,
@@ -113,18 +150,39 @@ def iter_batches(
                     pushes=pushes,
                 )
                 physics, sensordata = result.physics, result.sensordata
-            ok = healthy(physics)
-            episodes = Episodes(model, params, physics, sensordata, ok)
+                applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
+            stopped, broken = halted(physics), nonfinite(physics)
+            ok = ~stopped & ~broken
+            episodes = Episodes(model, params, physics, sensordata, ok, applied)
             measures = dict(call(task, "measure", task.measure, episodes))
-            missing = [m.name for m in task.measures if m.name not in measures]
+            missing = [m.name for m in task.own_measures if m.name not in measures]
             if missing:
                 raise TaskError(
                     f"{task.source or task.name}: measure: expected a value for {missing[0]!r}"
                 )
             success = np.asarray(call(task, "success", task.success, episodes), dtype=bool) & ok
+            warning = np.full(size, "", dtype=object)
+            for i in np.flatnonzero(~ok):
+                if isinstance(controller, OpenLoop):
+                    warning[i] = open_loop_warnings(models[i], initial_states[i], ctrl)
+                else:
+                    warning[i] = warning_names(
+                        closed_loop.reference_episode(
+                            models[i],
+                            initial_states[i],
+                            policy,
+                            observe,
+                            timing,
+                            pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
+                        ).warnings
+                    )
             outcome = {
                 "success": success,
+                # copies: a view would keep the batch's trajectories alive with the table's columns
+                **{m.name: np.array(measures[m.name], dtype=np.float64) for m in task.own_measures},
+                "steps_simulated": steps_simulated(physics),
+                "nonfinite": broken,
+                "warning": warning,
                 "failure_category": classify(bound, success, ok, measures, thresholds),
-                **{m.name: np.asarray(measures[m.name], dtype=np.float64) for m in task.measures},
             }
             yield Batch(rows, episodes, outcome)

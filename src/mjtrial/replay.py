@@ -17,25 +17,25 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial import provenance, recording, taxonomy
+from mjtrial import engine, provenance, recording
 from mjtrial.config import load_config
 from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
-from mjtrial.protocol import control_sequence
 from mjtrial.recording import write_episode_recording
-from mjtrial.simulate import load_model
 from mjtrial.stages.rollout import (
-    ROLLOUT_COLUMNS,
-    condition_outcomes,
+    condition_batches,
+    condition_parameters,
+    condition_task,
     episode_records,
-    read_states,
-    slice_protocol,
+    read_state_values,
+    recording_spec,
+    rollout_columns,
 )
-from mjtrial.stages.stamping import config_slice, model_inputs
+from mjtrial.stages.stamping import config_slice, model_inputs, task_inputs
 
 __all__ = ["ReplayMismatch", "Replay", "read_episode", "replay_episode"]
 
-# Compared exactly: the engine is deterministic for a given MuJoCo build and CPU.
-COMPARED = ("success", "final_height", "final_x", "final_y", "failure_category", "warning")
+# Compared exactly, every column of the rollout table: the engine is deterministic for a given
+# MuJoCo build and CPU.
 
 
 class ReplayMismatch(RuntimeError):
@@ -59,6 +59,10 @@ def _recorded_row(table_path: Path, state_id: int) -> dict[str, Any]:
     if rows.size != 1:
         raise KeyError(f"{table_path}: no episode for state {state_id}")
     return {c: table.column(c)[int(rows[0])].as_py() for c in table.column_names}
+
+
+def _is_nan(value: Any) -> bool:
+    return isinstance(value, float) and value != value
 
 
 def read_episode(
@@ -152,23 +156,15 @@ def replay_episode(
             f"config/config.yaml has now; rerun `snakemake -c2` first"
         )
 
-    model = load_model(repo_root / config["model"])
-    states = [s for s in read_states(layout.states) if s.state_id == state_id]
-    if not states:
+    model_file = repo_root / config["model"]
+    bound = condition_task(slice_, model_file, repo_root=repo_root)
+    ids = pq.read_table(layout.states, columns=["state_id"]).column("state_id").to_numpy()
+    if state_id not in ids:
         raise KeyError(f"{layout.states}: no state {state_id}")
-    lift_time = float(slice_["lift_time"])
-    protocol = slice_protocol(slice_)
-    batch, outcome = next(
-        condition_outcomes(
-            model,
-            states,
-            lift_time=lift_time,
-            thresholds=taxonomy.Thresholds.from_config(slice_["failure_taxonomy"]),
-            nthread=1,
-            protocol=protocol,
-        )
-    )
-    replayed = {c: outcome[c][0] for c in ROLLOUT_COLUMNS}
+    values = read_state_values(layout.states, bound.task, first=state_id, stop=state_id + 1)
+    batch = next(condition_batches(bound, slice_, values, nthread=1))
+    columns = rollout_columns(bound.task)
+    replayed = {"state_id": state_id, **{c: batch.outcome[c][0] for c in columns[1:]}}
     replayed = {k: (v.item() if hasattr(v, "item") else v) for k, v in replayed.items()}
 
     stamp = provenance.make_stamp(
@@ -176,27 +172,32 @@ def replay_episode(
         config_slice=slice_,
         inputs={
             "states": layout.states,
-            **model_inputs(repo_root / config["model"]),
+            **model_inputs(model_file),
+            **task_inputs(config["task"], repo_root=repo_root),
         },
         repo_dir=repo_root,
         extra={"replay_of": {"condition": condition, "state_id": state_id}},
     )
-    [episode] = episode_records(batch, outcome)
+    [episode] = episode_records(bound.task, batch)
     write_episode_recording(
         output,
-        model=model,
+        spec=recording_spec(
+            bound,
+            engine.episode_steps(bound, condition_parameters(bound, slice_)),
+            rate_hz=1.0 / bound.model.opt.timestep,
+        ),
         condition=condition,
         episode=episode,
-        ctrl=control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)[0],
         stamp=stamp,
-        log_every=1,
     )
 
     differences = [
         f"{c}: recorded {recorded[c]!r}, replayed {replayed[c]!r}"
-        for c in COMPARED
-        if recorded[c] != replayed[c]
+        for c in columns
+        if c in recorded
+        and recorded[c] != replayed[c]
         and not (recorded[c] in (None, "") and replayed[c] in (None, ""))
+        and not (_is_nan(recorded[c]) and _is_nan(replayed[c]))
     ]
     if differences:
         now = (

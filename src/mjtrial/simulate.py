@@ -32,7 +32,7 @@ from mjtrial.states import InitialState
 
 
 def load_model(path: str | Path) -> mujoco.MjModel:
-    """Load a model and check that it has every element the protocol needs (`ModelSpec`)."""
+    """Compile a model file; one line (`ModelError`) naming the file when it cannot be."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found")
@@ -42,7 +42,6 @@ def load_model(path: str | Path) -> mujoco.MjModel:
         # MuJoCo's message spans lines (an XML error names its line on the second): one line.
         message = " ".join(str(err).replace("'", "").split()) or "compile error"
         raise ModelError(f"{path}: MuJoCo could not compile the model: {message}") from None
-    ModelSpec.of(model, source=str(path))
     return model
 
 

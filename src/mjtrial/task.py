@@ -27,6 +27,7 @@ import copy
 import importlib
 import importlib.metadata
 import importlib.util
+import os
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
@@ -45,6 +46,14 @@ UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 
 class TaskError(ValueError):
     """A task file that cannot be loaded, or whose declarations or functions are wrong."""
+
+
+class ModelCheckError(TaskError):
+    """The task's `check_model` refused the model; `problem` says why, without the file."""
+
+    def __init__(self, model: Path, problem: str) -> None:
+        super().__init__(f"{model}: {problem}")
+        self.problem = problem
 
 
 # --------------------------------------------------------------------------------------------
@@ -214,6 +223,8 @@ class OpenLoop:
     applied before each physics step, (n_steps, nu)."""
 
     controls: Callable[[mujoco.MjModel, Mapping[str, float]], np.ndarray]
+    # its length without building it (the budget checks run before any large array is made)
+    n_steps: Callable[[mujoco.MjModel, Mapping[str, float]], int] | None = None
 
 
 @dataclass(frozen=True)
@@ -234,6 +245,44 @@ class ClosedLoop:
     pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
 
 
+SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""(rows (n, nstate) mjSTATE_FULLPHYSICS, sensors (n, nsensordata), ctrl (n, nu)) -> (n,)."""
+
+
+@dataclass(frozen=True)
+class Series:
+    """A signal the recordings plot beside the 3D scene.
+
+    Attributes:
+      name: the series' name in the recording and the viewer.
+      body: the body whose entity holds it (it shares that body's time-series chunk).
+      plot: the title of the plot it is drawn in, with its unit ("pole angle (rad)"); series
+        of one plot share it, in order of first appearance.
+      read: `read(model)` gives a function from a batch of logged rows to the values.
+    """
+
+    name: str
+    body: str
+    plot: str
+    read: Callable[[mujoco.MjModel], SeriesRead]
+
+    @classmethod
+    def joint_position(cls, name: str, joint: str, *, body: str, plot: str) -> Series:
+        def read(model: mujoco.MjModel) -> SeriesRead:
+            adr = model.jnt_qposadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+            return lambda rows, sensors, ctrl: rows[:, STATE_QPOS + adr]
+
+        return cls(name, body, plot, read)
+
+    @classmethod
+    def control(cls, name: str, actuator: str, *, body: str, plot: str) -> Series:
+        def read(model: mujoco.MjModel) -> SeriesRead:
+            index = _element(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator)
+            return lambda rows, sensors, ctrl: ctrl[:, index]
+
+        return cls(name, body, plot, read)
+
+
 @dataclass(frozen=True)
 class Threshold:
     """A threshold of the failure categories (config `failure_taxonomy.<name>`)."""
@@ -246,11 +295,24 @@ class Threshold:
 
 @dataclass(frozen=True)
 class Measure:
-    """A per-episode number the rollout table keeps (a column), with its unit."""
+    """A per-episode number the rollout table keeps (a column), with its unit. `recorded`: also
+    a field of the episode's recording (shown when it is replayed)."""
 
     name: str
     unit: str
     description: str = ""
+    recorded: bool = False
+
+
+# Columns the engine gives every task's rollout table; a task may place them among its measures
+# (by listing these), else they follow its measures in this order. Their values are the engine's.
+STEPS_SIMULATED = Measure(
+    "steps_simulated", "steps", "physics steps before a MuJoCo warning froze the episode"
+)
+NONFINITE = Measure("nonfinite", "", "the state went NaN or infinite")
+WARNING = Measure("warning", "", "the MuJoCo warnings that stopped the episode, by name")
+FAILURE_CATEGORY = Measure("failure_category", "", "the first failure category that applies")
+ENGINE_MEASURES = (STEPS_SIMULATED, NONFINITE, WARNING, FAILURE_CATEGORY)
 
 
 @dataclass(frozen=True)
@@ -263,6 +325,8 @@ class Episodes:
       physics: (n, n_steps, nstate) mjSTATE_FULLPHYSICS after each step.
       sensordata: (n, n_steps, nsensordata) sensor values after each step.
       healthy: (n,) False where a MuJoCo warning froze the episode or it went non-finite.
+      ctrl: (n, n_steps, nu) the ctrl applied before each step (open loop: one sequence for
+        every episode, broadcast).
     """
 
     model: mujoco.MjModel
@@ -270,6 +334,7 @@ class Episodes:
     physics: np.ndarray
     sensordata: np.ndarray
     healthy: np.ndarray
+    ctrl: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -299,12 +364,32 @@ class Task:
     failure_categories: tuple[FailureCategory, ...] = ()
     thresholds: tuple[Threshold, ...] = ()
     observations: tuple[Observation, ...] = ()
+    series: tuple[Series, ...] = ()
+    # `check_condition(model, params)`: (parameter, expectation) for each problem of a
+    # condition on this model, before any episode runs (a hold shorter than one step); a
+    # problem named by something other than a protocol parameter is the model's timestep's.
+    check_condition: Callable[[mujoco.MjModel, Mapping[str, float]], Any] | None = None
+    # `check_model(model)` raises, saying what the model lacks, before anything is resolved.
+    check_model: Callable[[mujoco.MjModel], None] | None = None
     keyframe: int | None = None  # the reset pose (None: the model's qpos0)
     source: Path | None = field(default=None, compare=False)  # the task file, set at load
 
     @property
     def state_columns(self) -> tuple[str, ...]:
         return ("state_id", *(p.name for p in self.state_parameters))
+
+    @property
+    def table_measures(self) -> tuple[Measure, ...]:
+        """The rollout table's columns after `state_id` and `success`: the task's measures, with
+        the engine's (`ENGINE_MEASURES`) where the task placed them, else after its own."""
+        placed = {m.name for m in self.measures}
+        return (*self.measures, *(m for m in ENGINE_MEASURES if m.name not in placed))
+
+    @property
+    def own_measures(self) -> tuple[Measure, ...]:
+        """The measures the task's `measure` function computes (not the engine's)."""
+        engine = {m.name for m in ENGINE_MEASURES}
+        return tuple(m for m in self.measures if m.name not in engine)
 
     def parameters(self, condition: Mapping[str, float]) -> dict[str, float]:
         """The protocol parameters of a condition, defaults filled in."""
@@ -359,7 +444,7 @@ def _task_of(module: Any, where: str, folder: Path) -> Task:
     if not isinstance(task, Task):
         raise TaskError(f"{where}: expected a module-level TASK = mjtrial.task.Task(...)")
     model = Path(task.model)
-    model = model if model.is_absolute() else folder / model
+    model = Path(os.path.normpath(model if model.is_absolute() else folder / model))
     source = Path(module.__file__) if getattr(module, "__file__", None) else None
     return replace(task, model=model, source=source)
 
@@ -400,6 +485,7 @@ class BoundTask:
     model: mujoco.MjModel
     appliers: tuple[Any, ...]  # per state parameter: its bound apply function, or None
     observe: Mapping[str, Callable[[np.ndarray], np.ndarray]]
+    series: tuple[SeriesRead, ...] = ()  # per `task.series`: its bound read
 
     @classmethod
     def of(cls, task: Task, model: mujoco.MjModel | None = None) -> BoundTask:
@@ -414,7 +500,12 @@ class BoundTask:
                 raise TaskError(
                     f"{task.model}: MuJoCo could not compile the model: {message}"
                 ) from None
-        appliers, observe = [], {}
+        if task.check_model is not None:
+            try:
+                task.check_model(model)
+            except Exception as err:  # noqa: BLE001 - the task's words for what is missing
+                raise ModelCheckError(task.model, str(err)) from None
+        appliers, observe, series = [], {}, []
         for p in task.state_parameters:
             try:
                 appliers.append(p.apply.bind(model))
@@ -425,7 +516,13 @@ class BoundTask:
                 observe[o.name] = o.read(model)
             except TaskError as err:
                 raise TaskError(f"{where}: observation {o.name!r}: {err}") from None
-        return cls(task, model, tuple(appliers), observe)
+        for x in task.series:
+            try:
+                _element(model, mujoco.mjtObj.mjOBJ_BODY, x.body)
+                series.append(x.read(model))
+            except TaskError as err:
+                raise TaskError(f"{where}: series {x.name!r}: {err}") from None
+        return cls(task, model, tuple(appliers), observe, tuple(series))
 
     def episode(
         self, values: Mapping[str, float], *, scratch: mujoco.MjData

@@ -19,10 +19,22 @@ import mujoco
 import numpy as np
 
 from mjtrial import taxonomy
-from mjtrial.model_spec import ModelSpec, steps_simulated
-from mjtrial.protocol import CONDITION_PARAMETERS, PROTOCOL, condition_protocol, control_sequence
+from mjtrial.model_spec import ModelError, ModelSpec
+from mjtrial.protocol import (
+    CONDITION_PARAMETERS,
+    PROTOCOL,
+    condition_protocol,
+    control_sequence,
+    episode_steps,
+    hold_durations,
+    hold_steps,
+)
 from mjtrial.simulate import yaw_quaternion
 from mjtrial.task import (
+    FAILURE_CATEGORY,
+    NONFINITE,
+    STEPS_SIMULATED,
+    WARNING,
     BodyMass,
     Custom,
     Episodes,
@@ -31,6 +43,7 @@ from mjtrial.task import (
     Measure,
     OpenLoop,
     ProtocolParameter,
+    Series,
     StateParameter,
     Task,
     Threshold,
@@ -53,6 +66,28 @@ def controls(model: mujoco.MjModel, params) -> np.ndarray:
         params["lift_time"], timestep=model.opt.timestep, protocol=_protocol(params)
     )
     return ctrl
+
+
+def n_steps(model: mujoco.MjModel, params) -> int:
+    return episode_steps(
+        params["lift_time"], timestep=model.opt.timestep, protocol=_protocol(params)
+    )
+
+
+def check_condition(model: mujoco.MjModel, params):
+    """Every hold must last at least one physics step."""
+    dt = model.opt.timestep
+    for what, seconds in hold_durations(params["lift_time"], _protocol(params)).items():
+        if hold_steps(seconds, dt) < 1:
+            yield what, f"a {what} of {seconds:g} s is 0 steps of {dt:g} s; expected at least one"
+
+
+def check_model(model: mujoco.MjModel) -> None:
+    """The elements the protocol, the taxonomy and the series read (`ModelSpec`)."""
+    try:
+        ModelSpec.of(model)
+    except ModelError as err:
+        raise ValueError(str(err).removeprefix("model: ")) from None
 
 
 def success(episodes: Episodes) -> np.ndarray:
@@ -81,7 +116,6 @@ def measure(episodes: Episodes) -> dict[str, np.ndarray]:
         "final_height": final[:, spec.state_cube_z],
         "final_x": final[:, spec.state_cube_position.start],
         "final_y": final[:, spec.state_cube_position.start + 1],
-        "steps_simulated": steps_simulated(episodes.physics),
         "_trajectories": traj,
     }
 
@@ -106,6 +140,42 @@ def _category(value: str):
         _classified(measures, thresholds)["failure_category"] == value
     )
 
+
+LIFT_PLOT = "cube height, finger opening, ctrl (m)"
+FORCE_PLOT = "pad-cube normal force (N)"
+
+
+def _from_spec(read):
+    """A series' read from the gantry's resolved elements: `read(spec, rows, sensors, ctrl)`."""
+
+    def bind(model):
+        spec = ModelSpec.of(model)
+        return lambda rows, sensors, ctrl: read(spec, rows, sensors, ctrl)
+
+    return bind
+
+
+def _pad_force(side: int):
+    return _from_spec(lambda spec, r, s, c: np.abs(s[:, spec.pad_normal_forces[side]]))
+
+
+SERIES = (
+    Series(
+        "cube_height", CUBE, LIFT_PLOT, _from_spec(lambda spec, r, s, c: r[:, spec.state_cube_z])
+    ),
+    Series(
+        "finger_opening",
+        "carriage",
+        LIFT_PLOT,
+        _from_spec(lambda spec, r, s, c: r[:, list(spec.state_fingers)].mean(axis=1)),
+    ),
+    *(
+        Series.control(f"ctrl_{actuator}", actuator, body="carriage", plot=LIFT_PLOT)
+        for actuator in ("x", "y", "z", "gripper")
+    ),
+    Series("left_normal_force", "left_finger", FORCE_PLOT, _pad_force(0)),
+    Series("right_normal_force", "right_finger", FORCE_PLOT, _pad_force(1)),
+)
 
 THRESHOLD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(taxonomy.Thresholds)}
 
@@ -141,14 +211,20 @@ TASK = Task(
             for name in CONDITION_PARAMETERS
         ),
     ),
-    controller=OpenLoop(controls),
+    controller=OpenLoop(controls, n_steps=n_steps),
+    check_condition=check_condition,
+    check_model=check_model,
+    series=SERIES,
     success=success,
     measure=measure,
     measures=(
-        Measure("final_height", "m", "the cube's centre height at the end"),
-        Measure("final_x", "m"),
-        Measure("final_y", "m"),
-        Measure("steps_simulated", "steps", "physics steps before a warning stopped the episode"),
+        Measure("final_height", "m", "the cube's centre height at the end", recorded=True),
+        Measure("final_x", "m", "the cube's centre x at the end"),
+        Measure("final_y", "m", "the cube's centre y at the end"),
+        STEPS_SIMULATED,
+        NONFINITE,
+        WARNING,
+        FAILURE_CATEGORY,
         Measure("peak_slip", "m", "the cube's largest slide down the pads after the grasp"),
         Measure("peak_carriage_accel", "m/s^2", "the carriage's largest vertical acceleration"),
     ),

@@ -12,6 +12,7 @@ import rerun as rr
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
 from mjtrial.atomic import atomic_path
+from mjtrial.provenance import RECORDING_FOLDER_STAMP
 from mjtrial.recording.arrow import archetype_columns, chunks, strict
 from mjtrial.recording.names import (
     APPLICATION_ID,
@@ -86,12 +87,7 @@ def write_failures_rrd(
     if duplicates:
         raise ValueError(f"the same episode appears in several sources: {duplicates[:5]}")
 
-    signals: Sequence[tuple[str, Sequence[str]]] = []  # no sources: plots without contents
-    for source in files[:1]:  # the sources' signals, all recorded alike
-        reader = readers.get(source) or open_rrd(source)
-        if recordings := reader.recordings():
-            signals = list(recorded_signals(reader, recordings[0]).items())
-    blueprint = default_blueprint(signals)
+    blueprint = default_blueprint(_plots(sources, files, readers))
     with atomic_path(path) as tmp, rrd_output(tmp, application_id, blueprint) as out:
         names = [Path(s).name for s in sources]  # names only: no private paths in outputs
         title = f"failures: {len(failures)} episode(s) from {len(names)} file(s)"
@@ -120,16 +116,46 @@ def write_failures_rrd(
     return len(failures)
 
 
+def _plots(
+    sources: Sequence[str | os.PathLike[str]], files: Sequence[Path], readers: Mapping[Path, Any]
+) -> list[tuple[str, list[str]]]:
+    """The plots of the sources' recordings (all recorded alike): as their folder's stamp
+    names them, else one plot per entity that holds series."""
+    for source in sources:
+        stamp = Path(source) / RECORDING_FOLDER_STAMP
+        if stamp.is_file():
+            plots = json.loads(stamp.read_text()).get("plots")
+            if plots:
+                return [(title, list(entities)) for title, entities in plots]
+    for source in files[:1]:
+        reader = readers.get(source) or open_rrd(source)
+        if recordings := reader.recordings():
+            signals = recorded_signals(reader, recordings[0])
+            return [(", ".join(names), [entity]) for entity, names in signals.items()]
+    return []
+
+
+def _recorded_measures(props: Mapping[str, Any]) -> list[str]:
+    """The measures an episode's recording keeps: its fields between success and the failure
+    category (`write.episode_field`)."""
+    keys = list(props)
+    if "success" not in keys or "failure_category" not in keys:
+        return []
+    return keys[keys.index("success") + 1 : keys.index("failure_category")]
+
+
 def _failures_table(failures: Sequence[tuple[Path, Any, Mapping[str, Any]]]) -> rr.TextDocument:
+    measures = _recorded_measures(failures[0][2]) if failures else []
     lines = [
-        "| source | condition | state | failure | final height (m) |",
-        "|---|---|---|---|---|",
+        "| source | condition | state | failure |" + "".join(f" {m} |" for m in measures),
+        "|---|---|---|---|" + "---|" * len(measures),
     ]
     for source, _, p in failures:
         lines.append(
             f"| {source.name} | {p.get('condition')} | {p.get('state_id')} "
-            f"| {p.get('failure_category') or '-'} | {p.get('final_height', float('nan')):.4f} |"
+            f"| {p.get('failure_category') or '-'} |"
+            + "".join(f" {p.get(m, float('nan')):.4f} |" for m in measures)
         )
     if not failures:
-        lines.append("| - | - | - | - | - |")
+        lines.append("| - | - | - | - |")
     return rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN)

@@ -12,23 +12,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from mjtrial.protocol import CTRL_GRIPPER, CTRL_X, CTRL_Y, CTRL_Z
-
 APPLICATION_ID = "mjtrial"
 TIMELINE = "sim_time"  # the one timeline: simulated seconds, stored as integer nanoseconds
 PROPERTIES = "/" + rr.RECORDING_PROPERTIES_PATH.strip("/")  # entity of recording properties
 WORLD = "world"  # entity of MuJoCo's world body: the root of the body tree
-
-# Signals, logged on the entity of the body they belong to, so they share its time-series chunk
-# (an entity of their own would cost every recording a chunk of row ids and timestamps): the
-# cube's height on the cube; the mean finger opening and the control targets on the fingers'
-# parent (the carriage); each pad's normal force on the pad's body (the fingers).
-CUBE_SERIES = ("cube_height",)
-CTRL_SERIES = ("ctrl_x", "ctrl_y", "ctrl_z", "ctrl_gripper")
-CTRL_COLUMNS = (CTRL_X, CTRL_Y, CTRL_Z, CTRL_GRIPPER)  # of CTRL_SERIES, in ctrl
-GRIPPER_SERIES = ("finger_opening", *CTRL_SERIES)
-CONTACT_SERIES = ("left_normal_force", "right_normal_force")
-SIGNALS = (*CUBE_SERIES, *GRIPPER_SERIES, *CONTACT_SERIES)
 
 # Recording properties.
 EPISODE_PROPERTY = "episode"
@@ -99,32 +86,27 @@ def logged_steps(nstep: int, log_every: int) -> np.ndarray:
 SOLID_SHAPES = (rr.Boxes3D, rr.Ellipsoids3D, rr.Capsules3D, rr.Cylinders3D)
 
 
-def default_blueprint(signals: Sequence[tuple[str, Sequence[str]]]) -> rrb.Blueprint:
-    """Viewer layout: the scene on the left, cube height and contact forces on the right.
+def default_blueprint(plots: Sequence[tuple[str, Sequence[str]]]) -> rrb.Blueprint:
+    """Viewer layout: the scene on the left, the task's plots of its series on the right.
 
     Args:
-      signals: (entity, series names) of the logged signals. The upper plot shows the entities
-        of the cube's height, the finger opening and the control targets (m); the lower one
-        those of the pads' normal forces (N). The scene's view draws shapes solid (rerun's
-        default for boxes is a wireframe).
+      plots: (title, entities) of each plot, top to bottom: a plot shows the series of its
+        entities (`series.plots`). The scene's view draws shapes solid (rerun's default for
+        boxes is a wireframe).
     """
-    force = [e for e, names in signals if set(names) & set(CONTACT_SERIES)]
-    lift = [e for e, names in signals if e not in force]
     solid = [shape.from_fields(fill_mode=rr.components.FillMode.Solid) for shape in SOLID_SHAPES]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin=WORLD, name="scene", defaults=solid),
             rrb.Vertical(
-                rrb.TimeSeriesView(
-                    origin=WORLD,
-                    contents=[f"+ /{e.strip('/')}" for e in lift],
-                    name="cube height, finger opening, ctrl (m)",
-                ),
-                rrb.TimeSeriesView(
-                    origin=WORLD,
-                    contents=[f"+ /{e.strip('/')}" for e in force],
-                    name="pad-cube normal force (N)",
-                ),
+                *(
+                    rrb.TimeSeriesView(
+                        origin=WORLD,
+                        contents=[f"+ /{e.strip('/')}" for e in entities],
+                        name=title,
+                    )
+                    for title, entities in plots
+                )
             ),
             column_shares=[3, 2],
         )

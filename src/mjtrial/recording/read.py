@@ -13,7 +13,6 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import RrdReader, StoreEntry
 
-from mjtrial.model_spec import CUBE
 from mjtrial.provenance import RECORDING_FOLDER_STAMP, read_stamp
 from mjtrial.recording.arrow import (
     QUATERNION,
@@ -25,8 +24,6 @@ from mjtrial.recording.arrow import (
     data_columns,
 )
 from mjtrial.recording.names import (
-    CONTACT_SERIES,
-    CTRL_SERIES,
     EPISODE_COMPONENT,
     EPISODE_PROPERTY,
     FAILURE_PREFIX,
@@ -34,13 +31,11 @@ from mjtrial.recording.names import (
     JSON_FIELD,
     PROPERTIES,
     PROVENANCE_PROPERTY,
-    SIGNALS,
     SOURCE_PROVENANCE_PROPERTY,
     TIMELINE,
     episode_file_name,
     episode_recording_id,
     logged_steps,
-    top_level_entity,
 )
 from mjtrial.recording.scene import rerun_to_mujoco_quat
 
@@ -128,9 +123,9 @@ def list_recordings(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     """Properties of each recording in the file (or the folder's files), in file order.
 
     Each dict has recording_id, application_id, name and provenance (the stamp, parsed).
-    Episode recordings add condition, state_id, dx, dy, yaw, mass, success, final_height,
-    failure_category (None if absent), log_every, n_steps; copies in failures.rrd add
-    source_provenance; failures.rrd's summary adds n_failures and sources.
+    Episode recordings add condition, state_id, the state's values, success, the task's
+    recorded measures, failure_category (None if absent), log_every, n_steps; copies in
+    failures.rrd add source_provenance; failures.rrd's summary adds n_failures and sources.
     """
     out = []
     for file in recording_files(path):
@@ -221,9 +216,9 @@ def read_episode(
 
     Returns arrays over the n logged steps: time (n,) simulated seconds (rerun keeps integer
     nanoseconds, so this is physics time rounded to 1 ns); step (n,) the physics step index;
-    cube_position (n, 3) and cube_quat_wxyz (n, 4) (float32 precision: rerun stores transforms
-    as float32); finger_opening (n,), cube_height (n,), ctrl (n, 4) and contact_force (n, 2)
-    (left, right normal force) exactly as logged (float64).
+    every series the task logs, by name (n,), exactly as logged (float64); and, for each moving
+    body, `<body>_position` (n, 3) and, when it turns, `<body>_quat_wxyz` (n, 4): its pose in
+    its parent body (float32 precision: rerun stores transforms as float32).
 
     `path` is a .rrd file or a condition's folder of recordings (`write_condition_recordings`).
 
@@ -235,18 +230,23 @@ def read_episode(
         path = find_episode_file(path, condition=condition, state_id=state_id)
     reader = open_rrd(path)
     entry = _find_episode(reader, path, condition, state_id)
-    cube = top_level_entity(CUBE)  # a free joint's body is a child of the world body
     signals = recorded_signals(reader, entry)
+    if not signals:
+        raise ValueError(f"{path}: recording {entry.recording_id!r} has no series")
     where = {name: (e, i) for e, names in signals.items() for i, name in enumerate(names)}
-    missing = [name for name in SIGNALS if name not in where]
-    if missing:
-        raise ValueError(f"{path}: recording {entry.recording_id!r} has no series {missing}")
     wanted: dict[str, list[tuple[str, int]]] = {
-        e: [(SCALARS, len(names))] for e, names in signals.items() if set(names) & set(SIGNALS)
+        e: [(SCALARS, len(names))] for e, names in signals.items()
     }
-    wanted.setdefault(cube, []).extend([(TRANSLATION, 1), (QUATERNION, 1)])
-    parts: dict[str, list[dict[str, np.ndarray]]] = {e: [] for e in wanted}
     store = reader.store(store=entry)
+    posed: dict[str, list[str]] = {}  # entity -> its pose's components logged per step
+    for chunk in store.stream().filter(has_timeline=TIMELINE):
+        names = chunk.to_record_batch().schema.names
+        found = [c for c in (TRANSLATION, QUATERNION) if c in names]
+        if found:
+            posed.setdefault(chunk.entity_path.lstrip("/"), found)
+    for entity in sorted(posed):
+        wanted.setdefault(entity, []).extend((c, 1) for c in posed[entity])
+    parts: dict[str, list[dict[str, np.ndarray]]] = {e: [] for e in wanted}
     stream = store.stream().filter(content=[f"/{e}" for e in wanted], has_timeline=TIMELINE)
     for chunk in stream:
         entity = chunk.entity_path.lstrip("/")
@@ -269,10 +269,11 @@ def read_episode(
         merged = {k: np.concatenate([c[k] for c in pieces]) for k in keys}
         order = np.argsort(merged["time_ns"], kind="stable")  # ties keep the logged order
         series[entity] = {k: v[order] for k, v in merged.items()}
-    time_ns = series[cube]["time_ns"]
+    first = next(iter(series))
+    time_ns = series[first]["time_ns"]
     for entity, s in series.items():
         if not np.array_equal(s["time_ns"], time_ns):
-            raise ValueError(f"{path}: {entity} is not logged at the same times as {cube}")
+            raise ValueError(f"{path}: {entity} is not logged at the same times as {first}")
 
     props = _episode_property(raw_properties(reader, entry).get(EPISODE_PROPERTY, {}))
     if "n_steps" not in props or "log_every" not in props:
@@ -283,17 +284,13 @@ def read_episode(
             f"{path}: {len(time_ns)} rows, but n_steps and log_every give {len(steps)}"
         )
 
-    def signal(name: str) -> np.ndarray:
-        entity, index = where[name]
-        return series[entity][SCALARS][:, index]
-
-    return {
-        "time": time_ns / 1e9,
-        "step": steps,
-        "cube_position": series[cube][TRANSLATION],
-        "cube_quat_wxyz": rerun_to_mujoco_quat(series[cube][QUATERNION]),
-        "finger_opening": signal("finger_opening"),
-        "ctrl": np.column_stack([signal(name) for name in CTRL_SERIES]),
-        "cube_height": signal("cube_height"),
-        "contact_force": np.column_stack([signal(name) for name in CONTACT_SERIES]),
-    }
+    out = {"time": time_ns / 1e9, "step": steps}
+    for name, (entity, index) in where.items():
+        out[name] = series[entity][SCALARS][:, index]
+    for entity in sorted(posed):
+        body = entity.rsplit("/", 1)[-1]
+        if TRANSLATION in posed[entity]:
+            out[f"{body}_position"] = series[entity][TRANSLATION]
+        if QUATERNION in posed[entity]:
+            out[f"{body}_quat_wxyz"] = rerun_to_mujoco_quat(series[entity][QUATERNION])
+    return out

@@ -23,7 +23,7 @@ import json
 import os
 import queue
 import threading
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,19 +57,24 @@ from mjtrial.recording.names import (
     logged_steps,
 )
 from mjtrial.recording.route import rrd_output, save_blueprint, write_store
-from mjtrial.recording.series import Chunker
-from mjtrial.states import InitialState
+from mjtrial.recording.series import Chunker, Signal
 
 
 @dataclass(frozen=True, eq=False)
 class EpisodeRecord:
-    """One episode to record: its initial state, trajectories and outcome."""
+    """One episode to record: its initial state's values, trajectories and outcome.
 
-    state: InitialState
+    `values` are the state parameters (name -> value) and `measures` the outcome's recorded
+    measures (the task's `Measure(recorded=True)`), both in the order the recording keeps.
+    """
+
+    state_id: int
+    values: Mapping[str, float]
     physics: np.ndarray  # (n_steps, nstate) mjSTATE_FULLPHYSICS after each step
     sensordata: np.ndarray  # (n_steps, nsensordata)
+    ctrl: np.ndarray  # (n_steps, nu) the ctrl applied before each step
     success: bool
-    final_height: float
+    measures: Mapping[str, float]
     failure_category: str | None = None
 
 
@@ -84,38 +89,35 @@ def stamp_json(stamp: Mapping[str, Any]) -> str:
 
 # The `episode` property is one component holding a struct, not one component per field: every
 # component costs each recording ~0.5 kB of index in the file's footer. The struct keeps the
-# names and types (failure_category is null when the episode did not fail).
-_EPISODE_TYPE = pa.struct(
-    [
-        pa.field("condition", pa.string(), nullable=False),
-        pa.field("state_id", pa.int64(), nullable=False),
-        pa.field("dx", pa.float64(), nullable=False),
-        pa.field("dy", pa.float64(), nullable=False),
-        pa.field("yaw", pa.float64(), nullable=False),
-        pa.field("mass", pa.float64(), nullable=False),
-        pa.field("success", pa.bool_(), nullable=False),
-        pa.field("final_height", pa.float64(), nullable=False),
-        pa.field("failure_category", pa.string()),
-        pa.field("log_every", pa.int64(), nullable=False),
-        pa.field("n_steps", pa.int64(), nullable=False),
-    ]
-)
-_EPISODE_FIELD = component_field(
-    EPISODE_COMPONENT, _EPISODE_TYPE, f"{PROPERTIES}/{EPISODE_PROPERTY}"
-)
+# names and types (failure_category is null when the episode did not fail): condition,
+# state_id, the state's values, success, the recorded measures, failure_category, log_every
+# and n_steps.
+def episode_field(state_names: Sequence[str], measure_names: Sequence[str]) -> pa.Field:
+    """The `episode` property's field for a task's state parameters and recorded measures."""
+    number = [pa.field(n, pa.float64(), nullable=False) for n in (*state_names,)]
+    measured = [pa.field(n, pa.float64(), nullable=False) for n in measure_names]
+    struct = pa.struct(
+        [
+            pa.field("condition", pa.string(), nullable=False),
+            pa.field("state_id", pa.int64(), nullable=False),
+            *number,
+            pa.field("success", pa.bool_(), nullable=False),
+            *measured,
+            pa.field("failure_category", pa.string()),
+            pa.field("log_every", pa.int64(), nullable=False),
+            pa.field("n_steps", pa.int64(), nullable=False),
+        ]
+    )
+    return component_field(EPISODE_COMPONENT, struct, f"{PROPERTIES}/{EPISODE_PROPERTY}")
 
 
 def _episode_fields(ep: EpisodeRecord, condition: str, n_steps: int, log_every: int) -> dict:
-    s = ep.state
     return {
         "condition": str(condition),
-        "state_id": int(s.state_id),
-        "dx": float(s.dx),
-        "dy": float(s.dy),
-        "yaw": float(s.yaw),
-        "mass": float(s.mass),
+        "state_id": int(ep.state_id),
+        **{k: float(v) for k, v in ep.values.items()},
         "success": bool(ep.success),
-        "final_height": float(ep.final_height),
+        **{k: float(v) for k, v in ep.measures.items()},
         "failure_category": None if ep.failure_category is None else str(ep.failure_category),
         "log_every": int(log_every),
         "n_steps": int(n_steps),
@@ -180,36 +182,41 @@ class _Pending:
     fields: dict[str, Any]
     rows: np.ndarray  # logged rows of the physics state
     sensors: np.ndarray  # logged rows of sensordata
+    ctrl: np.ndarray  # logged rows of ctrl
 
 
 _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
 _QUEUE = 128  # episodes waiting for the writer thread, at most
 
 
+@dataclass(frozen=True)
+class RecordingSpec:
+    """What every recording of a task shares: its model, the signals it plots, the names of the
+    episode property's state values and measures, the episode length and the logging rate."""
+
+    model: mujoco.MjModel
+    signals: Sequence[Signal]
+    state_names: Sequence[str]
+    measure_names: Sequence[str]
+    n_steps: int
+    log_every: int
+
+
 class EpisodeStores:
-    """Builds each episode's recording (a `ChunkStore`) for a model, condition and stamp.
+    """Builds each episode's recording (a `ChunkStore`) for a task's recordings, a condition
+    and a stamp.
 
     `groups(episodes)` consumes the episodes one at a time (a generator over rollout batches
     will do) and keeps their logged rows until `_GROUP` have come; `build(group)` then builds
     those recordings at once (numpy's and pyarrow's cost is per call).
     """
 
-    def __init__(
-        self,
-        *,
-        model: mujoco.MjModel,
-        condition: str,
-        ctrl: np.ndarray,
-        stamp: Mapping[str, Any],
-        log_every: int,
-    ) -> None:
+    def __init__(self, spec: RecordingSpec, *, condition: str, stamp: Mapping[str, Any]) -> None:
         stamp_text = stamp_json(stamp)
-        ctrl = np.asarray(ctrl, dtype=np.float64)
-        if ctrl.ndim != 2 or ctrl.shape[1] != model.nu:
-            raise ValueError(f"ctrl: expected shape (n_steps, {model.nu}), got {ctrl.shape}")
-        self.condition, self.ctrl, self.log_every = condition, ctrl, log_every
-        self.steps = logged_steps(ctrl.shape[0], log_every)  # validate before any work
-        self.chunker = chunker = Chunker(model)
+        self.spec, self.condition = spec, condition
+        self.steps = logged_steps(spec.n_steps, spec.log_every)  # validate before any work
+        self.chunker = chunker = Chunker(spec.model, spec.signals)
+        self.episode_field = episode_field(spec.state_names, spec.measure_names)
         # the same in every recording: geometry, static poses, series names and the stamp
         self.constant = chunks(
             [
@@ -218,17 +225,19 @@ class EpisodeStores:
                 *property_columns(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
             ]
         )
-        self.blueprint = default_blueprint([(e, names) for e, names, _ in chunker.signals])
+        self.plots = chunker.plots
+        self.blueprint = default_blueprint(chunker.plots)
 
     def build(self, group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
         """(recording id, store) of each episode of a group from `groups`."""
         n = len(self.steps)
-        series = self.chunker.series([(p.rows, p.sensors) for p in group], self.ctrl[self.steps])
+        series = self.chunker.series([(p.rows, p.sensors, p.ctrl) for p in group])
         name_field = recording_name_field()
+        field = self.episode_field
         properties = record_batch(
             [
                 (name_field, pa.array([[p.name] for p in group], type=name_field.type)),
-                (_EPISODE_FIELD, pa.array([[p.fields] for p in group], type=_EPISODE_FIELD.type)),
+                (field, pa.array([[p.fields] for p in group], type=field.type)),
             ]
         )
         for i, ep in enumerate(group):
@@ -244,20 +253,23 @@ class EpisodeStores:
 
     def groups(self, episodes: Iterable[EpisodeRecord]) -> Iterator[list[_Pending]]:
         """The episodes' logged rows and properties, `_GROUP` episodes at a time."""
-        condition, seen = self.condition, set()
+        condition, seen, spec = self.condition, set(), self.spec
         group: list[_Pending] = []
         for ep in episodes:
-            sid = int(ep.state.state_id)
+            sid = int(ep.state_id)
             if sid in seen:
                 raise ValueError(f"{condition}: state {sid} appears twice among the episodes")
-            physics, sensordata, _ = self.chunker.trajectory(ep.physics, ep.sensordata, self.ctrl)
+            physics, sensordata, ctrl = self.chunker.trajectory(
+                ep.physics, ep.sensordata, ep.ctrl, n_steps=spec.n_steps
+            )
             group.append(
                 _Pending(
                     recording_id=episode_recording_id(condition, sid),
                     name=episode_recording_name(condition, sid),
-                    fields=_episode_fields(ep, condition, len(self.ctrl), self.log_every),
+                    fields=_episode_fields(ep, condition, spec.n_steps, spec.log_every),
                     rows=physics[self.steps],
                     sensors=sensordata[self.steps],
+                    ctrl=ctrl[self.steps],
                 )
             )
             seen.add(sid)
@@ -271,12 +283,10 @@ class EpisodeStores:
 def write_condition_recordings(
     path: str | os.PathLike[str],
     *,
-    model: mujoco.MjModel,
+    spec: RecordingSpec,
     condition: str,
     episodes: Iterable[EpisodeRecord],
-    ctrl: np.ndarray,
     stamp: Mapping[str, Any],
-    log_every: int,
     application_id: str = APPLICATION_ID,
 ) -> int:
     """Atomically write the folder `path`: one .rrd per episode of a condition, and a blueprint.
@@ -299,9 +309,7 @@ def write_condition_recordings(
     Returns:
       the number of recordings written (none: a folder holding its blueprint only).
     """
-    builder = EpisodeStores(
-        model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
-    )
+    builder = EpisodeStores(spec, condition=condition, stamp=stamp)
     count = 0
     with atomic_directory(Path(path)) as folder:
         save_blueprint(builder.blueprint, application_id, str(folder / RECORDING_FOLDER_BLUEPRINT))
@@ -335,7 +343,9 @@ def write_condition_recordings(
         syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
         syncer.finish()
         write_json(
-            {"condition": condition, "recordings": count}, folder / RECORDING_FOLDER_STAMP, stamp
+            {"condition": condition, "recordings": count, "plots": builder.plots},
+            folder / RECORDING_FOLDER_STAMP,
+            stamp,
         )
     return count
 
@@ -343,12 +353,10 @@ def write_condition_recordings(
 def write_episode_recording(
     path: str | os.PathLike[str],
     *,
-    model: mujoco.MjModel,
+    spec: RecordingSpec,
     condition: str,
     episode: EpisodeRecord,
-    ctrl: np.ndarray,
     stamp: Mapping[str, Any],
-    log_every: int,
     application_id: str = APPLICATION_ID,
 ) -> None:
     """Atomically write one episode's recording, and `default_blueprint`, to the file `path`.
@@ -356,9 +364,7 @@ def write_episode_recording(
     The recording is the one `write_condition_recordings` makes; the blueprint travels in the
     same file (through ``rerun rrd route``), so ``rerun <path>`` opens it in its layout.
     """
-    builder = EpisodeStores(
-        model=model, condition=condition, ctrl=ctrl, stamp=stamp, log_every=log_every
-    )
+    builder = EpisodeStores(spec, condition=condition, stamp=stamp)
     path = Path(path)
     [group] = builder.groups([episode])
     [(recording_id, store)] = builder.build(group)

@@ -12,31 +12,43 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, provenance, recording, taxonomy
-from mjtrial.model_spec import ModelSpec
-from mjtrial.protocol import (
-    CONDITION_PARAMETERS,
-    PROTOCOL,
-    Protocol,
-    condition_protocol,
-    control_sequence,
-)
-from mjtrial.simulate import (
-    BATCH_SIZE,
-    EPISODE_COLUMNS,
-    EpisodeBatch,
-    episode_outcomes,
-    iter_episode_batches,
-    load_model,
-)
-from mjtrial.stages.stamping import make_stage_stamp, model_inputs
-from mjtrial.states import InitialState, states_from_table
+from mjtrial import REPO_ROOT, engine, provenance, recording
+from mjtrial.engine import BATCH_SIZE
+from mjtrial.recording.series import Signal
+from mjtrial.recording.write import RecordingSpec
+from mjtrial.simulate import load_model
+from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.variants import variant_model
+from mjtrial.task import BoundTask, Measure, Task, load_task
 
 log = logging.getLogger("mjtrial")
 
-# Columns of `rollouts/<condition>.parquet`, in order: the outcome, then the failure analysis.
-ROLLOUT_COLUMNS = (*EPISODE_COLUMNS, "failure_category", "peak_slip", "peak_carriage_accel")
+EPISODES_RECORDED = ("all", "failed", "none")  # config recording.episodes
+# The types of the engine's columns (`mjtrial.task.ENGINE_MEASURES`); a task's are float64.
+_ENGINE_TYPES = {
+    "steps_simulated": pa.int64(),
+    "nonfinite": pa.bool_(),
+    "warning": pa.string(),
+    "failure_category": pa.string(),
+}
+
+
+def rollout_schema(task: Task) -> pa.Schema:
+    """The rollout table's columns and types, fixed: a shard whose every episode succeeded has
+    no category to infer a type from, and every shard's table must concatenate into the
+    condition's. state_id, success, then the task's measures with the engine's columns."""
+    return pa.schema(
+        [
+            ("state_id", pa.int64()),
+            ("success", pa.bool_()),
+            *((m.name, _ENGINE_TYPES.get(m.name, pa.float64())) for m in task.table_measures),
+        ]
+    )
+
+
+def rollout_columns(task: Task) -> tuple[str, ...]:
+    """The rollout table's column names, in order."""
+    return tuple(rollout_schema(task).names)
 
 
 class Progress:
@@ -67,41 +79,79 @@ class Progress:
         )
 
 
-def read_states(path: Path) -> list[InitialState]:
-    """The initial states stored in `states.parquet`, checked."""
-    return states_from_table(pq.read_table(path), source=str(path))
+def read_state_values(
+    path: Path, task: Task, *, first: int = 0, stop: int | None = None
+) -> dict[str, np.ndarray]:
+    """The states with ids in [first, stop) of `states.parquet`: state_id and the task's state
+    parameters, checked (every column present, every value finite, the ids in order)."""
+    table = pq.read_table(path)
+    missing = [c for c in task.state_columns if c not in table.column_names]
+    if missing:
+        raise ValueError(
+            f"{path}: missing column(s) {missing}; expected {list(task.state_columns)}"
+        )
+    ids = table.column("state_id").to_numpy()
+    stop = len(ids) if stop is None else stop
+    rows = np.flatnonzero((ids >= first) & (ids < stop))
+    if len(rows) != stop - first or not np.array_equal(ids[rows], np.arange(first, stop)):
+        raise ValueError(f"{path}: expected states {first}..{stop - 1}, found {len(rows)}")
+    values = {"state_id": ids[rows].astype(np.int64)}
+    for p in task.state_parameters:
+        column = table.column(p.name).to_numpy()[rows].astype(np.float64)
+        bad = ~np.isfinite(column)
+        if bad.any():
+            raise ValueError(
+                f"{path}: column {p.name!r} has non-finite values (first at state "
+                f"{int(values['state_id'][np.argmax(bad)])})"
+            )
+        values[p.name] = column
+    return values
 
 
-def nominal_state(model: Any) -> InitialState:
-    """The state a careless evaluation uses alone: no offset, no yaw, the mass as compiled."""
-    return InitialState(-1, 0.0, 0.0, 0.0, float(model.body_mass[ModelSpec.of(model).cube_body]))
+def condition_task(
+    condition_slice: Mapping[str, Any], model_file: Path, *, repo_root: Path = REPO_ROOT
+) -> BoundTask:
+    """The task a condition runs, on its model: the committed one or the slice's variant."""
+    task = load_task(condition_slice["task"], repo_root=repo_root)
+    variant = condition_slice.get("variant")
+    if variant is None:
+        model = load_model(model_file)
+    else:
+        model, _ = variant_model(
+            model_file, variant["overrides"], key_prefix=f"variants.{variant['name']}"
+        )
+    return BoundTask.of(task, model)
 
 
-def condition_outcomes(
-    model: Any,
-    states: Sequence[InitialState],
+def condition_parameters(bound: BoundTask, condition_slice: Mapping[str, Any]) -> dict[str, float]:
+    """The condition's protocol parameters, from its slice."""
+    names = {p.name for p in bound.task.protocol_parameters}
+    return {k: v for k, v in condition_slice.items() if k in names}
+
+
+def thresholds_of(bound: BoundTask, condition_slice: Mapping[str, Any]) -> dict[str, float]:
+    """The failure categories' thresholds: the config's `failure_taxonomy`, else defaults."""
+    given = condition_slice.get("failure_taxonomy", {})
+    return {t.name: float(given.get(t.name, t.default)) for t in bound.task.thresholds}
+
+
+def condition_batches(
+    bound: BoundTask,
+    condition_slice: Mapping[str, Any],
+    values: Mapping[str, np.ndarray],
     *,
-    lift_time: float,
-    thresholds: taxonomy.Thresholds,
     nthread: int,
     batch_size: int = BATCH_SIZE,
-    protocol: Protocol = PROTOCOL,
-) -> Iterator[tuple[EpisodeBatch, dict[str, np.ndarray]]]:
-    """Each batch of episodes with its per-episode columns (`ROLLOUT_COLUMNS`)."""
-    _, phase = control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)
-    for batch in iter_episode_batches(
-        model,
-        states,
-        lift_time=lift_time,
+) -> Iterator[engine.Batch]:
+    """The condition's episodes of the states `values`, in batches, with their outcomes."""
+    return engine.iter_batches(
+        bound,
+        values,
+        condition_parameters(bound, condition_slice),
+        thresholds=thresholds_of(bound, condition_slice),
         nthread=nthread,
         batch_size=batch_size,
-        protocol=protocol,
-    ):
-        outcome = episode_outcomes(model, batch, lift_time=lift_time, protocol=protocol)
-        traj = taxonomy.trajectories_from_batch(
-            model, batch, phase=phase, home_xy=(protocol.home_x, 0.0)
-        )
-        yield batch, outcome | taxonomy.classify(traj, outcome["success"], thresholds)
+    )
 
 
 def log_every(rate_hz: float, timestep: float) -> int:
@@ -109,59 +159,58 @@ def log_every(rate_hz: float, timestep: float) -> int:
     return max(1, round(1.0 / (rate_hz * timestep)))
 
 
-def episode_records(
-    batch: EpisodeBatch, outcome: Mapping[str, np.ndarray]
-) -> Iterator[recording.EpisodeRecord]:
+def recorded_measures(task: Task) -> tuple[Measure, ...]:
+    return tuple(m for m in task.own_measures if m.recorded)
+
+
+def recording_spec(bound: BoundTask, n_steps: int, rate_hz: float) -> RecordingSpec:
+    """What every recording of the task's episodes shares."""
+    task, model = bound.task, bound.model
+    return RecordingSpec(
+        model=model,
+        signals=[
+            Signal(s.name, model.body(s.body).id, s.plot, read)
+            for s, read in zip(task.series, bound.series, strict=True)
+        ],
+        state_names=[p.name for p in task.state_parameters],
+        measure_names=[m.name for m in recorded_measures(task)],
+        n_steps=n_steps,
+        log_every=log_every(rate_hz, model.opt.timestep),
+    )
+
+
+def episode_records(task: Task, batch: engine.Batch) -> Iterator[recording.EpisodeRecord]:
     """The batch's episodes as `recording.EpisodeRecord`s, with their outcomes."""
-    for i, state in enumerate(batch.states):
+    names = [p.name for p in task.state_parameters]
+    measures = [m.name for m in recorded_measures(task)]
+    out = batch.outcome
+    for i in range(len(out["success"])):
         yield recording.EpisodeRecord(
-            state=state,
-            physics=batch.physics[i],
-            sensordata=batch.sensordata[i],
-            success=bool(outcome["success"][i]),
-            final_height=float(outcome["final_height"][i]),
-            failure_category=outcome["failure_category"][i],
+            state_id=int(batch.values["state_id"][i]),
+            values={n: float(batch.values[n][i]) for n in names},
+            physics=batch.episodes.physics[i],
+            sensordata=batch.episodes.sensordata[i],
+            ctrl=batch.episodes.ctrl[i],
+            success=bool(out["success"][i]),
+            measures={m: float(out[m][i]) for m in measures},
+            failure_category=out["failure_category"][i],
         )
 
 
-# The table's types, fixed: a shard whose every episode succeeded has no category to infer a
-# type from, and every shard's table must concatenate into the condition's.
-ROLLOUT_SCHEMA = pa.schema(
-    [
-        ("state_id", pa.int64()),
-        ("success", pa.bool_()),
-        ("final_height", pa.float64()),
-        ("final_x", pa.float64()),
-        ("final_y", pa.float64()),
-        ("steps_simulated", pa.int64()),
-        ("nonfinite", pa.bool_()),
-        ("warning", pa.string()),
-        ("failure_category", pa.string()),
-        ("peak_slip", pa.float64()),
-        ("peak_carriage_accel", pa.float64()),
-    ]
-)
-EPISODES_RECORDED = ("all", "failed", "none")  # config recording.episodes
-
-
-def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> Any:
-    """The model a condition runs on: the committed one, or the slice's variant of it."""
-    variant = condition_slice.get("variant")
-    if variant is None:
-        return load_model(model_file)
-    model, _ = variant_model(
-        model_file, variant["overrides"], key_prefix=f"variants.{variant['name']}"
-    )
-    return model
-
-
-def slice_protocol(condition_slice: Mapping[str, Any]) -> Protocol:
-    """The protocol of a rollout config slice: its condition's parameters set."""
-    return condition_protocol(
+def outcome_table(task: Task, columns: Mapping[str, Sequence[np.ndarray]]) -> pa.Table:
+    """The rollout table from its columns' batches."""
+    schema = rollout_schema(task)
+    merged = {
+        c: np.concatenate(columns[c]) if columns[c] else np.array([], dtype=object)
+        for c in schema.names
+    }
+    return pa.table(
         {
-            k: condition_slice[k]
-            for k in ("lift_time", *CONDITION_PARAMETERS)
-            if k in condition_slice
+            c: pa.array(
+                merged[c].tolist() if merged[c].dtype == object else merged[c],
+                type=schema.field(c).type,
+            )
+            for c in schema.names
         }
     )
 
@@ -187,67 +236,58 @@ def run_shard(
     Rerun recording, one .rrd per episode, written while the next batch runs. Memory is bounded
     by the batch and the shard, never by the number of states.
     """
-    model = condition_model(condition_slice, model_file)
-    states = [s for s in read_states(states_path) if first <= s.state_id < stop]
-    if len(states) != stop - first:
-        raise ValueError(f"{states_path}: expected states {first}..{stop - 1}, found {len(states)}")
+    bound = condition_task(condition_slice, model_file, repo_root=repo_root)
+    task = bound.task
+    values = read_state_values(states_path, task, first=first, stop=stop)
     condition = condition_slice["condition"]
-    lift_time = float(condition_slice["lift_time"])
-    protocol = slice_protocol(condition_slice)
-    thresholds = taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"])
     recorded = condition_slice["recording"].get("episodes", "all")
-    inputs = {"states": states_path, **model_inputs(model_file)}
+    inputs = {
+        "states": states_path,
+        **model_inputs(model_file),
+        **task_inputs(condition_slice["task"], repo_root=repo_root),
+    }
     stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
-    columns: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
-    progress = Progress(f"{rule}", total=len(states))
+    columns: dict[str, list[np.ndarray]] = {c: [] for c in rollout_columns(task)}
+    progress = Progress(f"{rule}", total=stop - first)
+
+    def batches() -> Iterator[engine.Batch]:
+        for batch in condition_batches(
+            bound, condition_slice, values, nthread=nthread, batch_size=batch_size
+        ):
+            columns["state_id"].append(batch.values["state_id"])
+            for c in rollout_columns(task)[1:]:
+                columns[c].append(batch.outcome[c])
+            yield batch
+            progress.advance(len(batch.outcome["success"]))
 
     def episodes() -> Iterator[recording.EpisodeRecord]:
-        for batch, outcome in condition_outcomes(
-            model,
-            states,
-            lift_time=lift_time,
-            thresholds=thresholds,
-            nthread=nthread,
-            batch_size=batch_size,
-            protocol=protocol,
-        ):
-            for c in ROLLOUT_COLUMNS:
-                columns[c].append(outcome[c])
-            for episode in episode_records(batch, outcome):
+        for batch in batches():
+            for episode in episode_records(task, batch):
                 if recorded == "all" or not episode.success:
                     yield episode
-            progress.advance(len(batch.states))
 
     if output_recording is None:
-        for _ in episodes():
+        for _ in batches():
             pass
     else:
         recording.write_condition_recordings(
             output_recording,
-            model=model,
+            spec=recording_spec(
+                bound,
+                engine.episode_steps(bound, condition_parameters(bound, condition_slice)),
+                condition_slice["recording"]["rate_hz"],
+            ),
             condition=condition,
             episodes=episodes(),
-            ctrl=control_sequence(lift_time, timestep=model.opt.timestep, protocol=protocol)[0],
             stamp=stamp,
-            log_every=log_every(condition_slice["recording"]["rate_hz"], model.opt.timestep),
         )
-    merged = {c: np.concatenate(v) for c, v in columns.items()}
-    table = pa.table(
-        {
-            c: pa.array(
-                merged[c].tolist() if merged[c].dtype == object else merged[c],
-                type=ROLLOUT_SCHEMA.field(c).type,
-            )
-            for c in ROLLOUT_COLUMNS
-        }
-    )
+    table = outcome_table(task, columns)
     provenance.write_parquet(table, output_table, stamp)
     log.info(
-        "%s: %d/%d successes (lift %g s) -> %s",
+        "%s: %d/%d successes -> %s",
         rule,
-        int(merged["success"].sum()),
-        len(states),
-        lift_time,
+        int(np.asarray(table.column("success")).sum()),
+        table.num_rows,
         output_table,
     )
     return table
@@ -264,17 +304,22 @@ def gather_condition(
     repo_root: Path = REPO_ROOT,
 ) -> pa.Table:
     """The condition's rollout table from its shards' (in state order), and the nominal state's
-    episode (no offset, no yaw, the mass as compiled) for the "nominal state alone" mistake."""
+    episode (each state parameter at its nominal value) for the "nominal state alone" mistake."""
+    bound = condition_task(condition_slice, model_file, repo_root=repo_root)
     tables = [pq.read_table(p).replace_schema_metadata(None) for p in shard_tables]
-    table = pa.concat_tables(tables) if tables else ROLLOUT_SCHEMA.empty_table()
+    table = pa.concat_tables(tables) if tables else rollout_schema(bound.task).empty_table()
     ids = table.column("state_id").to_numpy()
     if not np.array_equal(ids, np.arange(len(ids))):
         raise ValueError(
             f"{rule}: the shards' state ids are not 0..{len(ids) - 1} in order; expected every "
             "shard once"
         )
-    nominal = nominal_episode(condition_slice, model_file)
-    inputs = {"shards": list(shard_tables), **model_inputs(model_file)}
+    nominal = nominal_episode(condition_slice, model_file, repo_root=repo_root, bound=bound)
+    inputs = {
+        "shards": list(shard_tables),
+        **model_inputs(model_file),
+        **task_inputs(condition_slice["task"], repo_root=repo_root),
+    }
     stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
     provenance.write_parquet(table, output_table, stamp)
     provenance.write_json(nominal, output_nominal, stamp)
@@ -289,24 +334,30 @@ def gather_condition(
     return table
 
 
-def nominal_episode(condition_slice: Mapping[str, Any], model_file: Path) -> dict[str, Any]:
+def nominal_episode(
+    condition_slice: Mapping[str, Any],
+    model_file: Path,
+    *,
+    repo_root: Path = REPO_ROOT,
+    bound: BoundTask | None = None,
+) -> dict[str, Any]:
     """The nominal state's episode under a condition: what a careless evaluation runs alone."""
-    model = condition_model(condition_slice, model_file)
-    nominal = nominal_state(model)
-    _, outcome = next(
-        condition_outcomes(
-            model,
-            [nominal],
-            lift_time=float(condition_slice["lift_time"]),
-            thresholds=taxonomy.Thresholds.from_config(condition_slice["failure_taxonomy"]),
+    bound = bound or condition_task(condition_slice, model_file, repo_root=repo_root)
+    task = bound.task
+    nominal = {p.name: p.nominal_value for p in task.state_parameters}
+    batch = next(
+        condition_batches(
+            bound,
+            condition_slice,
+            {k: np.array([v]) for k, v in nominal.items()},
             nthread=1,
-            protocol=slice_protocol(condition_slice),
         )
     )
+    out = batch.outcome
     return {
         "condition": condition_slice["condition"],
-        "state": nominal.__dict__ | {"state_id": None},
-        "success": bool(outcome["success"][0]),
-        "final_height": float(outcome["final_height"][0]),
-        "failure_category": outcome["failure_category"][0],
+        "state": {"state_id": None, **nominal},
+        "success": bool(out["success"][0]),
+        **{m.name: float(out[m.name][0]) for m in recorded_measures(task)},
+        "failure_category": out["failure_category"][0],
     }

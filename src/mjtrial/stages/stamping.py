@@ -45,6 +45,7 @@ def _slice(
         variant, _, name = condition.rpartition("/")
         condition_slice = {
             "condition": name,
+            "task": config["task"],
             **all_conditions(config)[name],
             "failure_taxonomy": dict(config["failure_taxonomy"]),
             "recording": {k: config["recording"][k] for k in ("rate_hz", "episodes")},

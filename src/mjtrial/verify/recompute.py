@@ -27,19 +27,18 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import provenance, taxonomy
+from mjtrial import provenance
 from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
 from mjtrial.layout import NOMINAL, STUDIES, Layout, shard_ids, shard_range
 from mjtrial.report import report_text
 from mjtrial.stages.analysis import summarize_tables
 from mjtrial.stages.manifest import manifest_record
 from mjtrial.stages.rollout import (
-    ROLLOUT_COLUMNS,
-    condition_model,
-    condition_outcomes,
+    condition_batches,
+    condition_task,
     nominal_episode,
-    read_states,
-    slice_protocol,
+    read_state_values,
+    rollout_columns,
 )
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
@@ -249,7 +248,7 @@ class _Checker:
                         c: np.concatenate(
                             [t.column(c).to_numpy(zero_copy_only=False) for t in parts]
                         )
-                        for c in ROLLOUT_COLUMNS
+                        for c in parts[0].column_names
                     }
                     return table_difference(
                         pq.read_table(gathered), expected, what="rows of its shards"
@@ -259,7 +258,9 @@ class _Checker:
             nominal = self.layout.nominal_episode(condition, variant)
             self.check(
                 nominal,
-                lambda s=slice_, p=nominal: json_difference(p, nominal_episode(s, self.model_file)),
+                lambda s=slice_, p=nominal: json_difference(
+                    p, nominal_episode(s, self.model_file, repo_root=self.repo_root)
+                ),
             )
             if resimulate > 0:
                 for shard, table in zip(shards, tables, strict=True):
@@ -270,23 +271,20 @@ class _Checker:
     def resimulated(
         self, slice_: Mapping[str, Any], table_path: Path, ids: list[int]
     ) -> str | None:
-        states = {s.state_id: s for s in read_states(self.layout.states)}
         table = pq.read_table(table_path)
         rows = {sid: i for i, sid in enumerate(table.column("state_id").to_numpy().tolist())}
         missing = [i for i in ids if i not in rows]
         if missing:
             return f"no row for states {missing[:_SHOWN]}"
-        outcome: dict[str, list[np.ndarray]] = {c: [] for c in ROLLOUT_COLUMNS}
-        for _, out in condition_outcomes(
-            condition_model(slice_, self.model_file),
-            [states[i] for i in ids],
-            lift_time=float(slice_["lift_time"]),
-            thresholds=taxonomy.Thresholds.from_config(slice_["failure_taxonomy"]),
-            nthread=1,
-            protocol=slice_protocol(slice_),
-        ):
-            for c in ROLLOUT_COLUMNS:
-                outcome[c].append(out[c])
+        bound = condition_task(slice_, self.model_file, repo_root=self.repo_root)
+        every = read_state_values(self.layout.states, bound.task)
+        values = {k: v[ids] for k, v in every.items()}
+        columns = rollout_columns(bound.task)
+        outcome: dict[str, list[np.ndarray]] = {c: [] for c in columns}
+        for batch in condition_batches(bound, slice_, values, nthread=1):
+            outcome["state_id"].append(batch.values["state_id"])
+            for c in columns[1:]:
+                outcome[c].append(batch.outcome[c])
         self.found.resimulated += len(ids)
         sampled = table.take(pa.array([rows[i] for i in ids]))
         why = table_difference(
