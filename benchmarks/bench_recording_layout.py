@@ -29,14 +29,19 @@ import pyarrow as pa
 import yaml
 from rerun.chunk import ChunkStore
 
-from mjtrial import REPO_ROOT, recording, taxonomy
+from mjtrial import REPO_ROOT, engine, recording
 from mjtrial.atomic import fsync_file
 from mjtrial.layout import CONFIG_FILE
-from mjtrial.protocol import control_sequence
 from mjtrial.recording.arrow import chunks as recording_chunks
 from mjtrial.recording.write import EpisodeStores
-from mjtrial.simulate import load_model
-from mjtrial.stages.rollout import condition_outcomes, episode_records, log_every, read_states
+from mjtrial.stages.rollout import (
+    condition_batches,
+    condition_parameters,
+    condition_task,
+    episode_records,
+    read_state_values,
+    recording_spec,
+)
 from mjtrial.stages.stamping import config_slice, make_stage_stamp, model_inputs
 from mjtrial.stages.states import build_states
 
@@ -52,22 +57,19 @@ def main() -> None:
         config["recording"]["rate_hz"] = args.rate_hz
     cond = config_slice("rollout", config, condition=args.condition)
     model_file = REPO_ROOT / config["model"]
-    model = load_model(model_file)
+    bound = condition_task(cond, model_file)
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         states_path = tmp / "states.parquet"
-        build_states(states_slice=config["states"], output=states_path, repo_root=REPO_ROOT)
+        build_states(
+            states_slice=config_slice("states", config), output=states_path, repo_root=REPO_ROOT
+        )
+        values = read_state_values(states_path, bound.task)
         episodes = [
             ep
-            for batch, outcome in condition_outcomes(
-                model,
-                read_states(states_path),
-                lift_time=cond["lift_time"],
-                thresholds=taxonomy.Thresholds.from_config(cond["failure_taxonomy"]),
-                nthread=2,
-            )
-            for ep in episode_records(batch, outcome)
+            for batch in condition_batches(bound, cond, values, nthread=2)
+            for ep in episode_records(bound.task, batch)
         ]
         stamp = make_stage_stamp(
             f"rollout:{args.condition}",
@@ -75,13 +77,12 @@ def main() -> None:
             {"states": states_path, **model_inputs(model_file)},
             repo_root=REPO_ROOT,
         )
-        builder = EpisodeStores(
-            model=model,
-            condition=args.condition,
-            ctrl=control_sequence(cond["lift_time"], timestep=model.opt.timestep)[0],
-            stamp=stamp,
-            log_every=log_every(cond["recording"]["rate_hz"], model.opt.timestep),
+        spec = recording_spec(
+            bound,
+            engine.episode_steps(bound, condition_parameters(bound, cond)),
+            cond["recording"]["rate_hz"],
         )
+        builder = EpisodeStores(spec, condition=args.condition, stamp=stamp)
         n_rows = len(builder.steps)
         out = tmp / "out"
         out.mkdir()
@@ -89,19 +90,15 @@ def main() -> None:
         def per_episode() -> None:  # exactly what the rollout stage calls
             recording.write_condition_recordings(
                 out / args.condition,
-                model=model,
+                spec=spec,
                 condition=args.condition,
                 episodes=iter(episodes),
-                ctrl=builder.ctrl,
                 stamp=stamp,
-                log_every=builder.log_every,
             )
 
         def per_condition() -> None:
             pending = [p for group in builder.groups(iter(episodes)) for p in group]
-            series = builder.chunker.series(
-                [(p.rows, p.sensors) for p in pending], builder.ctrl[builder.steps]
-            )
+            series = builder.chunker.series([(p.rows, p.sensors, p.ctrl) for p in pending])
             # episode i starts at i * (its length + 1 s) on the condition's timeline
             t = series.column(0).to_numpy().astype(np.int64)
             period = int(t[n_rows - 1]) + 1_000_000_000

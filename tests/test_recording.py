@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 import rerun as rr
+from conftest import REPO_ROOT
 
 from mjtrial import model_path
 from mjtrial.protocol import control_sequence
@@ -28,8 +30,11 @@ from mjtrial.recording import (
 )
 from mjtrial.recording import route as route_mod
 from mjtrial.recording import write as write_mod
+from mjtrial.recording.write import RecordingSpec
 from mjtrial.simulate import iter_episode_batches, load_model
+from mjtrial.stages.rollout import recording_spec
 from mjtrial.states import InitialState
+from mjtrial.task import BoundTask, load_task
 
 LIFT_TIME = 0.15
 CONDITION = "baseline"
@@ -90,8 +95,18 @@ def ctrl(model: mujoco.MjModel) -> np.ndarray:
     return control_sequence(LIFT_TIME, timestep=model.opt.timestep)[0]
 
 
+_GANTRY = BoundTask.of(load_task("tasks/gantry_lift/task.py", repo_root=REPO_ROOT))
+
+
+def _spec(model: mujoco.MjModel, log_every: int = 5, n_steps: int | None = None) -> RecordingSpec:
+    """The gantry task's recordings of LIFT_TIME episodes, every `log_every`-th step."""
+    n = n_steps or len(control_sequence(LIFT_TIME, timestep=model.opt.timestep)[0])
+    spec = recording_spec(BoundTask.of(_GANTRY.task, model), n, rate_hz=100.0)
+    return RecordingSpec(**{**spec.__dict__, "log_every": log_every})
+
+
 @pytest.fixture(scope="module")
-def episodes(model: mujoco.MjModel) -> list[EpisodeRecord]:
+def episodes(model: mujoco.MjModel, ctrl: np.ndarray) -> list[EpisodeRecord]:
     out = []
     for batch in iter_episode_batches(model, STATES, lift_time=LIFT_TIME, nthread=1):
         for state, physics, sensordata in zip(
@@ -100,11 +115,13 @@ def episodes(model: mujoco.MjModel) -> list[EpisodeRecord]:
             failed = state.state_id == 1  # outcome labels are the caller's business
             out.append(
                 EpisodeRecord(
-                    state=state,
+                    state_id=state.state_id,
+                    values={p: getattr(state, p) for p in ("dx", "dy", "yaw", "mass")},
                     physics=physics,
                     sensordata=sensordata,
+                    ctrl=ctrl,
                     success=not failed,
-                    final_height=float(physics[-1, CUBE_Z]),
+                    measures={"final_height": float(physics[-1, CUBE_Z])},
                     failure_category="slipped" if failed else None,
                 )
             )
@@ -125,12 +142,10 @@ def condition_rrd(
     try:
         n = write_condition_recordings(
             path,
-            model=model,
             condition=CONDITION,
             episodes=iter(episodes),  # a one-pass iterable, as the pipeline passes
-            ctrl=ctrl,
             stamp=STAMP,
-            log_every=5,
+            spec=_spec(model, 5),
         )
     finally:
         mp.undo()
@@ -171,14 +186,14 @@ def test_list_recordings_gives_every_episode_with_its_properties(
         f"{CONDITION}-state-{s.state_id:06d}" for s in STATES
     ]
     for r, ep in zip(recordings, episodes, strict=True):
-        s = ep.state
+        s = STATES[ep.state_id]
         assert r["application_id"] == "mjtrial"
         assert r["name"] == f"{CONDITION} / state {s.state_id}"
         assert r["condition"] == CONDITION
         assert r["state_id"] == s.state_id
         assert (r["dx"], r["dy"], r["yaw"], r["mass"]) == (s.dx, s.dy, s.yaw, s.mass)
         assert r["success"] is ep.success
-        assert r["final_height"] == ep.final_height
+        assert r["final_height"] == ep.measures["final_height"]
         assert r["failure_category"] == ep.failure_category
         assert r["log_every"] == 5
         assert r["n_steps"] == len(ctrl)
@@ -194,7 +209,7 @@ def test_read_episode_returns_the_logged_values(
     condition_rrd: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
 ) -> None:
     for ep in episodes:
-        got = read_episode(condition_rrd, condition=CONDITION, state_id=ep.state.state_id)
+        got = read_episode(condition_rrd, condition=CONDITION, state_id=ep.state_id)
         steps = logged_steps(len(ctrl), 5)
         rows = ep.physics[steps]
         n = len(steps)
@@ -203,10 +218,17 @@ def test_read_episode_returns_the_logged_values(
             "step": (n,),
             "cube_position": (n, 3),
             "cube_quat_wxyz": (n, 4),
+            "carriage_position": (n, 3),
+            "left_finger_position": (n, 3),
+            "right_finger_position": (n, 3),
             "finger_opening": (n,),
-            "ctrl": (n, 4),
+            "ctrl_x": (n,),
+            "ctrl_y": (n,),
+            "ctrl_z": (n,),
+            "ctrl_gripper": (n,),
             "cube_height": (n,),
-            "contact_force": (n, 2),
+            "left_normal_force": (n,),
+            "right_normal_force": (n,),
         }
         np.testing.assert_array_equal(got["step"], steps)
         # time: rerun keeps integer nanoseconds, so it is physics time rounded to 1 ns
@@ -216,8 +238,10 @@ def test_read_episode_returns_the_logged_values(
         assert got["cube_height"][-1] == ep.physics[-1, CUBE_Z]
         np.testing.assert_array_equal(got["cube_height"], rows[:, CUBE_Z])
         np.testing.assert_array_equal(got["finger_opening"], rows[:, [4, 5]].mean(axis=1))
-        np.testing.assert_array_equal(got["ctrl"], ctrl[steps])
-        np.testing.assert_array_equal(got["contact_force"], np.abs(ep.sensordata[steps][:, [2, 6]]))
+        for i, name in enumerate(("ctrl_x", "ctrl_y", "ctrl_z", "ctrl_gripper")):
+            np.testing.assert_array_equal(got[name], ctrl[steps, i])
+        np.testing.assert_array_equal(got["left_normal_force"], np.abs(ep.sensordata[steps, 2]))
+        np.testing.assert_array_equal(got["right_normal_force"], np.abs(ep.sensordata[steps, 6]))
         # transforms are float32 in rerun
         cube_qpos = rows[:, 1 + 5 : 1 + 12]
         np.testing.assert_allclose(got["cube_position"], cube_qpos[:, :3], rtol=0, atol=1e-7)
@@ -369,12 +393,10 @@ def test_one_episode_file_holds_the_same_recording_and_the_blueprint(
     path = tmp_path / "ep.rrd"
     write_episode_recording(
         path,
-        model=model,
         condition=CONDITION,
         episode=episodes[2],
-        ctrl=ctrl,
         stamp=STAMP,
-        log_every=5,
+        spec=_spec(model, 5),
     )
     result = _verify(path)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -396,12 +418,10 @@ def test_log_every_sets_the_number_of_rows(
         path = tmp_path / f"every{log_every}"
         write_condition_recordings(
             path,
-            model=model,
             condition=CONDITION,
             episodes=episodes[:1],
-            ctrl=ctrl,
             stamp=STAMP,
-            log_every=log_every,
+            spec=_spec(model, log_every),
         )
         got = read_episode(path, condition=CONDITION, state_id=0)
         expected = logged_steps(len(ctrl), log_every)
@@ -445,12 +465,10 @@ def test_failures_file_without_failures_is_still_stamped(
     source = tmp_path / "all_good"
     write_condition_recordings(
         source,
-        model=model,
         condition="good",
         episodes=[episodes[0]],
-        ctrl=ctrl,
         stamp=STAMP,
-        log_every=50,
+        spec=_spec(model, 50),
     )
     path = tmp_path / "failures.rrd"
     stamp = {"mjtrial_stamp": 1, "rule": "failures"}
@@ -478,37 +496,35 @@ def test_failed_write_leaves_nothing(
     path = tmp_path / "c"
     with pytest.raises(RuntimeError, match="rollout crashed"):
         write_condition_recordings(
-            path, model=model, condition="c", episodes=broken(), ctrl=ctrl, stamp=STAMP, log_every=5
+            path, condition="c", episodes=broken(), stamp=STAMP, spec=_spec(model, 5)
         )
     assert not path.exists()
     assert _leftovers(tmp_path) == []
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "match"),
+    ("change", "match"),
     [
-        ({"stamp": {"rule": "x"}}, "mjtrial_stamp"),
-        ({"log_every": 0}, "log_every"),
-        ({"ctrl": np.zeros((10, 3))}, "ctrl"),
+        ("stamp", "mjtrial_stamp"),
+        ("log_every", "log_every"),
+        ("ctrl", "ctrl"),
     ],
 )
 def test_invalid_arguments_raise(
     tmp_path: Path,
     model: mujoco.MjModel,
-    ctrl: np.ndarray,
     episodes: list[EpisodeRecord],
-    kwargs: dict,
+    change: str,
     match: str,
 ) -> None:
     args = {
-        "model": model,
+        "spec": _spec(model, 0 if change == "log_every" else 5),
         "condition": "c",
         "episodes": episodes[:1],
-        "ctrl": ctrl,
-        "stamp": STAMP,
-        "log_every": 5,
-        **kwargs,
+        "stamp": {"rule": "x"} if change == "stamp" else STAMP,
     }
+    if change == "ctrl":
+        args["episodes"] = [dataclasses.replace(episodes[0], ctrl=np.zeros((10, 3)))]
     with pytest.raises(ValueError, match=match):
         write_condition_recordings(tmp_path / "c", **args)
     assert not (tmp_path / "c").exists()
@@ -521,7 +537,7 @@ def test_a_shard_with_no_recorded_episode_is_a_folder_holding_its_blueprint(
     # recording.episodes: failed, and every episode of the shard succeeded
     path = tmp_path / "c"
     n = write_condition_recordings(
-        path, model=model, condition="c", episodes=[], ctrl=ctrl, stamp=STAMP, log_every=5
+        path, condition="c", episodes=[], stamp=STAMP, spec=_spec(model, 5)
     )
     assert n == 0
     assert sorted(p.name for p in path.iterdir()) == ["blueprint.rbl", "recordings.json"]
@@ -531,11 +547,11 @@ def test_a_shard_with_no_recorded_episode_is_a_folder_holding_its_blueprint(
 def test_duplicate_and_misshapen_episodes_raise(
     tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
 ) -> None:
-    common = {"model": model, "condition": "c", "ctrl": ctrl, "stamp": STAMP, "log_every": 5}
+    common = {"spec": _spec(model, 5), "condition": "c", "stamp": STAMP}
     with pytest.raises(ValueError, match="twice"):
         write_condition_recordings(tmp_path / "c", episodes=[episodes[0]] * 2, **common)
-    short = EpisodeRecord(
-        STATES[0], episodes[0].physics[:-1], episodes[0].sensordata[:-1], True, 0.3
+    short = dataclasses.replace(
+        episodes[0], physics=episodes[0].physics[:-1], sensordata=episodes[0].sensordata[:-1]
     )
     with pytest.raises(ValueError, match="physics"):
         write_condition_recordings(tmp_path / "c", episodes=[short], **common)
@@ -554,12 +570,12 @@ def test_every_episode_is_written_whatever_the_group_size(
     monkeypatch.setattr(write_mod, "_GROUP", group)  # 3 episodes: full groups, and a remainder
     path = tmp_path / "c"
     n = write_condition_recordings(
-        path, model=model, condition="c", episodes=episodes, ctrl=ctrl, stamp=STAMP, log_every=5
+        path, condition="c", episodes=episodes, stamp=STAMP, spec=_spec(model, 5)
     )
     assert n == 3
     assert [r["state_id"] for r in list_recordings(path)] == [0, 1, 2]
     for ep in episodes:
-        got = read_episode(path, condition="c", state_id=ep.state.state_id)
+        got = read_episode(path, condition="c", state_id=ep.state_id)
         np.testing.assert_array_equal(
             got["cube_height"], ep.physics[logged_steps(len(ctrl), 5), CUBE_Z]
         )
@@ -590,7 +606,7 @@ def test_rewriting_a_folder_replaces_it_and_a_failed_rewrite_keeps_it(
     tmp_path: Path, model: mujoco.MjModel, ctrl: np.ndarray, episodes: list[EpisodeRecord]
 ) -> None:
     path = tmp_path / "c"
-    common = {"model": model, "condition": "c", "ctrl": ctrl, "stamp": STAMP, "log_every": 50}
+    common = {"spec": _spec(model, 50), "condition": "c", "stamp": STAMP}
     write_condition_recordings(path, episodes=episodes, **common)
     write_condition_recordings(path, episodes=episodes[:1], **common)
     assert sorted(p.name for p in path.iterdir()) == [
@@ -646,12 +662,10 @@ def test_writing_leaves_the_home_folder_alone(
     path = tmp_path / "out" / "c"
     write_condition_recordings(
         path,
-        model=model,
         condition="c",
         episodes=episodes[:1],
-        ctrl=ctrl,
         stamp=STAMP,
-        log_every=50,
+        spec=_spec(model, 50),
     )
     write_failures_rrd(tmp_path / "out" / "f.rrd", [path], stamp=STAMP)
     list_recordings(path)

@@ -1,5 +1,7 @@
-"""The gantry experiment stated as a task (tasks/gantry_lift/task.py) gives the pipeline's
-episodes bit for bit: every column of the rollout table, on evaluation states, both conditions."""
+"""The gantry experiment stated as a task (tasks/gantry_lift/task.py) gives the episodes of the
+engine the pipeline ran before tasks existed (`mjtrial.simulate` with `mjtrial.taxonomy`), bit
+for bit: every column of the rollout table, on evaluation states, both conditions; and its
+final states equal the literal `mj_step` reference stepper's."""
 
 from __future__ import annotations
 
@@ -9,8 +11,9 @@ from conftest import REPO_ROOT
 
 from mjtrial import taxonomy
 from mjtrial.engine import iter_batches
-from mjtrial.protocol import PROTOCOL
-from mjtrial.stages.rollout import condition_outcomes
+from mjtrial.protocol import PROTOCOL, control_sequence
+from mjtrial.simulate import episode_outcomes, iter_episode_batches, reference_episode
+from mjtrial.stages.rollout import rollout_columns
 from mjtrial.task import BoundTask, load_task
 from mjtrial.task_checks import preflight
 
@@ -20,13 +23,17 @@ THRESHOLDS = {
     "workspace_radius": 0.15,
     "max_tilt": 1.0,
 }
-COLUMNS = (
+# The rollout table's columns before tasks existed, in their order.
+TABLE_BEFORE = (
+    "state_id",
     "success",
-    "failure_category",
     "final_height",
     "final_x",
     "final_y",
     "steps_simulated",
+    "nonfinite",
+    "warning",
+    "failure_category",
     "peak_slip",
     "peak_carriage_accel",
 )
@@ -37,28 +44,45 @@ def gantry():
     return BoundTask.of(load_task("tasks/gantry_lift/task.py", repo_root=REPO_ROOT))
 
 
+def test_the_gantry_table_keeps_its_columns_in_order(gantry):
+    assert rollout_columns(gantry.task) == TABLE_BEFORE
+
+
 @pytest.mark.parametrize("lift_time", [0.15, 1.5])
-def test_gantry_task_equals_the_pipeline_engine(gantry, gantry_model, evaluation_states, lift_time):
+def test_gantry_task_equals_the_engine_before_tasks(
+    gantry, gantry_model, evaluation_states, lift_time
+):
     states = evaluation_states[:40]
-    expected = {c: [] for c in COLUMNS}
-    for _, outcome in condition_outcomes(
-        gantry_model, states, lift_time=lift_time, thresholds=taxonomy.Thresholds(), nthread=2
-    ):
-        for c in COLUMNS:
+    columns = TABLE_BEFORE[1:]
+    expected = {c: [] for c in columns}
+    _, phase = control_sequence(lift_time, timestep=gantry_model.opt.timestep)
+    for batch in iter_episode_batches(gantry_model, states, lift_time=lift_time, nthread=2):
+        outcome = episode_outcomes(gantry_model, batch, lift_time=lift_time)
+        traj = taxonomy.trajectories_from_batch(
+            gantry_model, batch, phase=phase, home_xy=(PROTOCOL.home_x, 0.0)
+        )
+        outcome |= taxonomy.classify(traj, outcome["success"], taxonomy.Thresholds())
+        for c in columns:
             expected[c].append(outcome[c])
     values = {p: np.array([getattr(s, p) for s in states]) for p in ("dx", "dy", "yaw", "mass")}
-    got = {c: [] for c in COLUMNS}
+    got = {c: [] for c in columns}
+    finals = []
     for batch in iter_batches(
-        gantry, values, {"lift_time": lift_time}, thresholds=THRESHOLDS, nthread=2, batch_size=16
+        gantry, values, {"lift_time": lift_time}, thresholds=THRESHOLDS, nthread=2, batch_size=7
     ):
-        for c in COLUMNS:
+        for c in columns:
             got[c].append(batch.outcome[c])
-    for c in COLUMNS:
+        finals.append(batch.episodes.physics[:, -1])
+    for c in columns:
         np.testing.assert_array_equal(
             np.concatenate(got[c]), np.concatenate(expected[c]), err_msg=c
         )
     failures = np.concatenate(got["failure_category"])
     assert any(f is not None for f in failures)  # the comparison covers the categories
+    finals = np.concatenate(finals)
+    for i in (0, 17, 39):  # the literal protocol, step by step with mj_step
+        physics, _ = reference_episode(gantry_model, states[i], lift_time=lift_time)
+        np.testing.assert_array_equal(finals[i], physics[-1])
 
 
 def test_gantry_task_passes_its_preflight(gantry):

@@ -16,12 +16,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import SNAKEMAKE, edit_config, run_snakemake
+from conftest import REPO_ROOT, SNAKEMAKE, edit_config, run_snakemake
 
 import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
-from mjtrial.stages.rollout import read_states
+from mjtrial.stages.rollout import read_state_values
+from mjtrial.task import load_task
 
+GANTRY_TASK = "tasks/gantry_lift/task.py"
 RESULTS = Path("results") / "research_mode"
 MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"
 
@@ -464,7 +466,7 @@ def test_bad_states_table_is_named_in_one_line(built, tmp_path, damage, message)
     shutil.copy(built / RESULTS / "states.parquet", path)
     pq.write_table(damage(pq.read_table(path)), path)
     with pytest.raises(ValueError, match=message) as err:
-        read_states(path)
+        read_state_values(path, load_task(GANTRY_TASK, repo_root=REPO_ROOT))
     assert "\n" not in str(err.value)
 
 
@@ -579,12 +581,15 @@ def test_development_states_are_built_alone_and_disjoint(built, tmp_path):
     workdir = tmp_path / "dev"
     shutil.copytree(built, workdir)
     run_snakemake(workdir, "dev")
-    dev = read_states(workdir / RESULTS / "development" / "states.parquet")
-    evaluation = read_states(workdir / RESULTS / "states.parquet")
-    assert len(dev) == len(evaluation) == 12
-    assert not {(s.dx, s.dy, s.yaw, s.mass) for s in dev} & {
-        (s.dx, s.dy, s.yaw, s.mass) for s in evaluation
-    }
+    task = load_task(GANTRY_TASK, repo_root=REPO_ROOT)
+    dev = read_state_values(workdir / RESULTS / "development" / "states.parquet", task)
+    evaluation = read_state_values(workdir / RESULTS / "states.parquet", task)
+    assert len(dev["state_id"]) == len(evaluation["state_id"]) == 12
+
+    def rows(values):
+        return set(zip(*(values[p] for p in ("dx", "dy", "yaw", "mass")), strict=True))
+
+    assert not rows(dev) & rows(evaluation)
     assert (
         provenance.read_stamp(workdir / RESULTS / "development" / "states.parquet")["rule"]
         == "states:development"
