@@ -167,3 +167,83 @@ def test_duplicate_key_is_named_with_its_line(tmp_path):
     path.write_text("conditions:\n  slow: {lift_time: 1.5}\n  slow: {lift_time: 3.0}\n")
     with pytest.raises(ConfigError, match=r"conditions\.slow: duplicate key \(line 3\)"):
         read_config_file(path)
+
+
+# The schema of conditions, thresholds, a sweep's parameter and the bands is the task's.
+CARTPOLE_SOURCE = "config/cartpole_latency.yaml"
+CARTPOLE = yaml.safe_load((REPO_ROOT / CARTPOLE_SOURCE).read_text())
+CARTPOLE_PARAMETERS = "['control_period', 'duration', 'latency']"
+
+
+def test_the_cartpole_config_is_valid():
+    check_config(copy.deepcopy(CARTPOLE), source=CARTPOLE_SOURCE, repo_root=REPO_ROOT)
+
+
+@pytest.mark.parametrize(
+    ("base", "source", "edit", "message"),
+    [
+        (
+            BASE,
+            SOURCE,
+            lambda c: c["conditions"]["fast"].update(latency=0.02),
+            "conditions.fast.latency: unknown key; expected one of ['close_time', "
+            "'gripper_closed', 'hold_time', 'lift_time', 'pre_close_time', 'settle_time']",
+        ),
+        (
+            CARTPOLE,
+            CARTPOLE_SOURCE,
+            lambda c: c["conditions"]["no_latency"].update(lift_time=1.5),
+            f"conditions.no_latency.lift_time: unknown key; expected one of {CARTPOLE_PARAMETERS}",
+        ),
+        (
+            CARTPOLE,
+            CARTPOLE_SOURCE,
+            lambda c: c["conditions"]["no_latency"].update(latency=0.5),
+            "conditions.no_latency.latency: expected <= 0.1, got 0.5",
+        ),
+        (
+            CARTPOLE,
+            CARTPOLE_SOURCE,
+            lambda c: c["failure_taxonomy"].update(lifted_height=0.03),
+            "failure_taxonomy.lifted_height: unknown key; expected one of ['fall_angle']",
+        ),
+        (
+            CARTPOLE,
+            CARTPOLE_SOURCE,
+            lambda c: c["failure_taxonomy"].update(fall_angle=0.1),
+            "failure_taxonomy.fall_angle: expected >= 0.25, got 0.1",
+        ),
+        (
+            CARTPOLE,
+            CARTPOLE_SOURCE,
+            lambda c: c["sweep"].update(parameter="lift_time"),
+            "sweep.parameter: expected one of ['latency', 'duration', 'control_period'], "
+            "got 'lift_time'",
+        ),
+        (
+            CARTPOLE,
+            CARTPOLE_SOURCE,
+            lambda c: c["analysis"]["bands"].update(mass=[0.05, 0.3]),
+            "analysis.bands.mass: unknown key; expected one of ['abs_pole_angle', "
+            "'abs_pole_mass', 'abs_pole_rate', 'abs_push_force', 'abs_push_time', 'pole_angle', "
+            "'pole_mass', 'pole_rate', 'push_force', 'push_time']",
+        ),
+    ],
+    ids=[
+        "a cart-pole parameter in the gantry's condition",
+        "a gantry parameter in the cart-pole's condition",
+        "a cart-pole parameter beyond its bound",
+        "a gantry threshold in the cart-pole's taxonomy",
+        "a cart-pole threshold below its bound",
+        "a sweep of another task's parameter",
+        "a band of another task's parameter",
+    ],
+)
+def test_the_task_declares_what_conditions_thresholds_sweeps_and_bands_hold(
+    base, source, edit, message
+):
+    config = copy.deepcopy(base)
+    edit(config)
+    with pytest.raises(ConfigError) as err:
+        check_config(config, source=source, repo_root=REPO_ROOT)
+    assert str(err.value) == f"{source}: {message}"

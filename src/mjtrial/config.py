@@ -283,19 +283,23 @@ def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
     return config
 
 
-def _check_task_states(
-    config: Mapping[str, Any], *, repo_root: Path, fail: Callable[[str, str], None]
-) -> Task:
-    """The task loads, and `states.ranges` gives a range to each of its state parameters (a
-    body's mass a positive one) and to nothing else."""
-    try:
-        task = load_task(config["task"], repo_root=repo_root)
-    except TaskError as err:
-        fail("task", str(err))
+def _check_task_model(
+    config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
+) -> None:
+    """The task's model is the config's (when the config names an existing file)."""
+    if not isinstance(config.get("model"), str):
+        return
     model_file = (repo_root / config["model"]).resolve()
     if model_file.is_file() and Path(task.model).resolve() != model_file:
         shown = os.path.relpath(Path(task.model).resolve(), repo_root.resolve())
         fail("task", f"its model is {shown}; expected the config's model {config['model']}")
+
+
+def _check_task_states(
+    config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
+) -> None:
+    """`states.ranges` gives a range to each of the task's state parameters (a body's mass a
+    positive one) and to nothing else."""
     names = [p.name for p in task.state_parameters]
     ranges = config["states"]["ranges"]
     for name in names:
@@ -308,7 +312,6 @@ def _check_task_states(
         low = ranges[p.name][0]
         if isinstance(p.apply, BodyMass) and not low > 0:
             fail(f"states.ranges.{p.name}[0]", f"expected > 0, got {low}")
-    return task
 
 
 def check_config(
@@ -334,6 +337,15 @@ def check_config(
     if bad:
         fail(bad[0], f"expected a finite number, got {bad[1]}")
     schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    task = None
+    if isinstance(config.get("task"), str) and config["task"]:
+        # the task declares what conditions, the taxonomy, a sweep and the bands may hold
+        try:
+            task = load_task(config["task"], repo_root=Path(repo_root))
+        except TaskError as err:
+            fail("task", str(err))
+        _check_task_model(config, task, repo_root=Path(repo_root), fail=fail)
+        schema = task.config_schema(schema)
     error = jsonschema.exceptions.best_match(_Validator(schema).iter_errors(dict(config)))
     if error is not None:
         key, _, expectation = _schema_message(error).partition(": ")
@@ -349,7 +361,7 @@ def check_config(
             )
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
-    task = _check_task_states(config, repo_root=Path(repo_root), fail=fail)
+    _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
             fail(
@@ -450,9 +462,15 @@ def _check_studies(
         if sha256 in seen:
             fail(key, f"the same model as variants.{seen[sha256]}; expected each variant once")
         seen[sha256] = name
+        try:
+            bound = BoundTask.of(task, model)
+        except ModelCheckError as err:
+            fail(key, err.problem)
+        except TaskError as err:
+            fail(key, str(err))
         for problem in budget.episode_problems(
             config["conditions"],
-            BoundTask.of(task, model),
+            bound,
             timestep_key=f"{key}.option.timestep",
             rate_hz=float(config["recording"]["rate_hz"]),
         ):

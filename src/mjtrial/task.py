@@ -167,18 +167,23 @@ class ProtocolParameter:
     exclusive_minimum: bool = False  # minimum < value rather than minimum <= value
     integer: bool = False
     description: str = ""
+    required: bool = False  # every condition must set it (else the default applies)
 
     def schema(self) -> dict[str, Any]:
         """The JSON schema of the parameter's value."""
-        out: dict[str, Any] = {
-            "type": "integer" if self.integer else "number",
-            "description": f"{self.description} ({self.unit})".strip(),
-        }
-        if self.minimum is not None:
-            out["exclusiveMinimum" if self.exclusive_minimum else "minimum"] = self.minimum
-        if self.maximum is not None:
-            out["maximum"] = self.maximum
-        return out
+        return _number_schema(self)
+
+
+def _number_schema(p: ProtocolParameter | Threshold) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "type": "integer" if getattr(p, "integer", False) else "number",
+        "description": f"{p.description} ({p.unit})".strip(),
+    }
+    if p.minimum is not None:
+        out["exclusiveMinimum" if p.exclusive_minimum else "minimum"] = p.minimum
+    if p.maximum is not None:
+        out["maximum"] = p.maximum
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -291,6 +296,13 @@ class Threshold:
     unit: str
     default: float
     description: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    exclusive_minimum: bool = False
+
+    def schema(self) -> dict[str, Any]:
+        """The JSON schema of the threshold's value."""
+        return _number_schema(self)
 
 
 @dataclass(frozen=True)
@@ -394,6 +406,33 @@ class Task:
     def parameters(self, condition: Mapping[str, float]) -> dict[str, float]:
         """The protocol parameters of a condition, defaults filled in."""
         return {p.name: float(condition.get(p.name, p.default)) for p in self.protocol_parameters}
+
+    def config_schema(self, schema: Mapping[str, Any]) -> dict[str, Any]:
+        """The config's JSON schema with what the task declares: each condition's protocol
+        parameters, the failure taxonomy's thresholds, the parameters a sweep may vary and the
+        state parameters analysis bands may name (`<name>`, or `abs_<name>` for magnitudes)."""
+        out = copy.deepcopy(dict(schema))
+        props = out["properties"]
+        condition = props["conditions"]["additionalProperties"]
+        condition["properties"] = {p.name: p.schema() for p in self.protocol_parameters}
+        condition["required"] = [p.name for p in self.protocol_parameters if p.required]
+        taxonomy = props["failure_taxonomy"]
+        taxonomy["properties"] = {t.name: t.schema() for t in self.thresholds}
+        taxonomy["required"] = [t.name for t in self.thresholds]
+        props["sweep"]["properties"]["parameter"]["enum"] = [
+            p.name for p in self.protocol_parameters
+        ]
+        bands = props["analysis"]["properties"]["bands"]
+        bands["properties"] = {
+            f"{prefix}{p.name}": {
+                "$ref": "#/$defs/edges",
+                "description": f"{prefix.replace('abs_', '|')}{p.name}"
+                f"{'|' if prefix else ''} band edges, {p.unit}",
+            }
+            for p in self.state_parameters
+            for prefix in ("", "abs_")
+        }
+        return out
 
     def category_names(self) -> tuple[str, ...]:
         return (UNHEALTHY, *(c.name for c in self.failure_categories))

@@ -29,6 +29,7 @@ from mjtrial.task import (
     Measure,
     Observation,
     ProtocolParameter,
+    Series,
     StateParameter,
     Task,
     Threshold,
@@ -161,12 +162,17 @@ TASK = Task(
         Observation.joint_velocity("cart_velocity", CART, source=None),
         Observation.joint_velocity("pole_rate", POLE, source=None),
     ),
+    series=(
+        Series.joint_position("pole_angle", POLE, body=POLE_BODY, plot="pole angle (rad)"),
+        Series.joint_position("cart_position", CART, body="cart", plot="cart position (m)"),
+        Series.control("motor_force", "cart_motor", body="cart", plot="motor force (N)"),
+    ),
     success=success,
     measure=measure,
     measures=(
         Measure("peak_angle", "rad", "largest |pole angle| over the episode"),
         Measure("peak_cart_offset", "m", "largest |cart position| over the episode"),
-        Measure("final_angle", "rad", "pole angle at the end"),
+        Measure("final_angle", "rad", "pole angle at the end", recorded=True),
     ),
     failure_categories=(
         FailureCategory("fell", "the pole passed fall_angle before the cart left the track", _fell),
@@ -181,5 +187,14 @@ TASK = Task(
             lambda m, t: np.ones(len(m["_angles"]), dtype=bool),
         ),
     ),
-    thresholds=(Threshold("fall_angle", "rad", 0.5, "the pole counts as fallen past this"),),
+    thresholds=(
+        Threshold(
+            "fall_angle",
+            "rad",
+            0.5,
+            "the pole counts as fallen past this",
+            minimum=UPRIGHT,
+            maximum=3.1416,
+        ),
+    ),
 )

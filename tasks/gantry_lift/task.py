@@ -141,6 +141,12 @@ def _category(value: str):
     )
 
 
+HOLDS = {
+    "settle_time": "hold before the descent",
+    "pre_close_time": "hold at the bottom before closing",
+    "close_time": "hold while the gripper closes",
+    "hold_time": "hold after the lift, before success is judged",
+}
 LIFT_PLOT = "cube height, finger opening, ctrl (m)"
 FORCE_PLOT = "pad-cube normal force (N)"
 
@@ -197,18 +203,31 @@ TASK = Task(
             0.15,
             minimum=0.0,
             exclusive_minimum=True,
+            # an episode's whole trajectory is held in memory while its batch is simulated, and
+            # 10 s keeps a batch of 64 episodes near 100 MB
             maximum=10.0,
             description="duration of the lift",
+            required=True,
         ),
         *(
             ProtocolParameter(
                 name,
-                "m" if name == "gripper_closed" else "s",
+                "s",
                 getattr(PROTOCOL, name),
                 minimum=0.0,
+                exclusive_minimum=True,
                 maximum=10.0,
+                description=description,
             )
-            for name in CONDITION_PARAMETERS
+            for name, description in HOLDS.items()
+        ),
+        ProtocolParameter(
+            "gripper_closed",
+            "m",
+            PROTOCOL.gripper_closed,
+            minimum=0.0,
+            maximum=0.04,
+            description="mean finger opening target when closed (the fingers open to 0.04 m)",
         ),
     ),
     controller=OpenLoop(controls, n_steps=n_steps),
@@ -233,8 +252,42 @@ TASK = Task(
         for c in taxonomy.FailureCategory
         if c is not taxonomy.FailureCategory.UNHEALTHY
     ),
-    thresholds=tuple(
-        Threshold(name, "m" if name != "max_tilt" else "rad", default)
-        for name, default in THRESHOLD_DEFAULTS.items()
+    thresholds=(
+        Threshold(
+            "lifted_height",
+            "m",
+            THRESHOLD_DEFAULTS["lifted_height"],
+            "rise that counts as lifted (at most the 0.33 m lift)",
+            minimum=0.0,
+            exclusive_minimum=True,
+            maximum=0.33,
+        ),
+        Threshold(
+            "slip_distance",
+            "m",
+            THRESHOLD_DEFAULTS["slip_distance"],
+            "slide down the pads that loses the grasp (at most the 4 cm cube)",
+            minimum=0.0,
+            exclusive_minimum=True,
+            maximum=0.04,
+        ),
+        Threshold(
+            "workspace_radius",
+            "m",
+            THRESHOLD_DEFAULTS["workspace_radius"],
+            "distance from the gripper axis that counts as flung (at most the 5 m floor drawn)",
+            minimum=0.0,
+            exclusive_minimum=True,
+            maximum=5.0,
+        ),
+        Threshold(
+            "max_tilt",
+            "rad",
+            THRESHOLD_DEFAULTS["max_tilt"],
+            "tilt that counts as rotated out of the grasp",
+            minimum=0.0,
+            exclusive_minimum=True,
+            maximum=3.1416,
+        ),
     ),
 )

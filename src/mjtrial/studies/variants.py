@@ -23,7 +23,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.model_spec import ModelError, ModelSpec
+from mjtrial.model_spec import ModelError
 
 OVERRIDE_KINDS = ("option", "geom", "actuator", "body")
 
@@ -148,7 +148,6 @@ def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]
         text = str(err).strip().replace(str(Path.cwd().resolve()) + "/", "")
         first = text.splitlines()[0] if text else "compile error"
         raise ModelError(f"{source}: MuJoCo could not compile the model: {first}") from None
-    ModelSpec.of(model, source=source)
     return model, hashlib.sha256(xml.encode()).hexdigest()
 
 
@@ -168,7 +167,7 @@ def variant_model(
 ) -> tuple[mujoco.MjModel, str]:
     """The model of `model_file` with `overrides` applied, and the sha256 of its XML.
 
-    Returns the compiled model (checked by `ModelSpec.of`) and the hex sha256 of
+    Returns the compiled model and the hex sha256 of
     `MjSpec.to_xml()` after the edits; with no overrides this is the nominal model, identical
     to `mujoco.MjModel.from_xml_path(model_file)`, and its hash (`nominal_model_hash`).
     """
