@@ -28,6 +28,7 @@ from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simulate import load_model
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
+from mjtrial.task_checks import check_observations
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -295,6 +296,27 @@ def _check_task_model(
         fail("task", f"its model is {shown}; expected the config's model {config['model']}")
 
 
+def _check_privileged(
+    config: Mapping[str, Any], task: Task, *, fail: Callable[[str, str], None]
+) -> None:
+    """The course's cheap test of a policy: every observation it reads has a real-world source,
+    or is allowed, with a reason, in `privileged_observations`; an allowance is for a
+    privileged observation the policy reads."""
+    allowed = config.get("privileged_observations") or {}
+    try:
+        used = check_observations(task, allowed)
+    except TaskError as err:
+        fail("task", str(err))
+    for name in allowed:
+        if name not in used:
+            fail(
+                f"privileged_observations.{name}",
+                f"not a privileged observation the policy reads; expected one of {sorted(used)}"
+                if used
+                else "the policy reads no privileged observation; expected no allowance",
+            )
+
+
 def _check_task_states(
     config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
 ) -> None:
@@ -362,6 +384,7 @@ def check_config(
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
     _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
+    _check_privileged(config, task, fail=fail)
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
             fail(

@@ -81,3 +81,24 @@ class EncoderFeedback:
         for j in range(state.shape[1]):  # fixed order: the same sum for any batch
             u -= self.gain[:, j][None, :] * state[:, j][:, None]
         return np.clip(u, self.low, self.high)
+
+
+class StateFeedback:
+    """u = -K y on observations y read as they are (no memory), clipped to the actuators'
+    range: the textbook state feedback, which needs the velocities observed directly, and so
+    a privileged observation unless a sensor measures them. Elementwise, in a fixed order, like
+    `EncoderFeedback`, so an episode's controls do not depend on its batch."""
+
+    def __init__(self, gain: np.ndarray, *, ctrl_range: np.ndarray) -> None:
+        self.gain = np.asarray(gain, dtype=np.float64)  # (nu, ny)
+        self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T
+
+    def reset(self, n_episodes: int) -> None:
+        pass
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        y = np.asarray(observations, dtype=np.float64)
+        u = np.zeros((len(y), len(self.gain)))
+        for j in range(y.shape[1]):
+            u -= self.gain[:, j][None, :] * y[:, j][:, None]
+        return np.clip(u, self.low, self.high)

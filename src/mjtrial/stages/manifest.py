@@ -16,6 +16,7 @@ from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd 
 from mjtrial.protocol import PROTOCOL
 from mjtrial.simulate import load_model
 from mjtrial.stages.stamping import make_stage_stamp
+from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -98,6 +99,7 @@ def manifest_record(
             "development": config["states"]["development_seed"],
             "bootstrap": config["analysis"]["seed"],
         },
+        "task": task_record(config, repo_root=repo_root),
         "n_states": config["states"]["n"],
         "randomization_ranges": config["states"]["ranges"],
         "success_definition": {
@@ -115,6 +117,26 @@ def manifest_record(
         "stamps": stamps,
     }
     return manifest, {rel(p): p for p in [*outputs, summary_path]}
+
+
+def task_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:
+    """What the manifest says of the task: where it is, what it is, what its policy reads
+    (each observation's real-world source) and the privileged observations allowed, with why."""
+    task = load_task(config["task"], repo_root=repo_root)
+    controller = task.controller
+    read = getattr(controller, "observations", ())
+    sources = {o.name: o.source for o in task.observations}
+    record = {
+        "reference": config["task"],
+        "name": task.name,
+        "title": task.title,
+        "controller": "closed loop" if read else "open loop",
+        "observations": {name: sources[name] for name in read},
+        "privileged_observations": dict(config.get("privileged_observations") or {}),
+    }
+    if task.source is not None and str(config["task"]).endswith(".py"):
+        record["sha256"] = provenance.file_sha256(task.source)
+    return record
 
 
 def rerun_command(configfiles: Sequence[str], config_args: Sequence[str]) -> str:
