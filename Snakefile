@@ -8,12 +8,9 @@ from mjtrial import foreign_package
 from mjtrial.config import (
     ConfigError,
     check_config,
-    merge_config,
-    parse_config_args,
     preflight,
-    read_config_file,
+    run_configuration,
 )
-from mjtrial.layout import CONFIG_FILE
 from mjtrial.stages.manifest import rerun_command
 
 # The code that runs must be the code this checkout stamps and hashes.
@@ -21,20 +18,27 @@ if foreign_package(Path.cwd()):
     sys.exit(f"mjtrial: {foreign_package(Path.cwd())}")
 
 # The config file is read here rather than with `configfile:` so that a YAML error or a
-# duplicated key is one line too; --configfile and --config values still take precedence.
+# duplicated key is one line too. It is config/config.yaml, or a `--configfile` that names an
+# experiment (a whole experiment, such as config/cartpole_latency.yaml, in its place); other
+# --configfile and --config values take precedence over it (mjtrial.config.run_configuration).
 # Then it is validated before any work, with one line naming the file, the key and the
 # expectation (snakemake's validate() prints a multi-line jsonschema dump instead).
 # Values given with --config are read as YAML again: Snakemake leaves nested ones as strings.
-# The manifest records the command-line values (COMMAND_LINE_CONFIG), so that `mjtrial
-# verify` checks the results against the configuration the run used.
+# The manifest records the run's file (CONFIG_SOURCE) and the command-line values
+# (COMMAND_LINE_CONFIG), so that `mjtrial verify` checks the results against the
+# configuration the run used.
 try:
-    COMMAND_LINE_CONFIG = merge_config(
-        config, parse_config_args(workflow.config_settings.config_args)
+    CONFIG_SOURCE, COMMAND_LINE_CONFIG, run_config = run_configuration(
+        workflow.configfiles, workflow.config_settings.config_args, config
     )
-    config.update(merge_config(read_config_file(CONFIG_FILE), COMMAND_LINE_CONFIG))
+    CONFIG_SOURCE = os.path.relpath(CONFIG_SOURCE)
+    config.clear()
+    config.update(run_config)
     check_config(
         config,
-        source=", ".join(map(str, [CONFIG_FILE, *workflow.configfiles])),
+        source=", ".join(
+            dict.fromkeys([CONFIG_SOURCE, *map(os.path.relpath, workflow.configfiles)])
+        ),
         repo_root=Path.cwd(),
         overrides=COMMAND_LINE_CONFIG,
     )

@@ -247,3 +247,26 @@ def test_the_task_declares_what_conditions_thresholds_sweeps_and_bands_hold(
     with pytest.raises(ConfigError) as err:
         check_config(config, source=source, repo_root=REPO_ROOT)
     assert str(err.value) == f"{source}: {message}"
+
+
+def test_a_configfile_naming_an_experiment_replaces_the_default(tmp_path):
+    from mjtrial.config import run_configuration
+
+    default = REPO_ROOT / SOURCE
+    cartpole = REPO_ROOT / CARTPOLE_SOURCE
+    base, command_line, config = run_configuration(
+        [cartpole], ["states={n: 40}"], {"states": "{n: 40}"}, default=default
+    )
+    assert base == cartpole
+    assert command_line == {"states": {"n": 40}}
+    assert config["conditions"] == CARTPOLE["conditions"]  # no gantry condition mixed in
+    assert config["states"] == {**CARTPOLE["states"], "n": 40}
+    assert set(config) == set(CARTPOLE)
+    # a configfile of values only goes on top of the default, as Snakemake merges it
+    small = tmp_path / "small.yaml"
+    small.write_text("states:\n  n: 12\n")
+    base, command_line, config = run_configuration([small], [], {}, default=default)
+    assert base == default
+    assert command_line == {"states": {"n": 12}}
+    assert config["conditions"] == BASE["conditions"]
+    assert config["states"] == {**BASE["states"], "n": 12}

@@ -97,6 +97,15 @@ def _count(text: str) -> int:
     return value
 
 
+def _recorded_config_file(results_dir: Path) -> str:
+    """The run's config file as its manifest records it (config/config.yaml if it does not)."""
+    try:
+        recorded = json.loads((results_dir / "manifest.json").read_text())["rerun"]["config_file"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return CONFIG_FILE
+    return recorded if isinstance(recorded, str) else CONFIG_FILE
+
+
 def _verify(args: argparse.Namespace) -> int:
     # Imported here (mujoco, rerun-sdk, jsonschema): `mjtrial plan` need not pay for them.
     from mjtrial.config import ConfigError
@@ -104,6 +113,8 @@ def _verify(args: argparse.Namespace) -> int:
 
     repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
     config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
+    if not args.config and args.results_dir:  # the config file the run recorded it used
+        config_path = repo_root / _recorded_config_file(Path(args.results_dir))
     foreign = foreign_package(repo_root)
     if foreign:
         print(f"mjtrial verify: {foreign}", file=sys.stderr)

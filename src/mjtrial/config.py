@@ -240,6 +240,34 @@ def merge_config(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[s
     return merged
 
 
+def run_configuration(
+    configfiles: list[str | Path],
+    config_args: list[str] | None,
+    given: Mapping[str, Any],
+    *,
+    default: str | Path = CONFIG_FILE,
+) -> tuple[Path, dict[str, Any], dict[str, Any]]:
+    """A run's configuration: its file, the values given on top of it, and the two merged.
+
+    A `--configfile` that names an `experiment` is a whole experiment (say,
+    config/cartpole_latency.yaml): it is the run's file, in place of config/config.yaml (the
+    last one, if several do); merged on top of the default, two experiments' conditions and
+    ranges would mix. Other `--configfile` files, then the `--config` values, go on top of it,
+    as Snakemake merges them. `given` is Snakemake's config (its reading of `--config`).
+    """
+    files = [Path(f) for f in configfiles]
+    whole = [f for f in files if "experiment" in read_config_file(f)]
+    base = whole[-1] if whole else Path(default)
+    command_line: dict[str, Any] = {}
+    for f in files:
+        if f not in whole:
+            command_line = merge_config(command_line, read_config_file(f))
+    keys = [arg.partition("=")[0] for arg in config_args or []]
+    command_line = merge_config(command_line, {k: given[k] for k in keys if k in given})
+    command_line = merge_config(command_line, parse_config_args(config_args))
+    return base, command_line, merge_config(read_config_file(base), command_line)
+
+
 def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
     """Checks on the run's surroundings, before any work: warnings to print, or a refusal.
 

@@ -25,6 +25,7 @@ rule manifest:
         slice=config_slice("manifest", config),
         command_line=ConfigSlice(COMMAND_LINE_CONFIG),
         command=RERUN_COMMAND,
+        config_file=CONFIG_SOURCE,
         code=stage_code_hash("manifest"),
     run:
         run_script("manifest", input, output, params, wildcards, threads, log, rule)

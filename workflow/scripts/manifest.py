@@ -13,6 +13,7 @@ run_job(
     config=snakemake.params.slice,
     command_line=dict(snakemake.params.command_line),
     command=snakemake.params.command,
+    config_file=snakemake.params.config_file,
     summary_path=Path(snakemake.input.summary),
     outputs=[
         Path(snakemake.input.states),

@@ -13,6 +13,7 @@ from typing import Any
 import mujoco
 
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd stamps
+from mjtrial.layout import CONFIG_FILE
 from mjtrial.protocol import PROTOCOL
 from mjtrial.simulate import load_model
 from mjtrial.stages.stamping import make_stage_stamp
@@ -30,18 +31,20 @@ def write_manifest(
     output: Path,
     command_line: Mapping[str, Any] | None = None,
     command: str = "snakemake -c2",
+    config_file: str = CONFIG_FILE,
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """Gather the reproducibility record and the stamp of every output into `manifest.json`.
 
-    `command_line` holds the config values the run was given with `--config` or
-    `--configfile`, on top of config/config.yaml; `command` is the command that ran them
-    (`rerun_command`).
+    `config_file` is the run's config file (config/config.yaml, or a --configfile naming an
+    experiment), `command_line` the config values the run was given on top of it with
+    `--config` or `--configfile`; `command` is the command that ran them (`rerun_command`).
     """
     manifest, inputs = manifest_record(
         config=config,
         command_line=command_line or {},
         command=command,
+        config_file=config_file,
         summary_path=summary_path,
         outputs=outputs,
         model_file=model_file,
@@ -61,6 +64,7 @@ def manifest_record(
     model_file: Path,
     command_line: Mapping[str, Any],
     command: str,
+    config_file: str = CONFIG_FILE,
     repo_root: Path = REPO_ROOT,
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """The manifest the stage writes and its stamp's inputs (`mjtrial verify` checks
@@ -77,6 +81,7 @@ def manifest_record(
         "design": config["design"],
         "rerun": {
             "command": command,
+            "config_file": config_file,
             "config": dict(config),
             "command_line": dict(command_line),
             "commit": next(iter(stamps.values()))["git"].get("commit"),

@@ -291,6 +291,7 @@ def verify_results(
         resimulate=resimulate,
         command_line=command_line,
         command=_recorded_command(manifest),
+        config_file=provenance.repo_relative(config_path, repo_root),
     )
     if found.differs:
         report = check(found.differs)

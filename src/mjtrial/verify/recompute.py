@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 
 from mjtrial import provenance
 from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
-from mjtrial.layout import NOMINAL, STUDIES, Layout, shard_ids, shard_range
+from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
 from mjtrial.report import report_text
 from mjtrial.stages.analysis import summarize_tables
 from mjtrial.stages.manifest import manifest_record
@@ -185,6 +185,7 @@ class _Checker:
         self.current = set(current)
         self.model_file = repo_root / config["model"]
         self.found = Recomputation()
+        self.config_file = CONFIG_FILE
 
     def rel(self, path: Path) -> str:
         return Path(path).relative_to(self.repo_root).as_posix()
@@ -329,6 +330,7 @@ class _Checker:
                     config=config_slice("manifest", self.config),
                     command_line=self.command_line,
                     command=self.command,
+                    config_file=self.config_file,
                     summary_path=layout.summary,
                     outputs=outputs,
                     model_file=self.model_file,
@@ -412,14 +414,17 @@ def recompute(
     resimulate: int = DEFAULT_RESIMULATE,
     command_line: Mapping[str, Any] | None = None,
     command: str = "snakemake -c2",
+    config_file: str = CONFIG_FILE,
 ) -> Recomputation:
     """Recompute every light output of `layout` that the stamps judged current (`current`,
     repository-relative paths) and re-simulate `resimulate` episodes per shard.
 
     `command_line` and `command` are what the manifest records of the run's command line
-    (`mjtrial.stages.manifest`): the config values it was given, and the command itself.
+    (`mjtrial.stages.manifest`): the config values it was given, and the command itself;
+    `config_file` the run's config file, repository-relative.
     """
     checker = _Checker(layout, config, Path(repo_root), current, command_line or {}, command)
+    checker.config_file = config_file
     checker.states()
     checker.rollouts(resimulate)
     checker.analysis()
