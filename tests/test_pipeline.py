@@ -108,6 +108,7 @@ def test_every_output_is_stamped_with_commit_state_and_versions(built):
     config = yaml.safe_load((built / "config" / "config.yaml").read_text())
     condition_slice = {
         "condition": "fast",
+        "task": "tasks/gantry_lift/task.py",
         "lift_time": 0.15,
         "failure_taxonomy": config["failure_taxonomy"],
         "recording": {"rate_hz": config["recording"]["rate_hz"], "episodes": "all"},

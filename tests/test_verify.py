@@ -317,6 +317,7 @@ def test_bad_config_is_a_usage_error(work, capsys):
 PREFIX = "results/x/"
 CONFIG = {
     "model": "m.xml",
+    "task": "tasks/gantry_lift/task.py",
     "states": {"seed": 1, "n": 3},
     "conditions": {"fast": {"lift_time": 0.1}},
     "failure_taxonomy": {"lifted_height": 0.03},

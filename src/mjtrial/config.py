@@ -319,6 +319,8 @@ def _check_task_model(
     if not isinstance(config.get("model"), str):
         return
     model_file = (repo_root / config["model"]).resolve()
+    if not model_file.is_relative_to(repo_root.resolve()):
+        return  # refused as outside the repository, below
     if model_file.is_file() and Path(task.model).resolve() != model_file:
         shown = os.path.relpath(Path(task.model).resolve(), repo_root.resolve())
         fail("task", f"its model is {shown}; expected the config's model {config['model']}")

@@ -179,11 +179,16 @@ def _number_schema(p: ProtocolParameter | Threshold) -> dict[str, Any]:
         "type": "integer" if getattr(p, "integer", False) else "number",
         "description": f"{p.description} ({p.unit})".strip(),
     }
+    # a whole bound as an integer: the config's messages say "expected > 0", not "> 0.0"
     if p.minimum is not None:
-        out["exclusiveMinimum" if p.exclusive_minimum else "minimum"] = p.minimum
+        out["exclusiveMinimum" if p.exclusive_minimum else "minimum"] = _plain(p.minimum)
     if p.maximum is not None:
-        out["maximum"] = p.maximum
+        out["maximum"] = _plain(p.maximum)
     return out
+
+
+def _plain(value: float) -> float | int:
+    return int(value) if float(value).is_integer() else value
 
 
 # --------------------------------------------------------------------------------------------

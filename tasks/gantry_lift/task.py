@@ -75,9 +75,16 @@ def n_steps(model: mujoco.MjModel, params) -> int:
 
 
 def check_condition(model: mujoco.MjModel, params):
-    """Every hold must last at least one physics step."""
+    """The protocol's control step and every hold must last at least one physics step."""
     dt = model.opt.timestep
-    for what, seconds in hold_durations(params["lift_time"], _protocol(params)).items():
+    protocol = _protocol(params)
+    if dt > protocol.segment_time:
+        yield "timestep", (
+            f"timestep {dt:g} s; expected at most {protocol.segment_time:g} s, the protocol's "
+            "control step"
+        )
+        return
+    for what, seconds in hold_durations(params["lift_time"], protocol).items():
         if hold_steps(seconds, dt) < 1:
             yield what, f"a {what} of {seconds:g} s is 0 steps of {dt:g} s; expected at least one"
 
