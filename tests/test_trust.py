@@ -337,7 +337,7 @@ BAD_INPUT = [
     (
         "variant coarser than the protocol's step",
         config_case(lambda c: c.update(variants={"x": {"option": {"timestep": 0.02}}})),
-        "variants.x.option.timestep: expected at most 0.01 s",
+        "variants.x.option.timestep: timestep 0.02 s; expected at most 0.01 s",
     ),
     (
         "sweep of an unknown parameter",
