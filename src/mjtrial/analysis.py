@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from mjtrial import stats
-from mjtrial.taxonomy import FailureCategory
+from mjtrial.task import UNHEALTHY
 
 VERDICT_SURVIVES = "survives"
 VERDICT_REFUTED = "refuted"
@@ -35,6 +35,15 @@ def rate_record(success: np.ndarray, *, confidence: float) -> dict[str, Any]:
         "wilson_low": low if n else None,
         "wilson_high": high if n else None,
     }
+
+
+# What a condition's summary record holds besides the protocol parameters it sets.
+RESULT_KEYS = ("n", "successes", "rate", "wilson_low", "wilson_high", "unhealthy")
+
+
+def condition_settings(record: Mapping[str, Any]) -> dict[str, Any]:
+    """The protocol parameters a condition's summary record carries, in config order."""
+    return {k: v for k, v in record.items() if k not in RESULT_KEYS}
 
 
 def band_labels(edges: Sequence[float]) -> list[str]:
@@ -81,14 +90,16 @@ def band_table(
     ]
 
 
-def failure_counts(categories: np.ndarray) -> dict[str, int]:
-    """Failed episodes per category, in the taxonomy's order (zeros included).
+def failure_counts(categories: np.ndarray, order: Sequence[str]) -> dict[str, int]:
+    """Failed episodes per category, in the task's order (zeros included), then any other
+    category the episodes name.
 
     Args:
       categories: each episode's category name, or None for a success; shape (n,).
+      order: the task's categories (`Task.category_names()`).
     """
-    counts = Counter(categories)
-    return {c.value: counts[c.value] for c in FailureCategory}
+    counts = Counter(c for c in categories if c is not None)
+    return {c: counts[c] for c in [*order, *sorted(set(counts) - set(order))]}
 
 
 def unhealthy(table: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -97,7 +108,7 @@ def unhealthy(table: Mapping[str, np.ndarray]) -> np.ndarray:
     return (
         np.asarray(table["nonfinite"], dtype=bool)
         | (np.asarray(table["warning"], dtype=object) != "")
-        | (np.asarray(table["failure_category"], dtype=object) == FailureCategory.UNHEALTHY.value)
+        | (np.asarray(table["failure_category"], dtype=object) == UNHEALTHY)
     )
 
 
@@ -140,19 +151,25 @@ def summarize(
     states: Mapping[str, np.ndarray],
     outcomes: Mapping[str, Mapping[str, np.ndarray]],
     nominal: Mapping[str, bool],
-    lift_times: Mapping[str, float],
+    condition_parameters: Mapping[str, Mapping[str, float]],
     falsifier: Mapping[str, Any],
     analysis: Mapping[str, Any],
     sample_size: Mapping[str, Any] | None = None,
+    nominal_text: str = "each state parameter at its nominal value",
+    categories: Sequence[str] = (),
 ) -> dict[str, Any]:
     """The experiment's summary.
 
     Args:
-      states: columns of the states table (state_id, dx, dy, yaw, mass), each shape (n,).
+      states: columns of the states table (state_id, then the task's state parameters),
+        each shape (n,).
       outcomes: per condition, the columns of its rollout table, each shape (n,).
-      nominal: per condition, the success of the nominal state (no offset, no yaw, mass as
-        compiled): the first classic mistake reports it alone.
-      lift_times: per condition, its lift time (s), recorded beside the results.
+      nominal: per condition, the success of the nominal state: the first classic mistake
+        reports it alone.
+      condition_parameters: per condition, the protocol parameters it sets, recorded beside
+        its results.
+      nominal_text: the nominal state in words (`Task.nominal_description`).
+      categories: the task's failure categories in order (`Task.category_names()`).
       falsifier: the design's falsifier (treatment, baseline, statistic, threshold).
       analysis: the analysis config slice (n_resamples, confidence, seed, bands, first_k).
       sample_size: the design's sample-size plan (target_halfwidth); the summary says whether
@@ -172,7 +189,7 @@ def summarize(
     conditions = {}
     for name, table in outcomes.items():
         conditions[name] = {
-            "lift_time": lift_times[name],
+            **condition_parameters[name],
             **rate_record(success[name], confidence=confidence),
             "unhealthy": int(unhealthy(table).sum()),
         }
@@ -212,14 +229,14 @@ def summarize(
         for parameter, edges in analysis["bands"].items()
     }
     failures = {
-        name: failure_counts(np.asarray(table["failure_category"], dtype=object))
+        name: failure_counts(np.asarray(table["failure_category"], dtype=object), categories)
         for name, table in outcomes.items()
     }
 
     k = min(int(analysis["first_k"]), len(state_ids))
     mistakes = {
         "nominal_state": {
-            "what": "the nominal state alone (no offset, no yaw, mass as compiled)",
+            "what": f"the nominal state alone ({nominal_text})",
             "conditions": {
                 name: rate_record(np.array([nominal[name]]), confidence=confidence)
                 for name in success
@@ -233,6 +250,14 @@ def summarize(
             },
         },
     }
+    pooled = None
+    if bands:  # the first band parameter is the one the pooled rates are read against
+        first = next(iter(bands))
+        pooled = {
+            "what": f"pooled rates average over this {first} distribution; per-band rates "
+            "beside them",
+            f"{first}_bands": [{"band": b["band"], "n": b["n"]} for b in bands[first]],
+        }
     return {
         "n_states": int(len(state_ids)),
         "confidence": confidence,
@@ -241,10 +266,7 @@ def summarize(
         "discordant": discordant,
         "mcnemar": {"p_value": test.p_value, "method": test.method},
         "bands": bands,
-        "pooled_over": {
-            "what": "pooled rates average over this mass distribution; per-band rates beside them",
-            "mass_bands": [{"band": b["band"], "n": b["n"]} for b in bands["mass"]],
-        },
+        "pooled_over": pooled,
         "failures": failures,
         "mistakes": mistakes,
         "falsifier": judge_falsifier(
@@ -282,10 +304,8 @@ def format_table(summary: Mapping[str, Any]) -> str:
     conf = f"{summary['confidence'] * 100:g}%"
     lines = [f"Success per condition (Wilson {conf} interval), n = {summary['n_states']} states"]
     for name, rec in summary["conditions"].items():
-        lines.append(
-            f"  {name:<12} lift {rec['lift_time']:>6g} s  {_interval(rec)}"
-            f"  unhealthy {rec['unhealthy']}"
-        )
+        setting = " ".join(f"{k} {v:g}" for k, v in condition_settings(rec).items())
+        lines.append(f"  {name:<12} {setting}  {_interval(rec)}  unhealthy {rec['unhealthy']}")
     p = summary["paired_difference"]
     lines.append(
         f"Paired difference {p['treatment']} - {p['baseline']}: {p['estimate']:+.3f} "

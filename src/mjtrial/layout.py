@@ -24,10 +24,10 @@ STUDY_FIGURES = {"sensitivity": "sensitivity_forest", "dose_response": "dose_res
 # The report's figures, each written as .png and .svg under figures/.
 FIGURES = (
     "success_by_condition",
-    "success_by_mass",
+    "success_by_band",
     "paired_outcomes",
     "failure_categories",
-    "cube_height",
+    "sample_traces",
 )
 FIGURE_FORMATS = ("png", "svg")
 

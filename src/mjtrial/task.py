@@ -389,6 +389,14 @@ class Task:
     # `check_model(model)` raises, saying what the model lacks, before anything is resolved.
     check_model: Callable[[mujoco.MjModel], None] | None = None
     keyframe: int | None = None  # the reset pose (None: the model's qpos0)
+    # The report's and the manifest's words (a cart-pole's report never says "cube"):
+    success_text: str = ""  # when an episode succeeds, as a sentence's end ("the pole ...")
+    nominal_text: str = ""  # the nominal state in words (default: each parameter's value)
+    limitations: tuple[str, ...] = ()  # what the experiment does not show, one point each
+    trace: str | None = None  # the series drawn for sample episodes (default: the first)
+    # `trace_marks(model, params)`: label -> time (s) of a protocol event drawn on the traces.
+    trace_marks: Callable[[mujoco.MjModel, Mapping[str, float]], Mapping[str, float]] | None = None
+    trace_levels: tuple[tuple[str, float], ...] = ()  # (label, value) lines across the traces
     source: Path | None = field(default=None, compare=False)  # the task file, set at load
 
     @property
@@ -442,6 +450,38 @@ class Task:
     def category_names(self) -> tuple[str, ...]:
         return (UNHEALTHY, *(c.name for c in self.failure_categories))
 
+    @property
+    def nominal_description(self) -> str:
+        """The nominal state in words: the task's, or each state parameter's nominal value."""
+        return self.nominal_text or ", ".join(
+            f"{p.name} {p.nominal_value:g} {p.unit}".rstrip() for p in self.state_parameters
+        )
+
+    @property
+    def trace_series(self) -> Series | None:
+        """The series the report draws for its sample episodes."""
+        if self.trace is None:
+            return self.series[0] if self.series else None
+        return next(s for s in self.series if s.name == self.trace)
+
+    def unit_of(self, name: str) -> str:
+        """The unit of a state or protocol parameter, threshold or measure (`abs_<name>` too)."""
+        name = name.removeprefix("abs_")
+        for p in (*self.state_parameters, *self.protocol_parameters, *self.thresholds):
+            if p.name == name:
+                return p.unit
+        for m in self.table_measures:
+            if m.name == name:
+                return m.unit
+        return ""
+
+    def condition_values(self, condition: Mapping[str, Any]) -> dict[str, float | int]:
+        """The protocol parameters a condition sets, as numbers (integers for integer ones)."""
+        kinds = {p.name: p for p in self.protocol_parameters}
+        return {
+            k: int(v) if kinds[k].integer else float(v) for k, v in condition.items() if k in kinds
+        }
+
 
 def call(task: Task, function: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """`fn(*args, **kwargs)`, a function of the task's: an exception in it becomes a one-line
@@ -490,6 +530,11 @@ def _task_of(module: Any, where: str, folder: Path) -> Task:
     model = Path(task.model)
     model = Path(os.path.normpath(model if model.is_absolute() else folder / model))
     source = Path(module.__file__) if getattr(module, "__file__", None) else None
+    if not task.series:
+        raise TaskError(f"{source or where}: series: expected at least one Series to record")
+    names = [s.name for s in task.series]
+    if task.trace is not None and task.trace not in names:
+        raise TaskError(f"{source or where}: trace: expected one of the series {names}")
     return replace(task, model=model, source=source)
 
 

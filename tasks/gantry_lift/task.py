@@ -23,6 +23,7 @@ from mjtrial.model_spec import ModelError, ModelSpec
 from mjtrial.protocol import (
     CONDITION_PARAMETERS,
     PROTOCOL,
+    Phase,
     condition_protocol,
     control_sequence,
     episode_steps,
@@ -68,6 +69,18 @@ def controls(model: mujoco.MjModel, params) -> np.ndarray:
     return ctrl
 
 
+def phase_times(model: mujoco.MjModel, params) -> dict[str, float]:
+    """When the grasp closes, the lift starts and the lift ends, s: marked on the traces."""
+    timestep = model.opt.timestep
+    _, phase = control_sequence(params["lift_time"], timestep=timestep, protocol=_protocol(params))
+    lift = np.flatnonzero(phase == Phase.LIFT)
+    return {
+        "close": float(np.flatnonzero(phase == Phase.CLOSE)[0] * timestep),
+        "lift": float(lift[0] * timestep),
+        "lift end": float((lift[-1] + 1) * timestep),
+    }
+
+
 def n_steps(model: mujoco.MjModel, params) -> int:
     return episode_steps(
         params["lift_time"], timestep=model.opt.timestep, protocol=_protocol(params)
@@ -79,9 +92,12 @@ def check_condition(model: mujoco.MjModel, params):
     dt = model.opt.timestep
     protocol = _protocol(params)
     if dt > protocol.segment_time:
-        yield "timestep", (
-            f"timestep {dt:g} s; expected at most {protocol.segment_time:g} s, the protocol's "
-            "control step"
+        yield (
+            "timestep",
+            (
+                f"timestep {dt:g} s; expected at most {protocol.segment_time:g} s, the protocol's "
+                "control step"
+            ),
         )
         return
     for what, seconds in hold_durations(params["lift_time"], protocol).items():
@@ -241,7 +257,26 @@ TASK = Task(
     check_condition=check_condition,
     check_model=check_model,
     series=SERIES,
+    trace="cube_height",
+    trace_marks=phase_times,
+    trace_levels=(("success height (m)", PROTOCOL.success_height),),
     success=success,
+    success_text=(
+        f"the cube's centre is above {PROTOCOL.success_height:g} m at the end of the hold after "
+        f"the lift ({PROTOCOL.hold_time:g} s unless a condition sets hold_time)"
+    ),
+    nominal_text="no offset, no yaw, mass as compiled",
+    limitations=(
+        "**One model.** A single gantry gripper with one pad geometry, grip force limit and "
+        "contact parametrisation; another gripper may trade speed for success differently.",
+        "**Open-loop protocol.** The lift follows a fixed control sequence with no feedback; a "
+        "controller that reacts to slip could close the gap between the conditions.",
+        "**Mass-only randomization.** The cube's mass varies while its inertia stays as "
+        "compiled, and size, friction and shape are fixed; the result is about this "
+        "distribution of offsets, yaws and masses only.",
+        "**Only the lift durations that ran.** The comparison says nothing about durations in "
+        "between (the dose-response study sweeps them), nor about a real robot.",
+    ),
     measure=measure,
     measures=(
         Measure("final_height", "m", "the cube's centre height at the end", recorded=True),

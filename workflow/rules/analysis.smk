@@ -13,6 +13,7 @@ rule analysis:
         LAYOUT.log("analysis"),
     params:
         slice=config_slice("analysis", config),
+        task_sha256=task_content,
         code=stage_code_hash("analysis"),
     run:
         run_script("analysis", input, output, params, wildcards, threads, log, rule)

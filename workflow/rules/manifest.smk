@@ -23,6 +23,7 @@ rule manifest:
         folders=shard_recordings(CONDITIONS),
         # The manifest records the whole config, so it depends on all of it.
         slice=config_slice("manifest", config),
+        task_sha256=task_content,
         command_line=ConfigSlice(COMMAND_LINE_CONFIG),
         command=RERUN_COMMAND,
         config_file=CONFIG_SOURCE,

@@ -41,6 +41,7 @@ rule study_dose_response:
         LAYOUT.log("study_dose_response"),
     params:
         slice=config_slice("dose_response", config) if SWEEP else {},
+        task_sha256=task_content,
         values=list(SWEEP),
         code=stage_code_hash("dose_response"),
     run:

@@ -19,9 +19,9 @@ from matplotlib.figure import Figure
 
 from mjtrial import provenance
 from mjtrial.layout import FIGURES
-from mjtrial.protocol import PROTOCOL
-from mjtrial.report.labels import band_parameter, failure_categories, pct
-from mjtrial.report.traces import HeightTraces, cube_height_traces
+from mjtrial.report.labels import band_parameter, failure_categories, pct, setting
+from mjtrial.report.traces import SampleTraces, sample_traces
+from mjtrial.task import BoundTask, Task
 
 # Okabe-Ito colours (distinguishable with every common colour-vision deficiency), in the order
 # conditions are given; yellow is left out, it vanishes on white.
@@ -86,7 +86,7 @@ def _styled(draw: Callable[..., Figure]) -> Callable[..., Figure]:
 
 
 @_styled
-def figure_success_by_condition(*, summary: Mapping[str, Any]) -> Figure:
+def figure_success_by_condition(*, summary: Mapping[str, Any], task: Task) -> Figure:
     """Success rate per condition with its Wilson interval and k/n: the headline result."""
     conditions = summary["conditions"]
     names = list(conditions)
@@ -119,7 +119,7 @@ def figure_success_by_condition(*, summary: Mapping[str, Any]) -> Figure:
         )
     ax.set_xticks(
         range(len(names)),
-        [f"{name}\n({conditions[name]['lift_time']:g} s lift)" for name in names],
+        [f"{name}\n({setting(conditions[name], task)})" for name in names],
     )
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylim(0, 1.25)
@@ -131,12 +131,12 @@ def figure_success_by_condition(*, summary: Mapping[str, Any]) -> Figure:
 
 
 @_styled
-def figure_success_by_band(*, summary: Mapping[str, Any], parameter: str = "mass") -> Figure:
+def figure_success_by_band(*, summary: Mapping[str, Any], parameter: str, task: Task) -> Figure:
     """Success per band of one state parameter and condition: where the conditions differ."""
     bands = summary["bands"][parameter]
     names = list(summary["conditions"])
     colors, markers = condition_colors(names), _markers(names)
-    label, unit = band_parameter(parameter)
+    label, unit = band_parameter(parameter, task)
     fig = _figure(SINGLE_COLUMN, 2.9)
     ax = fig.add_subplot()
     offsets = np.linspace(-0.14, 0.14, len(names)) if len(names) > 1 else np.zeros(1)
@@ -156,14 +156,14 @@ def figure_success_by_band(*, summary: Mapping[str, Any], parameter: str = "mass
             markersize=5,
             capsize=3,
             elinewidth=1.0,
-            label=f"{name} ({summary['conditions'][name]['lift_time']:g} s lift)",
+            label=f"{name} ({setting(summary['conditions'][name], task)})",
             zorder=3,
         )
     ax.set_xticks(x, [f"{band['low']:g}\u2013{band['high']:g}\nn = {band['n']}" for band in bands])
     ax.set_xlim(-0.5, len(bands) - 0.5)
     ax.set_ylim(0, 1.04)
     ax.set_yticks(np.linspace(0, 1, 6))
-    ax.set_xlabel(f"Cube {label} band ({unit})" if unit else f"{label} band")
+    ax.set_xlabel(f"{label} band ({unit})" if unit else f"{label} band")
     ax.set_ylabel(f"Success rate ({pct(summary['confidence'])} Wilson CI)")
     ax.grid(axis="y", color=_SHADE, linewidth=0.6, zorder=0)
     ax.set_title(f"Success by {label}")
@@ -173,7 +173,7 @@ def figure_success_by_band(*, summary: Mapping[str, Any], parameter: str = "mass
 
 
 @_styled
-def figure_paired_outcomes(*, summary: Mapping[str, Any]) -> Figure:
+def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
     """The 2x2 table of paired outcomes: the discordant cells are what the paired test uses."""
     paired = summary["paired_difference"]
     treatment, baseline = paired["treatment"], paired["baseline"]
@@ -219,8 +219,8 @@ def figure_paired_outcomes(*, summary: Mapping[str, Any]) -> Figure:
             )
     ax.set_xticks([0, 1], ["succeeds", "fails"])
     ax.set_yticks([0, 1], ["succeeds", "fails"], rotation=90, va="center")
-    ax.set_xlabel(f"{treatment} ({summary['conditions'][treatment]['lift_time']:g} s lift)")
-    ax.set_ylabel(f"{baseline} ({summary['conditions'][baseline]['lift_time']:g} s lift)")
+    ax.set_xlabel(f"{treatment} ({setting(summary['conditions'][treatment], task)})")
+    ax.set_ylabel(f"{baseline} ({setting(summary['conditions'][baseline], task)})")
     ax.xaxis.set_label_position("top")
     ax.xaxis.tick_top()
     ax.tick_params(length=0)
@@ -235,12 +235,12 @@ def figure_paired_outcomes(*, summary: Mapping[str, Any]) -> Figure:
 
 
 @_styled
-def figure_failure_categories(*, summary: Mapping[str, Any]) -> Figure:
+def figure_failure_categories(*, summary: Mapping[str, Any], task: Task) -> Figure:
     """Failed episodes per category and condition, zeros shown: how each condition fails."""
     failures = summary["failures"]
     names = list(summary["conditions"])
     colors = condition_colors(names)
-    categories = failure_categories(summary)
+    categories = failure_categories(summary, task.category_names())
     fig = _figure(SINGLE_COLUMN, 3.0)
     ax = fig.add_subplot()
     height = 0.8 / len(names)
@@ -277,65 +277,53 @@ def _ids(ids: Sequence[int]) -> str:
 
 
 @_styled
-def figure_cube_height(
-    *,
-    traces: Mapping[str, HeightTraces],
-    success_height: float,
-    condition_order: Sequence[str] | None = None,
+def figure_sample_traces(
+    *, traces: Mapping[str, SampleTraces], summary: Mapping[str, Any], task: Task
 ) -> Figure:
-    """Cube height over time for a few successes and failures per condition: what a fast-lift
-    failure looks like (the cube stays behind while the gripper rises). The traces are the
-    recordings' logged steps, so they are as fine as the recording rate."""
-    names = list(condition_order or traces)
+    """The task's trace series over time for a few successes and failures per condition (the
+    lowest state ids): what a failure looks like. The traces are the recordings' logged steps,
+    so they are as fine as the recording rate."""
+    series = task.trace_series
+    names = [c for c in summary["conditions"] if c in traces]
     colors = condition_colors(names)
     fig = _figure(DOUBLE_COLUMN, 2.9)
     axes = fig.subplots(1, len(names), sharex=True, sharey=True, squeeze=False)[0]
-    end = max(float(t.time[-1] - t.lift_start) for t in traces.values())
-    start = min(float(t.close_start - t.lift_start) for t in traces.values())
-    top = max(
-        [success_height, *(float(np.nanmax(t.height)) for t in traces.values() if t.height.size)]
-    )
+    end = max(float(t.time[-1]) for t in traces.values())
     for ax, name in zip(axes, names, strict=True):
         t = traces[name]
-        x = t.time - t.lift_start
-        ax.axvspan(0, t.lift_end - t.lift_start, color=_SHADE, zorder=0, linewidth=0)
+        for label, time in t.marks.items():
+            ax.axvline(time, color=_GREY, linestyle="--", linewidth=0.7, zorder=1)
+            ax.text(
+                time,
+                1.0,
+                f" {label}",
+                transform=ax.get_xaxis_transform(),
+                ha="left",
+                va="top",
+                color=_GREY,
+                rotation=90,
+            )
+        # Episodes of different conditions may end at different times: where success is judged.
+        ax.axvline(float(t.time[-1]), color=_GREY, linestyle=":", linewidth=0.8, zorder=1)
         ax.text(
-            (t.lift_end - t.lift_start) / 2,
+            float(t.time[-1]),
             1.0,
-            "lift",
-            transform=ax.get_xaxis_transform(),
-            ha="center",
-            va="top",
-            color=_GREY,
-        )
-        # Episodes of different conditions end at different times: mark where success is judged.
-        judged = float(t.time[-1] - t.lift_start)
-        ax.axvline(judged, color=_GREY, linestyle=":", linewidth=0.8, zorder=1)
-        ax.text(
-            judged,
-            1.0,
-            "judged ",
+            "end ",
             transform=ax.get_xaxis_transform(),
             ha="right",
             va="top",
             color=_GREY,
         )
-        ax.axhline(success_height, color="black", linestyle=(0, (4, 3)), linewidth=0.9, zorder=1)
-        # At the right end: lifted cubes sit above the line there, dropped ones far below.
-        ax.text(
-            end,
-            success_height,
-            f"success height {success_height:g} m",
-            ha="right",
-            va="bottom",
-            color="black",
-        )
+        for label, level in task.trace_levels:
+            ax.axhline(level, color="black", linestyle=(0, (4, 3)), linewidth=0.9, zorder=1)
+            if label:
+                ax.text(end, level, f"{label} {level:g}", ha="right", va="bottom", color="black")
         for outcome, style, label in ((True, "-", "succeeded"), (False, (0, (1, 1.2)), "failed")):
             rows = [i for i, ok in enumerate(t.success) if ok is outcome]
             for j, row in enumerate(rows):
                 ax.plot(
-                    x,
-                    t.height[row],
+                    t.time,
+                    t.values[row],
                     color=colors[name],
                     linestyle=style,
                     linewidth=1.3 if outcome else 1.5,
@@ -348,16 +336,19 @@ def figure_cube_height(
                         else None
                     ),
                 )
-        ax.set_title(f"{name} ({t.lift_time:g} s lift)")
-        ax.set_xlabel("Time from lift onset (s)")
+        ax.set_title(f"{name} ({setting(summary['conditions'][name], task)})")
+        ax.set_xlabel("Time (s)")
         ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), ncols=1, handlelength=2.2)
-    axes[0].set_ylabel("Cube height (m)")
-    axes[0].set_xlim(start, end)
-    axes[0].set_ylim(0, top * 1.2)
+    # The plot's title ends with its unit: "cube height, finger opening, ctrl (m)".
+    unit = series.plot.rpartition("(")[2].rstrip(")") if series.plot.endswith(")") else ""
+    label = series.name.replace("_", " ").capitalize()
+    axes[0].set_ylabel(f"{label} ({unit})" if unit else label)
+    axes[0].set_xlim(0, end)
     intervals = sorted({round(t.log_interval * 1e3, 6) for t in traces.values()})
     logged = " or ".join(f"{ms:g}" for ms in intervals)
     fig.suptitle(
-        f"Cube height in sample episodes (lowest state ids), as recorded every {logged} ms",
+        f"{series.name.replace('_', ' ').capitalize()} in sample episodes (lowest state ids), "
+        f"as recorded every {logged} ms",
         fontsize=9,
     )
     return fig
@@ -378,45 +369,44 @@ def _save(fig: Figure, *, out_dir: Path, name: str, stamp: Mapping[str, Any]) ->
 def write_figures(
     *,
     summary: Mapping[str, Any],
+    bound: BoundTask,
     rollout_tables: Mapping[str, Path],
     recordings: Mapping[str, Path],
     conditions: Mapping[str, Mapping[str, float]],
-    timestep: float,
     out_dir: Path,
     stamp: Mapping[str, Any],
 ) -> list[Path]:
     """Write every figure of `mjtrial.layout.FIGURES` as `<out_dir>/<name>.png` and `.svg`.
 
     Args:
-      summary: `summary.json` (`mjtrial.analysis.summarize`); lift times come from it.
-      rollout_tables: condition -> its rollout table, which picks the cube-height episodes.
+      summary: `summary.json` (`mjtrial.analysis.summarize`).
+      bound: the task on the model that ran: the figures' words and the traces' series.
+      rollout_tables: condition -> its rollout table, which picks the traced episodes.
       recordings: condition -> its folder of recordings (`rollouts/<condition>/`), from which
-        the cube-height traces are read.
+        the traces are read.
       conditions: condition -> its protocol parameters (config `conditions`).
-      timestep: the model's timestep, s (`manifest.json` `model.timestep`).
       out_dir: the figures' folder.
       stamp: the provenance stamp of every file written.
 
     Returns the paths written, PNG then SVG for each figure, in `FIGURES` order.
     """
     out_dir = Path(out_dir)
-    traces = cube_height_traces(
+    task = bound.task
+    figures = {
+        "success_by_condition": figure_success_by_condition(summary=summary, task=task),
+        "paired_outcomes": figure_paired_outcomes(summary=summary, task=task),
+        "failure_categories": figure_failure_categories(summary=summary, task=task),
+        "success_by_band": figure_success_by_band(
+            summary=summary, parameter=next(iter(summary["bands"])), task=task
+        ),
+    }
+    traces = sample_traces(
+        bound=bound,
         rollout_tables=rollout_tables,
         recordings=recordings,
         conditions={name: conditions[name] for name in summary["conditions"]},
-        timestep=timestep,
     )
-    figures = {
-        "success_by_condition": figure_success_by_condition(summary=summary),
-        "success_by_mass": figure_success_by_band(summary=summary, parameter="mass"),
-        "paired_outcomes": figure_paired_outcomes(summary=summary),
-        "failure_categories": figure_failure_categories(summary=summary),
-        "cube_height": figure_cube_height(
-            traces=traces,
-            success_height=PROTOCOL.success_height,
-            condition_order=[c for c in summary["conditions"] if c in traces],
-        ),
-    }
+    figures["sample_traces"] = figure_sample_traces(traces=traces, summary=summary, task=task)
     paths: list[Path] = []
     for name in FIGURES:
         paths += _save(figures[name], out_dir=out_dir, name=name, stamp=stamp)

@@ -3,20 +3,25 @@ labels, confidence levels and the failure categories in their order."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-from mjtrial.taxonomy import FailureCategory
-
-# Units of the state parameters a band table can sort by (mjtrial.states.STATE_PARAMETERS).
-UNITS = {"dx": "m", "dy": "m", "yaw": "rad", "mass": "kg"}
+from mjtrial.analysis import condition_settings
+from mjtrial.task import Task
 
 
-def band_parameter(parameter: str) -> tuple[str, str]:
+def band_parameter(parameter: str, task: Task) -> tuple[str, str]:
     """(readable name, unit) of a band parameter such as `mass` or `abs_dx`."""
     base = parameter.removeprefix("abs_")
     label = f"|{base}|" if parameter.startswith("abs_") else base
-    return label, UNITS.get(base, "")
+    return label, task.unit_of(base)
+
+
+def setting(record: Mapping[str, Any], task: Task) -> str:
+    """A condition's protocol parameters from its summary record: `lift_time 1.5 s`."""
+    return ", ".join(
+        f"{k} {v:g} {task.unit_of(k)}".rstrip() for k, v in condition_settings(record).items()
+    )
 
 
 def pct(confidence: float) -> str:
@@ -24,9 +29,10 @@ def pct(confidence: float) -> str:
     return f"{confidence * 100:g}%"
 
 
-def failure_categories(summary: Mapping[str, Any]) -> list[str]:
-    """Every category of the taxonomy, in its order, plus any other named in the summary."""
-    categories = [c.value for c in FailureCategory]
+def failure_categories(summary: Mapping[str, Any], order: Sequence[str]) -> list[str]:
+    """Every category of the task (`order`, first match first), plus any other named in the
+    summary."""
+    categories = list(order)
     for counts in summary["failures"].values():
         categories += [c for c in counts if c not in categories]
     return categories

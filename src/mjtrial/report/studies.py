@@ -84,7 +84,8 @@ def figure_sensitivity_forest(*, sensitivity: Mapping[str, Any]) -> Figure:
 
 @_styled
 def figure_dose_response(*, dose_response: Mapping[str, Any]) -> Figure:
-    """Success against the swept value with Wilson bands, pooled and per mass band."""
+    """Success against the swept value with Wilson bands, pooled and per band of the first
+    band parameter."""
     rows = dose_response["per_value"]
     parameter = dose_response["parameter"]
     x = np.array([row[parameter] for row in rows])
@@ -105,30 +106,35 @@ def figure_dose_response(*, dose_response: Mapping[str, Any]) -> Figure:
         ax.plot(x[keep], rate, marker=marker, color=color, markersize=4, label=label)
 
     curve(pooled_ax, rows, "black", "o", f"pooled (n = {dose_response['n_states']})")
-    n_bands = len(rows[0]["mass_bands"])
+    band_unit = f" {dose_response['band_unit']}".rstrip()
+    n_bands = len(rows[0]["bands"])
     for j in range(n_bands):
-        recs = [row["mass_bands"][j] for row in rows]
+        recs = [row["bands"][j] for row in rows]
         band = recs[0]
         curve(
             band_ax,
             recs,
             CONDITION_PALETTE[j % len(CONDITION_PALETTE)],
             "osD^v"[j % 5],
-            f"{band['low']:g}\u2013{band['high']:g} kg (n = {band['n']})",
+            f"{band['low']:g}\u2013{band['high']:g}{band_unit} (n = {band['n']})",
         )
     shortest = dose_response["shortest_within_margin"]
+    log = dose_response["scale"] == "log"
+    unit = dose_response["unit"]
+    axis = ", ".join(filter(None, [unit, "log scale" if log else ""]))
     for ax in (pooled_ax, band_ax):
-        ax.set_xscale("log")
+        if log:
+            ax.set_xscale("log")
         ax.set_xticks(x, [f"{v:g}" for v in x])
         ax.minorticks_off()
-        ax.set_xlabel(f"{parameter.replace('_', ' ')} (s, log scale)")
+        ax.set_xlabel(f"{parameter.replace('_', ' ')} ({axis})" if axis else parameter)
         ax.grid(axis="y", color=_SHADE, linewidth=0.6, zorder=0)
         ax.axvline(shortest, color=_GREY, linestyle=":", linewidth=0.9)
         ax.legend(loc="lower right")
     pooled_ax.text(
         shortest,
         0.02,
-        f"shortest within {dose_response['margin']:g} \nof {dose_response['reference']:g} s ",
+        f"shortest within {dose_response['margin']:g} \nof {dose_response['reference']:g} {unit} ",
         color=_GREY,
         va="bottom",
         ha="right",
@@ -136,7 +142,7 @@ def figure_dose_response(*, dose_response: Mapping[str, Any]) -> Figure:
     pooled_ax.set_ylim(0, 1.04)
     pooled_ax.set_ylabel(f"Success rate ({pct(dose_response['confidence'])} Wilson band)")
     pooled_ax.set_title("Pooled")
-    band_ax.set_title("Per cube mass band")
+    band_ax.set_title(f"Per {dose_response['band_parameter'].replace('_', ' ')} band")
     fig.suptitle(f"Success against {parameter.replace('_', ' ')}", fontsize=9)
     return fig
 
@@ -219,13 +225,15 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
     d = dose_response
     parameter = d["parameter"]
     conf = pct(d["confidence"])
-    bands = [b["band"] for b in d["per_value"][0]["mass_bands"]]
+    bands = [b["band"] for b in d["per_value"][0]["bands"]]
+    band_unit = f" ({d['band_unit']})" if d["band_unit"] else ""
     comparisons = {c[parameter]: c for c in d["comparisons"]}
     lines = [
         "## Dose-response",
         "",
         f"Success against {parameter} on the same {d['n_states']} states; rates with {conf} "
-        f"Wilson intervals, pooled and per mass band (kg). Each value is compared with "
+        f"Wilson intervals, pooled and per {d['band_parameter']} band{band_unit}. Each value is "
+        f"compared with "
         f"{d['reference']:g} by paired difference ({d['comparison_method']['difference']}, "
         f"{d['comparison_method']['n_resamples']} resamples) and "
         f"{d['comparison_method']['test']}, p adjusted by "
@@ -241,7 +249,7 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
             if c
             else "reference | \u2013"
         )
-        cells = [rate_cell(b) for b in row["mass_bands"]]
+        cells = [rate_cell(b) for b in row["bands"]]
         lines.append(
             f"| {row[parameter]:g} | {rate_cell(row)} | " + " | ".join(cells) + f" | {versus} |"
         )
@@ -249,11 +257,14 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
     if t.get("not_estimable"):
         trend_line = f"Trend: not estimable ({t['not_estimable']}); {t['method']}."
     else:
+        log = d["scale"] == "log"
+        slope = t["slope_log_odds_per_log_value" if log else "slope_log_odds_per_unit_value"]
+        ratio = "odds_ratio_per_doubling" if log else "odds_ratio_over_range"
+        per = "per doubling" if log else f"from {min(d['values']):g} to {max(d['values']):g}"
         trend_line = (
-            f"Trend: {t['slope_log_odds_per_log_value']:+.3f} log-odds per unit log {parameter} "
+            f"Trend: {slope:+.3f} log-odds per unit {'log ' if log else ''}{parameter} "
             f"[{t['low']:+.3f}, {t['high']:+.3f}] ({conf}; p = {t['p_value']:.3g}); odds ratio "
-            f"per doubling {t['odds_ratio_per_doubling']:.3f} "
-            f"[{t['odds_ratio_per_doubling_low']:.3f}, {t['odds_ratio_per_doubling_high']:.3f}]; "
+            f"{per} {t[ratio]:.3f} [{t[ratio + '_low']:.3f}, {t[ratio + '_high']:.3f}]; "
             f"{t['n_episodes']} episodes in {t['n_clusters']} state clusters; {t['method']}."
         )
     lines += [
@@ -261,7 +272,8 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
         trend_line,
         "",
         f"Shortest {parameter} within {d['margin']:g} of {d['reference']:g}: "
-        f"{d['shortest_within_margin']:g} ({d['within_margin_criterion']}).",
+        f"{d['shortest_within_margin']:g} ({d['within_margin_criterion']}); every value within "
+        f"the margin: {', '.join(f'{v:g}' for v in d['values_within_margin'])}.",
         "",
         f"![Success against {parameter}]({figure})",
         "",

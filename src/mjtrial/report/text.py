@@ -16,38 +16,35 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.report.labels import UNITS, band_parameter, failure_categories, pct, rate_cell
-from mjtrial.states import STATE_PARAMETERS
-
-# Units of the failure taxonomy's thresholds (mjtrial.taxonomy.Thresholds).
-_TAXONOMY_UNITS = {
-    "lifted_height": "m",
-    "slip_distance": "m",
-    "workspace_radius": "m",
-    "max_tilt": "rad",
-}
+from mjtrial.report.labels import band_parameter, failure_categories, pct, rate_cell, setting
+from mjtrial.task import Task, load_task
 
 
 def _interval(low: float, high: float, *, signed: bool = False) -> str:
     return f"[{low:+.3f}, {high:+.3f}]" if signed else f"[{low:.3f}, {high:.3f}]"
 
 
-_CAPTIONS = {
-    "success_by_condition": "Success rate per condition",
-    "success_by_mass": "Success rate by cube mass band",
-    "paired_outcomes": "Paired outcomes of the same initial states",
-    "failure_categories": "Failed episodes by category",
-    "cube_height": "Cube height over time in sample episodes, from their recordings",
-}
-_RESULT_FIGURES = ("success_by_condition", "success_by_mass", "paired_outcomes")
-_FAILURE_FIGURES = ("failure_categories", "cube_height")
+def _captions(summary: Mapping[str, Any], task: Task) -> dict[str, str]:
+    band = next(iter(summary["bands"]), "")
+    series = task.trace_series.name.replace("_", " ") if task.trace_series else ""
+    return {
+        "success_by_condition": "Success rate per condition",
+        "success_by_band": f"Success rate by {band_parameter(band, task)[0]} band",
+        "paired_outcomes": "Paired outcomes of the same initial states",
+        "failure_categories": "Failed episodes by category",
+        "sample_traces": f"{series.capitalize()} over time in sample episodes, from their "
+        "recordings",
+    }
+
+
+_RESULT_FIGURES = ("success_by_condition", "success_by_band", "paired_outcomes")
+_FAILURE_FIGURES = ("failure_categories", "sample_traces")
 
 _MISTAKE_WHY = {
     "nominal_state": (
         "One episode per condition: its interval, {widest}, covers most of the possible rates, "
-        "so the shortcut cannot separate the conditions; and the nominal state (centred, "
-        "upright, mass as compiled) is no sample of the offsets, yaws and masses the "
-        "evaluation draws."
+        "so the shortcut cannot separate the conditions; and the nominal state is one point, "
+        "no sample of the distribution of {parameters} the evaluation draws from."
     ),
     "first_k": (
         "{k} states give intervals {ratio:.1f} times as wide as the {n} states (mean width "
@@ -56,19 +53,11 @@ _MISTAKE_WHY = {
     ),
 }
 
+# What no experiment of this tool shows, beside the task's own limitations.
 _SCOPE_LIMITS = (
-    "**One model.** A single gantry gripper with one pad geometry, grip force limit and contact "
-    "parametrisation; another gripper may trade speed for success differently.",
     "**One simulator version.** Every number comes from the MuJoCo version listed under "
     "Reproduction, with one timestep, integrator and contact model; whether the effect survives "
-    "other solver and contact settings is a planned ablation, not a result.",
-    "**Open-loop protocol.** The lift follows a fixed control sequence with no feedback; a "
-    "controller that reacts to slip could close the gap between the conditions.",
-    "**Mass-only randomization.** The cube's mass varies while its inertia stays as compiled, "
-    "and size, friction and shape are fixed; the result is about this distribution of "
-    "offsets, yaws and masses only.",
-    "**Only the lift durations that ran.** The comparison says nothing about durations in "
-    "between (the dose-response curve is a planned ablation), nor about a real robot.",
+    "other solver and contact settings is what the sensitivity study asks, not this result.",
 )
 
 
@@ -77,7 +66,7 @@ def _geom_name(model: mujoco.MjModel, i: int) -> str:
 
 
 def _contact_table(model: mujoco.MjModel) -> list[str]:
-    """One row per geom that can collide: what sets the friction budget of the grasp."""
+    """One row per geom that can collide: what sets the friction budget of a contact."""
     rows = [
         "| geom | condim | friction (sliding, torsional, rolling) | solref | solimp |",
         "| --- | --- | --- | --- | --- |",
@@ -92,7 +81,7 @@ def _contact_table(model: mujoco.MjModel) -> list[str]:
             f"| `{_geom_name(model, i)}` | {model.geom_condim[i]} | {friction} | {solref} "
             f"| {solimp} |"
         )
-    return rows
+    return rows if len(rows) > 2 else ["No geom of the model collides."]
 
 
 def _actuator_limits(model: mujoco.MjModel) -> str:
@@ -154,17 +143,36 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
     return lines
 
 
-def _figure_lines(names: Sequence[str], figures: Mapping[str, str]) -> list[str]:
+def _figure_lines(
+    names: Sequence[str], figures: Mapping[str, str], captions: Mapping[str, str]
+) -> list[str]:
     lines = []
     for name in names:
         if name in figures:
             svg = str(Path(figures[name]).with_suffix(".svg").as_posix())
             lines += [
-                f"![{_CAPTIONS.get(name, name)}]({figures[name]})",
+                f"![{captions.get(name, name)}]({figures[name]})",
                 "",
-                f"*{_CAPTIONS.get(name, name)}* ([SVG]({svg})).",
+                f"*{captions.get(name, name)}* ([SVG]({svg})).",
                 "",
             ]
+    return lines
+
+
+def _task_lines(record: Mapping[str, Any] | None) -> list[str]:
+    """The task, its controller, what its policy reads from which source, and any privileged
+    observation the design allows, with its reason (from the manifest's task record)."""
+    if not record:
+        return []
+    lines = [f"- Task: {record['title']} (`{record['reference']}`), {record['controller']}."]
+    if record["observations"]:
+        read = ", ".join(
+            f"{name} ({source or '**privileged**: no real-world source'})"
+            for name, source in record["observations"].items()
+        )
+        lines.append(f"- The policy reads: {read}.")
+    for name, reason in record.get("privileged_observations", {}).items():
+        lines.append(f"- Privileged observation allowed by the design: {name}: {reason}.")
     return lines
 
 
@@ -173,6 +181,7 @@ def _setup(
     config: Mapping[str, Any],
     manifest: Mapping[str, Any],
     model: mujoco.MjModel,
+    task: Task,
 ) -> list[str]:
     m = manifest["model"]
     states = config["states"]
@@ -181,6 +190,7 @@ def _setup(
         "## Setup",
         "",
         f"- Simulator: MuJoCo {manifest['versions']['mujoco']}.",
+        *_task_lines(manifest.get("task")),
         f"- Model: `{m['path']}`, sha256 `{m['sha256']}`.",
         f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
         f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
@@ -192,19 +202,22 @@ def _setup(
         "Conditions (each evaluation state runs under every condition: a paired design):",
         "",
         *_table(
-            ["condition", "lift time (s)"],
-            [[name, f"{c['lift_time']:g}"] for name, c in config["conditions"].items()],
+            ["condition", "setting"],
+            [
+                [name, setting(task.condition_values(c), task)]
+                for name, c in config["conditions"].items()
+            ],
         ),
         "",
         f"Initial states: n = {states['n']}, drawn with numpy's `default_rng({states['seed']})` "
         f"({bitgen}), one uniform draw of n values per parameter in the order "
-        f"{', '.join(STATE_PARAMETERS)}:",
+        f"{', '.join(task.state_columns[1:])}:",
         "",
         *_table(
             ["parameter", "low", "high", "unit"],
             [
-                [p, f"{states['ranges'][p][0]:g}", f"{states['ranges'][p][1]:g}", UNITS.get(p, "")]
-                for p in STATE_PARAMETERS
+                [p, f"{states['ranges'][p][0]:g}", f"{states['ranges'][p][1]:g}", task.unit_of(p)]
+                for p in task.state_columns[1:]
                 if p in states["ranges"]
             ],
         ),
@@ -232,8 +245,7 @@ def _metric(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str
     return [
         "## Metric",
         "",
-        f"- Success: the cube's centre is above {success['cube_height_above_m']:g} m "
-        f"{success['judged']}.",
+        f"- Success: {success}.",
         "- Each episode's outcome is binary (1 = success). A condition's success rate is the mean "
         f"over its n = {summary['n_states']} evaluation states (the per-task mean; this "
         "experiment has one task).",
@@ -245,8 +257,10 @@ def _metric(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str
     ]
 
 
-def _band_section(summary: Mapping[str, Any], parameter: str, names: Sequence[str]) -> list[str]:
-    label, unit = band_parameter(parameter)
+def _band_section(
+    summary: Mapping[str, Any], parameter: str, names: Sequence[str], task: Task
+) -> list[str]:
+    label, unit = band_parameter(parameter, task)
     conditions = summary["conditions"]
     rows = [
         [f"{b['band']}", b["n"], *(rate_cell(b["conditions"][name]) for name in names)]
@@ -265,7 +279,7 @@ def _band_section(summary: Mapping[str, Any], parameter: str, names: Sequence[st
 
 
 def _results(
-    summary: Mapping[str, Any], figures: Mapping[str, str], names: Sequence[str]
+    summary: Mapping[str, Any], figures: Mapping[str, str], names: Sequence[str], task: Task
 ) -> list[str]:
     conf = pct(summary["confidence"])
     conditions = summary["conditions"]
@@ -278,7 +292,7 @@ def _results(
         *_table(
             [
                 "condition",
-                "lift time (s)",
+                "setting",
                 "successes",
                 "success rate",
                 f"{conf} Wilson interval",
@@ -287,7 +301,7 @@ def _results(
             [
                 [
                     name,
-                    f"{rec['lift_time']:g}",
+                    setting(rec, task),
                     f"{rec['successes']}/{rec['n']}",
                     f"{rec['rate']:.3f}" if rec["n"] else "-",
                     _interval(rec["wilson_low"], rec["wilson_high"]) if rec["n"] else "-",
@@ -318,20 +332,26 @@ def _results(
         "",
     ]
     for parameter in summary["bands"]:
-        lines += _band_section(summary, parameter, names)
+        lines += _band_section(summary, parameter, names, task)
     pooled = summary.get("pooled_over")
     if pooled:
         n = summary["n_states"]
-        dist = ", ".join(f"{b['band']}: {b['n']} ({b['n'] / n:.1%})" for b in pooled["mass_bands"])
+        first = next(iter(summary["bands"]))
+        label, unit = band_parameter(first, task)
+        dist = ", ".join(
+            f"{b['band']}: {b['n']} ({b['n'] / n:.1%})" for b in pooled[f"{first}_bands"]
+        )
         lines += [
-            f"Pooling caveat: {pooled['what']}. The evaluation's mass distribution (kg): {dist}. "
-            "A pooled rate is the per-band rates weighted by these shares, so another mass "
-            "distribution gives another pooled rate; the per-band rates are what carries over.",
+            f"Pooling caveat: {pooled['what']}. The evaluation's {label} distribution"
+            f"{f' ({unit})' if unit else ''}: {dist}. A pooled rate is the per-band rates "
+            f"weighted by these shares, so another {label} distribution gives another pooled "
+            "rate; the per-band rates are what carries over.",
             "",
         ]
-    lines += _figure_lines(_RESULT_FIGURES, figures)
+    captions = _captions(summary, task)
+    lines += _figure_lines(_RESULT_FIGURES, figures, captions)
     other = [n for n in figures if n not in _RESULT_FIGURES + _FAILURE_FIGURES]
-    lines += _figure_lines(other, figures)
+    lines += _figure_lines(other, figures, captions)
     return lines
 
 
@@ -340,25 +360,32 @@ def _failure_analysis(
     config: Mapping[str, Any],
     figures: Mapping[str, str],
     names: Sequence[str],
+    task: Task,
 ) -> list[str]:
     failures = summary["failures"]
-    categories = failure_categories(summary)
+    categories = failure_categories(summary, task.category_names())
     rows = [[c, *(failures[name].get(c, 0) for name in names)] for c in categories]
     rows.append(["**all failures**", *(sum(failures[name].values()) for name in names)])
     thresholds = ", ".join(
-        f"{k} {v:g} {_TAXONOMY_UNITS.get(k, '')}".rstrip()
+        f"{k} {v:g} {task.unit_of(k)}".rstrip()
         for k, v in config.get("failure_taxonomy", {}).items()
     )
     lines = [
         "## Failure analysis",
         "",
         "Each failed episode gets exactly one category, the first that applies in the order "
-        f"below (`mjtrial.taxonomy`; thresholds from the config: {thresholds}).",
+        f"below (the task's failure categories; thresholds from the config: {thresholds}).",
         "",
         *_table(["category", *names], rows),
         "",
+        *(
+            f"- {c.name}: {c.description}"
+            for c in task.failure_categories
+            if c.description != c.name
+        ),
+        "",
     ]
-    return lines + _figure_lines(_FAILURE_FIGURES, figures)
+    return lines + _figure_lines(_FAILURE_FIGURES, figures, _captions(summary, task))
 
 
 def _falsifier(summary: Mapping[str, Any]) -> list[str]:
@@ -377,7 +404,7 @@ def _falsifier(summary: Mapping[str, Any]) -> list[str]:
     ]
 
 
-def _mistakes(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]:
+def _mistakes(summary: Mapping[str, Any], names: Sequence[str], task: Task) -> list[str]:
     conf = pct(summary["confidence"])
     conditions = summary["conditions"]
     lines = [
@@ -415,6 +442,7 @@ def _mistakes(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]:
             ratio=width_k / width_n if width_n else float("inf"),
             width_k=width_k,
             width_n=width_n,
+            parameters=", ".join(p.description or p.name for p in task.state_parameters),
         )
         lines += [f"- *{mistake['what'][0].upper()}{mistake['what'][1:]}*: {text}"]
     return lines
@@ -459,6 +487,7 @@ def render_report(
       manifest_path: where the manifest lives, as the reader should see it.
     """
     model = _load_reported_model(manifest, Path(repo_root))
+    task = load_task(config["task"], repo_root=Path(repo_root))
     names = list(summary["conditions"])
     design = config.get("design", {})
     lines = [f"# {config.get('experiment', manifest.get('experiment', 'Experiment'))}", ""]
@@ -467,13 +496,17 @@ def render_report(
     if design.get("hypothesis"):
         lines += [f"**Hypothesis.** {design['hypothesis']}", ""]
     sections = [
-        _setup(summary, config, manifest, model),
+        _setup(summary, config, manifest, model, task),
         _metric(summary, manifest),
-        _results(summary, figures, names),
-        _failure_analysis(summary, config, figures, names),
+        _results(summary, figures, names, task),
+        _failure_analysis(summary, config, figures, names, task),
         _falsifier(summary),
-        _mistakes(summary, names),
-        ["## What this experiment does not show", "", *(f"- {s}" for s in _SCOPE_LIMITS)],
+        _mistakes(summary, names, task),
+        [
+            "## What this experiment does not show",
+            "",
+            *(f"- {s}" for s in (*task.limitations, *_SCOPE_LIMITS)),
+        ],
         _reproduction(manifest, manifest_path),
     ]
     for section in sections:

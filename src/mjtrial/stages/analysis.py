@@ -11,7 +11,8 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, analysis, provenance
-from mjtrial.stages.stamping import make_stage_stamp
+from mjtrial.stages.stamping import make_stage_stamp, task_inputs
+from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -31,8 +32,13 @@ def run_analysis(
         rollout_tables=rollout_tables,
         nominal_files=nominal_files,
         analysis_slice=analysis_slice,
+        repo_root=repo_root,
     )
-    inputs = {"states": states_path, **{f"rollout:{k}": v for k, v in rollout_tables.items()}}
+    inputs = {
+        "states": states_path,
+        **task_inputs(analysis_slice["task"], repo_root=repo_root),
+        **{f"rollout:{k}": v for k, v in rollout_tables.items()},
+    }
     inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
     stamp = make_stage_stamp(
         "analysis",
@@ -52,10 +58,12 @@ def summarize_tables(
     rollout_tables: Mapping[str, Path],
     nominal_files: Mapping[str, Path],
     analysis_slice: Mapping[str, Any],
+    repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """The summary the analysis stage writes, from its input files (`mjtrial verify` checks
     `summary.json` against it)."""
     conditions = analysis_slice["conditions"]
+    task = load_task(analysis_slice["task"], repo_root=repo_root)
     analysis_config = analysis_slice["analysis"]
     states_table = pq.read_table(states_path)
     states = {c: states_table.column(c).to_numpy() for c in states_table.column_names}
@@ -70,7 +78,9 @@ def summarize_tables(
         states=states,
         outcomes=outcomes,
         nominal=nominal,
-        lift_times={name: float(c["lift_time"]) for name, c in conditions.items()},
+        condition_parameters={name: task.condition_values(c) for name, c in conditions.items()},
+        nominal_text=task.nominal_description,
+        categories=task.category_names(),
         falsifier=analysis_slice["falsifier"],
         analysis=analysis_config,
         sample_size=analysis_slice.get("sample_size"),

@@ -14,7 +14,6 @@ import mujoco
 
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd stamps
 from mjtrial.layout import CONFIG_FILE
-from mjtrial.protocol import PROTOCOL
 from mjtrial.simulate import load_model
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.task import load_task
@@ -107,10 +106,8 @@ def manifest_record(
         "task": task_record(config, repo_root=repo_root),
         "n_states": config["states"]["n"],
         "randomization_ranges": config["states"]["ranges"],
-        "success_definition": {
-            "cube_height_above_m": PROTOCOL.success_height,
-            "judged": f"at the end of the {PROTOCOL.hold_time:g} s hold after the lift",
-        },
+        "success_definition": load_task(config["task"], repo_root=repo_root).success_text
+        or "the task's success test",
         "results": {
             "conditions": {
                 name: {"successes": rec["successes"], "n": rec["n"], "rate": rec["rate"]}

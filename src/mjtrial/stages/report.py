@@ -9,7 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, report
-from mjtrial.stages.stamping import make_stage_stamp, model_inputs
+from mjtrial.simulate import load_model
+from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
+from mjtrial.task import BoundTask, load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -29,28 +31,31 @@ def write_report_stage(
 ) -> list[Path]:
     """Draw the figures and write `report.md`; every number in them comes from the inputs.
 
-    `recordings` (condition -> its folder of recordings) hold the cube-height traces drawn;
+    `recordings` (condition -> its folder of recordings) hold the sample traces drawn;
     `model_file` is the model the report describes (checked against the manifest's hash).
     """
     inputs = {
         "summary": summary_path,
         "manifest": manifest_path,
         **model_inputs(model_file),
+        **task_inputs(config["task"], repo_root=repo_root),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
         **{
-            f"recordings:{k}": [p for p in shard_folders[k] if Path(p).is_dir()]
-            for k in recordings
+            f"recordings:{k}": [p for p in shard_folders[k] if Path(p).is_dir()] for k in recordings
         },
     }
     stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
     summary = json.loads(Path(summary_path).read_text())
     manifest = json.loads(Path(manifest_path).read_text())
+    bound = BoundTask.of(load_task(config["task"], repo_root=repo_root), load_model(model_file))
+    if bound.model.opt.timestep != manifest["model"]["timestep"]:
+        raise ValueError(f"{model_file}: its timestep differs from the manifest's")
     figures = report.write_figures(
         summary=summary,
+        bound=bound,
         rollout_tables=rollout_tables,
         recordings=recordings,
         conditions=config["conditions"],
-        timestep=manifest["model"]["timestep"],
         out_dir=figures_dir,
         stamp=stamp,
     )

@@ -62,13 +62,15 @@ def _slice(
         }
     if stage == "dose_response":
         return {
+            "task": config["task"],
             "sweep": dict(config["sweep"]),
             "conditions": all_conditions(config),
-            "mass_bands": list(config["analysis"]["bands"]["mass"]),
+            "bands": dict(list(config["analysis"]["bands"].items())[:1]),
             "analysis": _analysis_settings(config),
         }
     if stage == "analysis":
         return {
+            "task": config["task"],
             "conditions": dict(config["conditions"]),
             "falsifier": dict(config["design"]["falsifier"]),
             "sample_size": dict(config["design"]["sample_size"]),

@@ -18,10 +18,11 @@ import pyarrow.parquet as pq
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.layout import NOMINAL, STUDY_FIGURES
 from mjtrial.report import studies as study_report
-from mjtrial.stages.stamping import make_stage_stamp, model_inputs
+from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.dose_response import summarize_dose_response
 from mjtrial.studies.sensitivity import summarize_sensitivity
 from mjtrial.studies.variants import nominal_model_hash, variant_model
+from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -77,8 +78,14 @@ def run_dose_response(
     Args:
       tables: per swept value, the rollout table of the condition that runs it.
     """
-    summary = dose_response_summary(study_slice=study_slice, states_path=states_path, tables=tables)
-    inputs = {"states": states_path, **{f"{v:g}": p for v, p in tables.items()}}
+    summary = dose_response_summary(
+        study_slice=study_slice, states_path=states_path, tables=tables, repo_root=repo_root
+    )
+    inputs = {
+        "states": states_path,
+        **task_inputs(study_slice["task"], repo_root=repo_root),
+        **{f"{v:g}": p for v, p in tables.items()},
+    }
     return _write(
         "dose_response",
         summary,
@@ -143,19 +150,27 @@ def sensitivity_summary(
 
 
 def dose_response_summary(
-    *, study_slice: Mapping[str, Any], states_path: Path, tables: Mapping[float, Path]
+    *,
+    study_slice: Mapping[str, Any],
+    states_path: Path,
+    tables: Mapping[float, Path],
+    repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """`analysis/dose_response.json` from the rollout tables (`mjtrial verify` checks against
     it)."""
     sweep = study_slice["sweep"]
+    (band_parameter, band_edges), *_ = study_slice["bands"].items()
+    task = load_task(study_slice["task"], repo_root=repo_root)
     summary = summarize_dose_response(
         {v: _columns(p) for v, p in tables.items()},
         parameter=sweep["parameter"],
         states=_columns(states_path),
-        mass_edges=study_slice["mass_bands"],
+        band_parameter=band_parameter,
+        band_edges=band_edges,
         analysis=study_slice["analysis"],
         margin=sweep["margin"],
         reference=sweep.get("reference"),
+        units={p: task.unit_of(p) for p in (sweep["parameter"], band_parameter)},
     )
     return summary
 

@@ -16,24 +16,40 @@ import statsmodels.api as sm
 from statsmodels.stats.multitest import multipletests
 
 from mjtrial import stats
-from mjtrial.analysis import band_index, band_labels, rate_record
+from mjtrial.analysis import band_index, band_labels, band_values, rate_record
 from mjtrial.studies.sensitivity import paired_success
 
 TREND_METHOD = (
-    "logistic regression of success on log(value) (statsmodels GLM, Binomial, logit link) with "
+    "logistic regression of success on {x} (statsmodels GLM, Binomial, logit link) with "
     "state-clustered sandwich standard errors (small-sample factor G/(G-1) (N-1)/(N-K)), "
     "normal-theory interval"
 )
+# A sweep with a value at or below zero (a latency of 0 s) is fitted on the value itself.
+SCALES = ("log", "linear")
+
+
+def sweep_scale(values: Sequence[float]) -> str:
+    """`log` when every swept value is positive (a lift time), else `linear`."""
+    return "log" if min(values) > 0 else "linear"
+
+
 HOLM_METHOD = "Holm step-down over the non-reference values (statsmodels multipletests)"
 
 
 def trend(
-    value: np.ndarray, success: np.ndarray, groups: np.ndarray, *, confidence: float
+    value: np.ndarray,
+    success: np.ndarray,
+    groups: np.ndarray,
+    *,
+    confidence: float,
+    scale: str = "log",
 ) -> dict[str, Any]:
-    """Slope of the log-odds of success per unit log(value), with its clustered interval.
+    """Slope of the log-odds of success per unit log(value), with its clustered interval; on
+    the `linear` scale, per unit value, with the odds ratio over the swept range instead of
+    per doubling.
 
     Args:
-      value: the swept value of each episode, `(N,)`, positive.
+      value: the swept value of each episode, `(N,)`, positive on the log scale.
       success: each episode's outcome, `(N,)` booleans.
       groups: each episode's state id (the cluster), `(N,)`.
       confidence: two-sided confidence of the interval.
@@ -43,13 +59,18 @@ def trend(
     fit has no finite estimate (every outcome the same, or outcomes separated by the value, as
     small samples can be), every number is None and `not_estimable` says why.
     """
-    x = sm.add_constant(np.log(np.asarray(value, dtype=float)))
+    value = np.asarray(value, dtype=float)
+    log = scale == "log"
+    x = sm.add_constant(np.log(value) if log else value)
     y = np.asarray(success, dtype=float)
     base = {
         "n_episodes": int(x.shape[0]),
         "n_clusters": int(np.unique(groups).size),
-        "method": TREND_METHOD,
+        "method": TREND_METHOD.format(x="log(value)" if log else "the value"),
     }
+    slope_key = "slope_log_odds_per_log_value" if log else "slope_log_odds_per_unit_value"
+    ratio_key = "odds_ratio_per_doubling" if log else "odds_ratio_over_range"
+    span = np.log(2) if log else float(value.max() - value.min())
     with warnings.catch_warnings():  # separation shows below as non-finite numbers
         warnings.simplefilter("ignore")
         fit = sm.GLM(y, x, family=sm.families.Binomial()).fit(
@@ -58,10 +79,11 @@ def trend(
         low, high = fit.conf_int(alpha=1.0 - confidence)[1]
     numbers = [fit.params[1], fit.bse[1], low, high, fit.pvalues[1]]
     if y.min() == y.max() or not np.all(np.isfinite(numbers)) or fit.bse[1] > 1e3:
-        keys = (
-            "slope_log_odds_per_log_value standard_error low high p_value intercept "
-            "odds_ratio_per_doubling odds_ratio_per_doubling_low odds_ratio_per_doubling_high"
-        ).split()
+        keys = [
+            slope_key,
+            *"standard_error low high p_value intercept".split(),
+            *(f"{ratio_key}{end}" for end in ("", "_low", "_high")),
+        ]
         return {
             **dict.fromkeys(keys),
             "not_estimable": "the outcomes are all alike or separated by the value",
@@ -69,15 +91,15 @@ def trend(
         }
     slope = float(fit.params[1])
     return {
-        "slope_log_odds_per_log_value": slope,
+        slope_key: slope,
         "standard_error": float(fit.bse[1]),
         "low": float(low),
         "high": float(high),
         "p_value": float(fit.pvalues[1]),
         "intercept": float(fit.params[0]),
-        "odds_ratio_per_doubling": float(np.exp(slope * np.log(2))),
-        "odds_ratio_per_doubling_low": float(np.exp(low * np.log(2))),
-        "odds_ratio_per_doubling_high": float(np.exp(high * np.log(2))),
+        ratio_key: float(np.exp(slope * span)),
+        f"{ratio_key}_low": float(np.exp(low * span)),
+        f"{ratio_key}_high": float(np.exp(high * span)),
         **base,
     }
 
@@ -87,10 +109,12 @@ def summarize_dose_response(
     *,
     parameter: str,
     states: Mapping[str, np.ndarray],
-    mass_edges: Sequence[float],
+    band_parameter: str,
+    band_edges: Sequence[float],
     analysis: Mapping[str, Any],
     margin: float,
     reference: float | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
     """The content of `analysis/dose_response.json`.
 
@@ -98,11 +122,15 @@ def summarize_dose_response(
       tables: per swept value (e.g. lift time, s), the columns of its rollout table
         (`ROLLOUT_COLUMNS`), each `(n,)`, all on the same states.
       parameter: the swept protocol parameter's name (e.g. "lift_time"), recorded.
-      states: the states table's columns (state_id, mass), each `(n,)`.
-      mass_edges: mass band edges, kg (`analysis.bands.mass`).
+      states: the states table's columns (state_id and the state parameters), each `(n,)`.
+      band_parameter: the state parameter whose bands split each value's rate (the first of
+        `analysis.bands`; `abs_<name>` for its magnitude).
+      band_edges: its band edges.
       analysis: confidence, n_resamples and seed (the main result's).
       margin: the success margin of `shortest_within_margin`, in (0, 1).
-      reference: the value every other is compared with; the largest (slowest lift) if None.
+      reference: the value every other is compared with; the largest if None.
+      units: the swept parameter's and the band parameter's units, by name (recorded for the
+        report's words).
 
     `shortest_within_margin` is the smallest swept value v whose paired difference
     success(v) - success(reference) has its bootstrap interval's lower bound at or above
@@ -127,8 +155,8 @@ def summarize_dose_response(
     order = np.argsort(np.asarray(states["state_id"]), kind="stable")
     if not np.array_equal(np.asarray(states["state_id"])[order], state_ids):
         raise ValueError(f"sweep of {parameter}: state ids differ from the states table")
-    band = band_index(np.asarray(states["mass"], dtype=float)[order], mass_edges)
-    labels = band_labels(mass_edges)
+    band = band_index(band_values(states, band_parameter)[order], band_edges)
+    labels = band_labels(band_edges)
 
     rows = []
     for v in values:
@@ -137,11 +165,11 @@ def summarize_dose_response(
             {
                 parameter: v,
                 **rate_record(s, confidence=confidence),
-                "mass_bands": [
+                "bands": [
                     {
                         "band": label,
-                        "low": mass_edges[i],
-                        "high": mass_edges[i + 1],
+                        "low": band_edges[i],
+                        "high": band_edges[i + 1],
                         **rate_record(s[band == i], confidence=confidence),
                     }
                     for i, label in enumerate(labels)
@@ -189,14 +217,19 @@ def summarize_dose_response(
         "values": values,
         "n_states": n,
         "confidence": confidence,
-        "mass_edges": list(mass_edges),
+        "unit": (units or {}).get(parameter, ""),
+        "band_parameter": band_parameter,
+        "band_unit": (units or {}).get(band_parameter, ""),
+        "band_edges": list(band_edges),
         "per_value": rows,
         "trend": trend(
             np.repeat(values, n),
             np.concatenate([success[f"{v:g}"] for v in values]),
             np.tile(state_ids, len(values)),
             confidence=confidence,
+            scale=sweep_scale(values),
         ),
+        "scale": sweep_scale(values),
         "reference": reference,
         "comparisons": comparisons,
         "comparison_method": {
@@ -208,6 +241,7 @@ def summarize_dose_response(
         },
         "margin": margin,
         "shortest_within_margin": min(qualifying),
+        "values_within_margin": sorted(qualifying),
         "within_margin_criterion": (
             f"smallest {parameter} whose paired difference to {reference:g} has its "
             f"{confidence:.0%} interval's lower bound at or above -{margin:g}"

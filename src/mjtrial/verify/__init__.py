@@ -291,7 +291,9 @@ def verify_results(
         resimulate=resimulate,
         command_line=command_line,
         command=_recorded_command(manifest),
-        config_file=provenance.repo_relative(config_path, repo_root),
+        # as the Snakefile records it: relative to the repository, even from outside it
+        config_file=provenance.path_in_repo(config_path, repo_root)
+        or os.path.relpath(config_path, repo_root),
     )
     if found.differs:
         report = check(found.differs)

@@ -306,6 +306,7 @@ class _Checker:
                     rollout_tables={c: layout.rollout_table(c) for c in conditions},
                     nominal_files={c: layout.nominal_episode(c) for c in conditions},
                     analysis_slice=config_slice("analysis", self.config),
+                    repo_root=self.repo_root,
                 ),
             ),
         )
@@ -391,6 +392,7 @@ class _Checker:
                         study_slice=config_slice("dose_response", config),
                         states_path=layout.states,
                         tables=tables,
+                        repo_root=self.repo_root,
                     )
 
             if not self.is_current(*inputs):
