@@ -27,6 +27,14 @@ FALSIFIER = {
 
 
 CATEGORIES = ("never grasped", "slipped during the lift")
+# The task's categories in order (the gantry's), as the analysis stage passes them.
+TASK_CATEGORIES = (
+    "simulation unhealthy",
+    "knocked or flung away",
+    "never grasped",
+    "slipped during the lift",
+    "dropped during the hold",
+)
 
 
 def _experiment(n=60, seed=0, slow_rate=0.9, fast_rate=0.5):
@@ -60,9 +68,10 @@ def _summary(states, outcomes, **over):
         states=states,
         outcomes=outcomes,
         nominal={"fast": True, "slow": False},
-        lift_times={"fast": 0.15, "slow": 1.5},
+        condition_parameters={"fast": {"lift_time": 0.15}, "slow": {"lift_time": 1.5}},
         falsifier=over.get("falsifier", FALSIFIER),
         analysis=over.get("analysis", ANALYSIS),
+        categories=over.get("categories", TASK_CATEGORIES),
     )
 
 
@@ -191,6 +200,15 @@ def test_failure_counts_add_up_to_failures_in_taxonomy_order():
         assert counts["never grasped"] == sum(1 for i in failed if i % 2 == 0)
 
 
+def test_failure_counts_follow_the_task_and_keep_a_category_it_does_not_list():
+    states, outcomes, fast, _ = _experiment(n=50, seed=4)
+    summary = _summary(states, outcomes, categories=("simulation unhealthy", "fell"))
+    counts = summary["failures"]["fast"]
+    # the task's categories first (zeros kept), then the others the episodes name, sorted
+    assert list(counts) == ["simulation unhealthy", "fell", *sorted(CATEGORIES)]
+    assert counts["fell"] == 0 and sum(counts.values()) == int((~fast).sum())
+
+
 @pytest.mark.parametrize(("n", "met"), [(196, True), (195, False)])
 def test_sample_size_plan_is_checked(n, met):
     states, outcomes, *_ = _experiment(n=n)
@@ -198,7 +216,7 @@ def test_sample_size_plan_is_checked(n, met):
         states=states,
         outcomes=outcomes,
         nominal={"fast": True, "slow": True},
-        lift_times={"fast": 0.15, "slow": 1.5},
+        condition_parameters={"fast": {"lift_time": 0.15}, "slow": {"lift_time": 1.5}},
         falsifier=FALSIFIER,
         analysis=ANALYSIS,
         sample_size={"target_halfwidth": 0.07},

@@ -58,7 +58,7 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
         "replay/failures.rrd",
         "replay/failures.parquet",
         "report.md",
-        "figures/cube_height.svg",
+        "figures/sample_traces.svg",
     ):
         assert (results / rel).is_file(), rel
     for condition in ("fast", "slow"):
@@ -184,7 +184,7 @@ def test_snakemake_html_report_holds_figures_and_summary(built, tmp_path):
     run(built, "--report", str(out))
     html = out.read_text(errors="replace")
     assert out.stat().st_size > 100_000
-    for name in ("success_by_condition.png", "cube_height.png", "summary.json", "report.md"):
+    for name in ("success_by_condition.png", "sample_traces.png", "summary.json", "report.md"):
         assert name in html
 
 

@@ -21,12 +21,14 @@ from mjtrial.protocol import PROTOCOL
 from mjtrial.recording import read_episode
 from mjtrial.report.figures import CONDITION_PALETTE, condition_colors
 from mjtrial.report.text import render_report
-from mjtrial.report.traces import TRACES_PER_OUTCOME, cube_height_traces
+from mjtrial.report.traces import TRACES_PER_OUTCOME, sample_traces
+from mjtrial.simulate import load_model
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.manifest import write_manifest
 from mjtrial.stages.rollout import gather_condition, run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
+from mjtrial.task import BoundTask, load_task
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -104,12 +106,13 @@ def experiment(tmp_path_factory) -> dict:
         repo_dir=root,
     )
     manifest = json.loads(manifest_path.read_text())
+    bound = BoundTask.of(load_task(config["task"], repo_root=root), load_model(model_file))
     figure_args = dict(
         summary=summary,
+        bound=bound,
         rollout_tables=tables,
         recordings=recordings,
         conditions=config["conditions"],
-        timestep=manifest["model"]["timestep"],
         stamp=stamp,
     )
     figures = report.write_figures(**figure_args, out_dir=layout.figures_dir)
@@ -225,9 +228,9 @@ def test_results_tables_hold_exactly_the_summary_numbers(experiment):
     text, summary = experiment["text"], experiment["summary"]
     rows = _table_after(text, "## Results")
     assert [r[0] for r in rows] == list(summary["conditions"])
-    for name, lift, successes, rate, interval, unhealthy in rows:
+    for name, setting, successes, rate, interval, unhealthy in rows:
         rec = summary["conditions"][name]
-        assert float(lift) == rec["lift_time"]
+        assert setting == f"lift_time {rec['lift_time']:g} s"
         assert successes == f"{rec['successes']}/{rec['n']}"
         assert float(rate) == pytest.approx(rec["rate"], abs=5e-4)
         low, high = (float(x) for x in interval.strip("[]").split(","))
@@ -274,15 +277,15 @@ def test_figure_links_point_to_files(experiment):
         assert (folder / link).is_file(), link
 
 
-def test_cube_height_traces_are_the_lowest_ids_recordings_on_the_protocol_clock(experiment):
-    args, timestep = experiment["figure_args"], experiment["manifest"]["model"]["timestep"]
+def test_sample_traces_are_the_lowest_ids_recordings_on_the_protocol_clock(experiment):
+    args = experiment["figure_args"]
     conditions = experiment["config"]["conditions"]
     lift_times = {name: c["lift_time"] for name, c in conditions.items()}
-    traces = cube_height_traces(
+    traces = sample_traces(
+        bound=args["bound"],
         rollout_tables=args["rollout_tables"],
         recordings=args["recordings"],
         conditions=conditions,
-        timestep=timestep,
     )
     p = PROTOCOL
     close_start = p.settle_time + p.descend_segments * p.segment_time + p.pre_close_time
@@ -298,21 +301,21 @@ def test_cube_height_traces_are_the_lowest_ids_recordings_on_the_protocol_clock(
         # Phase boundaries and the episode's end from the protocol's durations (the built-in
         # durations are whole multiples of the timestep).
         lift_time = lift_times[name]
-        assert t.close_start == pytest.approx(close_start)
-        assert t.lift_start == pytest.approx(close_start + p.close_time)
-        assert t.lift_end == pytest.approx(close_start + p.close_time + lift_time)
-        assert t.time[-1] == pytest.approx(t.lift_end + p.hold_time)
+        assert t.marks["close"] == pytest.approx(close_start)
+        assert t.marks["lift"] == pytest.approx(close_start + p.close_time)
+        assert t.marks["lift end"] == pytest.approx(close_start + p.close_time + lift_time)
+        assert t.time[-1] == pytest.approx(t.marks["lift end"] + p.hold_time)
         assert t.log_interval == pytest.approx(1 / rate_hz)
         assert np.diff(t.time)[:-1] == pytest.approx(np.full(t.time.size - 2, 1 / rate_hz))
         for row, state_id in enumerate(t.state_ids):
             logged = read_episode(args["recordings"][name], condition=name, state_id=state_id)
             assert t.time == pytest.approx(logged["time"])  # healthy episodes: same clock
-            assert np.array_equal(t.height[row], logged["cube_height"])
-            ended_above = t.height[row, -1] > p.success_height
+            assert np.array_equal(t.values[row], logged["cube_height"])
+            ended_above = t.values[row, -1] > p.success_height
             assert ended_above == outcome[state_id]
 
 
-def test_cube_height_traces_refuse_a_table_the_recordings_disagree_with(experiment, tmp_path):
+def test_sample_traces_refuse_a_table_the_recordings_disagree_with(experiment, tmp_path):
     args = experiment["figure_args"]
     name, path = next(iter(experiment["tables"].items()))
     table = pq.read_table(path)
@@ -320,20 +323,20 @@ def test_cube_height_traces_refuse_a_table_the_recordings_disagree_with(experime
     stale = tmp_path / "stale.parquet"
     moved = pc.add(table.column(column), 0.01)
     pq.write_table(table.set_column(column, "final_height", moved), stale)
-    with pytest.raises(ValueError, match="stale"):
-        cube_height_traces(
+    with pytest.raises(ValueError, match="recorded final_height .* differs .* stale"):
+        sample_traces(
+            bound=args["bound"],
             rollout_tables={name: stale},
             recordings=args["recordings"],
             conditions={name: experiment["config"]["conditions"][name]},
-            timestep=args["timestep"],
             per_outcome=1,
         )
     with pytest.raises(ValueError, match="steps recorded"):
-        cube_height_traces(
+        sample_traces(
+            bound=args["bound"],
             rollout_tables={name: path},
             recordings=args["recordings"],
             conditions={name: {"lift_time": 2 * args["conditions"][name]["lift_time"]}},
-            timestep=args["timestep"],
             per_outcome=1,
         )
 

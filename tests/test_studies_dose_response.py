@@ -62,6 +62,42 @@ def test_trend_matches_a_hand_written_clustered_logistic_fit():
     assert got["odds_ratio_per_doubling"] == pytest.approx(2**slope, rel=1e-8)
 
 
+def test_trend_on_the_linear_scale_matches_the_fit_on_the_value_itself():
+    """A sweep from 0 (a latency) is fitted on the value: same reference, x not logged."""
+    rng = np.random.default_rng(6)
+    values = np.array([0.0, 0.01, 0.02, 0.04])
+    x = np.repeat(values, N)
+    groups = np.tile(np.arange(N), len(values))
+    y = rng.random(x.size) < 1 / (1 + np.exp(-(1.5 - 40.0 * x + rng.normal(0, 1, N)[groups])))
+    got = trend(x, y, groups, confidence=0.95, scale="linear")
+    slope, se, low, high = logistic_cluster_reference(x, y.astype(float), groups, 0.95)
+    assert got["slope_log_odds_per_unit_value"] == pytest.approx(slope, rel=1e-8)
+    assert (got["low"], got["high"]) == pytest.approx((low, high), rel=1e-8)
+    assert got["odds_ratio_over_range"] == pytest.approx(np.exp(slope * 0.04), rel=1e-8)
+    assert "log(value)" not in got["method"] and "on the value" in got["method"]
+
+
+def test_a_sweep_through_zero_is_summarized_on_the_linear_scale():
+    tables = {
+        v: table(np.r_[np.zeros(k, bool), np.ones(N - k, bool)])
+        for v, k in [(0.0, 0), (0.02, 4), (0.04, 9)]
+    }
+    out = summarize_dose_response(
+        tables,
+        parameter="latency",
+        states=states(),
+        band_parameter="mass",
+        band_edges=[0.05, 0.6],
+        analysis=ANALYSIS,
+        margin=0.05,
+        reference=0.0,
+        units={"latency": "s", "mass": "kg"},
+    )
+    assert out["scale"] == "linear" and out["unit"] == "s" and out["band_unit"] == "kg"
+    assert out["trend"]["slope_log_odds_per_unit_value"] < 0
+    assert out["values_within_margin"] == [0.0]
+
+
 def test_trend_slope_on_a_saturated_two_value_design():
     # Two values: the MLE slope is the difference of the empirical logits over that of log x.
     v = np.repeat([0.2, 1.0], 10)
@@ -86,7 +122,8 @@ def summarize_sweep():
         sweep(),
         parameter="lift_time",
         states=states(),
-        mass_edges=[0.05, 0.3, 0.6],
+        band_parameter="mass",
+        band_edges=[0.05, 0.3, 0.6],
         analysis=ANALYSIS,
         margin=0.05,
     )
@@ -119,7 +156,7 @@ def test_rates_pooled_and_per_mass_band():
     assert (first["lift_time"], first["successes"], first["n"]) == (0.15, 12, N)
     masses = states()["mass"]
     light = int((masses < 0.3).sum())  # states 0..light-1 are the lighter ones
-    band = first["mass_bands"]
+    band = first["bands"]
     assert [b["n"] for b in band] == [light, N - light]
     assert band[0]["successes"] == light - 8 and band[1]["successes"] == N - light
     assert out["trend"]["slope_log_odds_per_log_value"] > 0
@@ -130,7 +167,8 @@ def test_a_wide_margin_admits_the_shortest_value_and_bad_sweeps_stop():
         sweep(),
         parameter="lift_time",
         states=states(),
-        mass_edges=[0.05, 0.6],
+        band_parameter="mass",
+        band_edges=[0.05, 0.6],
         analysis=ANALYSIS,
         margin=0.99,
     )
@@ -141,7 +179,8 @@ def test_a_wide_margin_admits_the_shortest_value_and_bad_sweeps_stop():
             two,
             parameter="lift_time",
             states=states(),
-            mass_edges=[0.05, 0.6],
+            band_parameter="mass",
+            band_edges=[0.05, 0.6],
             analysis=ANALYSIS,
             margin=0.05,
         )

@@ -254,7 +254,7 @@ def test_deleted_manifest_is_missing(work):
 @pytest.mark.parametrize(
     ("rel", "output"),
     [
-        ("figures/cube_height.png", "figures/cube_height.png"),
+        ("figures/sample_traces.png", "figures/sample_traces.png"),
         ("report.md", "report.md"),
     ],
 )

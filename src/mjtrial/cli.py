@@ -9,6 +9,7 @@ from pathlib import Path
 
 from mjtrial import foreign_package, provenance, stats
 from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
+from mjtrial.scaffold import ScaffoldError, new_task
 
 
 def _provenance(args: argparse.Namespace) -> int:
@@ -138,6 +139,24 @@ def _verify(args: argparse.Namespace) -> int:
     return report.exit_code
 
 
+def _new_task(args: argparse.Namespace) -> int:
+    root = Path(args.repo_root or ".")
+    try:
+        written = new_task(args.name, repo_root=root)
+    except ScaffoldError as err:
+        print(f"mjtrial {err}", file=sys.stderr)
+        return 2
+    for path in written:
+        print(f"wrote {path}")
+    config = written[-1].relative_to(root).as_posix()
+    print(
+        f"run it:    snakemake -c2 --configfile {config}\n"
+        f"studies:   snakemake -c2 --configfile {config} studies\n"
+        f"check it:  mjtrial verify results/{args.name}"
+    )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -187,6 +206,14 @@ def main(argv: list[str] | None = None) -> int:
         "mjtrial.verify.DEFAULT_RESIMULATE; 0: none)",
     )
     p.set_defaults(run=_verify)
+    p = sub.add_parser(
+        "new-task",
+        help="write tasks/NAME/ (a model and task.py to edit) and config/NAME.yaml, which run "
+        "as generated",
+    )
+    p.add_argument("name", help="the task's name: lower-case letters, digits and _")
+    p.add_argument("--repo-root", help="the repository to write into (default: .)")
+    p.set_defaults(run=_new_task)
     args = parser.parse_args(argv)
     return args.run(args)
 
