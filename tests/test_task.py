@@ -26,7 +26,7 @@ from mjtrial.task import (
     TaskError,
     load_task,
 )
-from mjtrial.task_checks import check_observations, preflight
+from mjtrial.task_checks import check_observations, run_task_code
 
 CARTPOLE_TASK = "tasks/cartpole_latency/task.py"
 THRESHOLDS = {"fall_angle": 0.5}
@@ -276,7 +276,7 @@ BAD_TASKS = [
 def test_bad_task_code_is_one_line_naming_the_task_file(cartpole, case, change, message):
     bound = _bad(cartpole, **change(cartpole))
     with pytest.raises(TaskError, match=message) as err:
-        preflight(bound, {"fast": {"latency": 0.0, "duration": 1.5}}, thresholds=THRESHOLDS)
+        run_task_code(bound, {"fast": {"latency": 0.0, "duration": 1.5}}, thresholds=THRESHOLDS)
     assert str(err.value).startswith(str(cartpole.source))
     assert "\n" not in str(err.value)
 
@@ -293,7 +293,7 @@ def test_missing_model_element_names_the_parameter(cartpole):
 
 
 def test_the_cartpole_task_passes_its_preflight(cartpole):
-    preflight(
+    run_task_code(
         BoundTask.of(cartpole),
         {"zero": {"latency": 0.0}, "twenty": {"latency": 0.02}},
         thresholds=THRESHOLDS,

@@ -15,7 +15,7 @@ from mjtrial.protocol import PROTOCOL, control_sequence
 from mjtrial.simulate import episode_outcomes, iter_episode_batches, reference_episode
 from mjtrial.stages.rollout import rollout_columns
 from mjtrial.task import BoundTask, load_task
-from mjtrial.task_checks import preflight
+from mjtrial.task_checks import run_task_code
 
 THRESHOLDS = {
     "lifted_height": 0.03,
@@ -86,7 +86,7 @@ def test_gantry_task_equals_the_engine_before_tasks(
 
 
 def test_gantry_task_passes_its_preflight(gantry):
-    preflight(
+    run_task_code(
         gantry, {"fast": {"lift_time": 0.15}, "slow": {"lift_time": 1.5}}, thresholds=THRESHOLDS
     )
     assert PROTOCOL.hold_time == gantry.task.parameters({"lift_time": 1})["hold_time"]

@@ -151,7 +151,7 @@ def _new_task(args: argparse.Namespace) -> int:
     config = written[-1].relative_to(root).as_posix()
     print(
         f"run it:    snakemake -c2 --configfile {config}\n"
-        f"studies:   snakemake -c2 --configfile {config} studies\n"
+        f"studies:   snakemake -c2 studies --configfile {config}\n"
         f"check it:  mjtrial verify results/{args.name}"
     )
     return 0

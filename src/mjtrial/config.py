@@ -28,7 +28,7 @@ from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simulate import load_model
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
-from mjtrial.task_checks import check_observations
+from mjtrial.task_checks import check_observations, run_task_code
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -480,6 +480,23 @@ def check_config(
         fail("task", str(err))
     for key, expectation in problems:
         fail(key, f"{config['model']}: {expectation}" if key == "model" else expectation)
+    # The task's own code on every condition's nominal episode: a bad shape, an exception, a
+    # non-finite control or a parameter never applied is one line here, before any rollout.
+    taxonomy = config["failure_taxonomy"]
+    given = {t.name: float(taxonomy.get(t.name, t.default)) for t in task.thresholds}
+    printer = mujoco.get_mju_user_warning()  # an unstable model is said below, in one line
+    mujoco.set_mju_user_warning(lambda _: None)
+    try:
+        run_task_code(
+            bound,
+            all_conditions(config),
+            thresholds=given,
+            allowed_privileged=config.get("privileged_observations") or {},
+        )
+    except TaskError as err:
+        fail("task", str(err))
+    finally:
+        mujoco.set_mju_user_warning(printer)
     unstable = _unstable(bound, config["conditions"], config["failure_taxonomy"])
     if unstable:
         fail("model", f"{config['model']}: {unstable}")

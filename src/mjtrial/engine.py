@@ -17,7 +17,16 @@ from mujoco import rollout
 
 from mjtrial import closed_loop
 from mjtrial.model_spec import FULLPHYSICS, halted, nonfinite, steps_simulated
-from mjtrial.task import UNHEALTHY, BoundTask, ClosedLoop, Episodes, OpenLoop, TaskError, call
+from mjtrial.task import (
+    UNHEALTHY,
+    BoundTask,
+    ClosedLoop,
+    Episodes,
+    OpenLoop,
+    TaskError,
+    call,
+    expect_rows,
+)
 
 # Episodes per batch in the pipeline. Each episode of a batch holds its own model copy and
 # trajectories until the batch is classified and handed to the recording writer: 16 keep a
@@ -160,7 +169,11 @@ def iter_batches(
                 raise TaskError(
                     f"{task.source or task.name}: measure: expected a value for {missing[0]!r}"
                 )
-            success = np.asarray(call(task, "success", task.success, episodes), dtype=bool) & ok
+            for m in task.own_measures:
+                expect_rows(task, f"measure[{m.name!r}]", measures[m.name], size)
+            success = call(task, "success", task.success, episodes)
+            expect_rows(task, "success", success, size, dtype=bool)
+            success = np.asarray(success, dtype=bool) & ok
             warning = np.full(size, "", dtype=object)
             for i in np.flatnonzero(~ok):
                 if isinstance(controller, OpenLoop):

@@ -483,6 +483,18 @@ class Task:
         }
 
 
+def expect_rows(task: Task, function: str, value: Any, n: int, *, dtype=None) -> None:
+    """Refuse (one line) what a task function returned unless it is one value per episode."""
+    where, shape = task.source or task.name, np.shape(value)
+    if shape != (n,):
+        raise TaskError(
+            f"{where}: {function}: expected an array of shape ({n},), one value per episode, "
+            f"got shape {shape}"
+        )
+    if dtype is bool and np.asarray(value).dtype != bool:
+        raise TaskError(f"{where}: {function}: expected booleans, got {np.asarray(value).dtype}")
+
+
 def call(task: Task, function: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """`fn(*args, **kwargs)`, a function of the task's: an exception in it becomes a one-line
     `TaskError` naming the task file and the function."""

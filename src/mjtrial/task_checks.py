@@ -9,14 +9,22 @@ Also the course's cheap test of a policy: an observation without a real-world so
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
 
 import mujoco
 import numpy as np
 
 from mjtrial.closed_loop import PolicyError, check_batch_independence
 from mjtrial.engine import iter_batches
-from mjtrial.task import BoundTask, ClosedLoop, Episodes, OpenLoop, Task, TaskError, call
+from mjtrial.task import (
+    BoundTask,
+    ClosedLoop,
+    Episodes,
+    OpenLoop,
+    Task,
+    TaskError,
+    call,
+    expect_rows,
+)
 
 
 def _where(task: Task) -> str:
@@ -48,24 +56,11 @@ def check_observations(task: Task, allowed: Mapping[str, str]) -> dict[str, str]
     return used
 
 
-def _expect_rows(task: Task, function: str, value: Any, n: int, *, dtype=None) -> None:
-    shape = np.shape(value)
-    if shape != (n,):
-        raise TaskError(
-            f"{_where(task)}: {function}: expected an array of shape ({n},), one value per "
-            f"episode, got shape {shape}"
-        )
-    if dtype is bool and np.asarray(value).dtype != bool:
-        raise TaskError(
-            f"{_where(task)}: {function}: expected booleans, got {np.asarray(value).dtype}"
-        )
-
-
 def nominal_values(task: Task) -> dict[str, np.ndarray]:
     return {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
 
 
-def preflight(
+def run_task_code(
     bound: BoundTask,
     conditions: Mapping[str, Mapping[str, float]],
     *,
@@ -120,15 +115,15 @@ def preflight(
 
 def _check_outcome(task: Task, episodes: Episodes, thresholds: Mapping[str, float]) -> None:
     n = len(episodes.physics)
-    _expect_rows(task, "success", call(task, "success", task.success, episodes), n, dtype=bool)
+    expect_rows(task, "success", call(task, "success", task.success, episodes), n, dtype=bool)
     measures = call(task, "measure", task.measure, episodes)
     for m in task.own_measures:
         if m.name not in measures:
             raise TaskError(f"{_where(task)}: measure: expected a value for {m.name!r}")
-        _expect_rows(task, f"measure[{m.name!r}]", measures[m.name], n)
+        expect_rows(task, f"measure[{m.name!r}]", measures[m.name], n)
     for c in task.failure_categories:
         hit = call(task, f"failure category {c.name!r}", c.test, measures, thresholds)
-        _expect_rows(task, f"failure category {c.name!r}", hit, n, dtype=bool)
+        expect_rows(task, f"failure category {c.name!r}", hit, n, dtype=bool)
 
 
 def _model_fingerprint(model) -> bytes:
