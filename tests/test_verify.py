@@ -293,6 +293,17 @@ def test_any_change_to_a_folder_of_recordings_is_tampering(work, change):
     assert report.counts()[Status.TAMPERED] == 1
 
 
+def test_a_figure_of_an_earlier_layout_is_skipped_not_stale(work):
+    """An upgrade renamed the report's figures (cube_height -> sample_traces): the old files,
+    stamped then, are no output of the run, and verify says so instead of calling them stale."""
+    figures = work / RESULTS / "figures"
+    shutil.copy(figures / "sample_traces.png", figures / "cube_height.png")
+    report = verify(work)
+    assert report.ok, report.format()
+    assert [s.path for s in report.skipped] == [f"{RESULTS}/figures/cube_height.png"]
+    assert "no current report draws" in report.skipped[0].reason
+
+
 def test_replay_recording_is_skipped_not_failed(work, capsys):
     stamp = provenance.read_stamp(work / STATES) | {"rule": "replay"}
     provenance.write_json({"episode": 1}, work / RESULTS / "replay" / "extra.json", stamp)

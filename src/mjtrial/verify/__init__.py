@@ -35,7 +35,7 @@ from typing import Any
 from mjtrial import provenance, recording  # noqa: F401 - recording registers the .rrd reader
 from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
-from mjtrial.layout import STUDIES, Layout, shard_ids
+from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout, shard_ids
 from mjtrial.verify.chain import (
     STAMPED_SUFFIXES,
     Current,
@@ -135,6 +135,14 @@ def _is_rollout_output(layout: Layout, path: Path) -> bool:
     """Whether `path` lies where rollouts go (`rollouts/`, `variants/*/rollouts/`)."""
     rel = path.relative_to(layout.root).parts
     return rel[:1] == ("rollouts",) or (rel[:1] == ("variants",) and rel[2:3] == ("rollouts",))
+
+
+def _is_old_figure(layout: Layout, path: Path) -> bool:
+    """Whether `path` is a figure no current report or study draws (one renamed since)."""
+    return path.parent == layout.figures_dir and path.stem not in {
+        *FIGURES,
+        *STUDY_FIGURES.values(),
+    }
 
 
 def _seals(layout: Layout) -> list[Path]:
@@ -246,6 +254,9 @@ def verify_results(
             leftovers.append(
                 Skipped(rel, "left by an earlier configuration; not one of its outputs")
             )
+            continue
+        if _is_old_figure(layout, file):
+            leftovers.append(Skipped(rel, "a figure no current report draws (an earlier layout)"))
             continue
         try:
             stamps[rel] = provenance.read_stamp(file)
