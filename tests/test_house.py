@@ -47,6 +47,35 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     return None
 
 
+# The built-in tasks' own words: their elements, parameters and protocol. The package holds
+# none of them; a task's words live beside its task file (tasks/<name>/).
+TASK_WORDS = re.compile(
+    r"\b(cart-pole|cartpole|cart|pole|cubes?|gripper|gantry|carriage|fingers?|pads?|lift_time"
+    r"|lifts?|grasp|yaw|latency_20ms)\b",
+    re.IGNORECASE,
+)
+
+
+def task_words(text: str) -> list[str]:
+    return sorted({m.group(0).lower() for m in TASK_WORDS.finditer(text)})
+
+
+def test_the_package_names_no_built_in_task():
+    found = {
+        name: words
+        for name, path in MODULES.items()
+        if (words := task_words(path.read_text(encoding="utf-8")))
+    }
+    assert not found, found
+
+
+def test_task_words_are_found_where_they_are():
+    assert task_words("the cube's yaw; a cart-pole") == ["cart-pole", "cube", "yaw"]
+    assert task_words("a cartesian polecat, a lifter") == []
+    gantry = REPO_ROOT / "tasks" / "gantry_lift"
+    assert "cube" in task_words((gantry / "model_spec.py").read_text())
+
+
 def test_no_import_cycle():
     graph = {
         name: codehash.imported_modules(path.read_text(), module=name) - {name}
