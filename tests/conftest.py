@@ -78,6 +78,15 @@ def run_snakemake(workdir: Path, *args: str, check: bool = True, env: dict | Non
     return proc
 
 
+def error_lines(proc) -> list[str]:
+    """What a failed Snakemake run printed on stderr, less its note on the profile it used."""
+    return [
+        line
+        for line in proc.stderr.splitlines()
+        if line.strip() and not line.startswith("Using workflow specific profile")
+    ]
+
+
 @pytest.fixture(scope="session")
 def built(tmp_path_factory) -> Path:
     """A small copy of the experiment built once by Snakemake: 12 states in shards of 5 (two
