@@ -390,7 +390,7 @@ class Task:
     check_model: Callable[[mujoco.MjModel], None] | None = None
     keyframe: int | None = None  # the reset pose (None: the model's qpos0)
     # The report's and the manifest's words (the package has none of a task's own):
-    success_text: str = ""  # when an episode succeeds, as a sentence's end ("the block's centre ...")
+    success_text: str = ""  # when an episode succeeds, a sentence's end ("the block's centre ...")
     nominal_text: str = ""  # the nominal state in words (default: each parameter's value)
     limitations: tuple[str, ...] = ()  # what the experiment does not show, one point each
     trace: str | None = None  # the series drawn for sample episodes (default: the first)

@@ -17,8 +17,8 @@ Layout of a recording (names in :mod:`~mjtrial.recording.names`):
 * the signals (``Scalars``), on the entity of the body they belong to, named by a static
   ``SeriesLines``: the task's series (`mjtrial.task.Series`), each on the body it names.
 * recording properties ``episode`` (one struct: condition, state id and parameters, success,
-  the task's recorded measures, failure category or null, ``log_every``, ``n_steps``) and ``provenance`` (the
-  stamp as JSON, see :mod:`mjtrial.provenance`).
+  the task's recorded measures, failure category or null, ``log_every``, ``n_steps``) and
+  ``provenance`` (the stamp as JSON, see :mod:`mjtrial.provenance`).
 
 Time series use one timeline, ``sim_time``: simulated seconds, stored by rerun as integer
 nanoseconds. `names.default_blueprint` lays out the scene beside one plot per title of the task's

@@ -1,4 +1,4 @@
-"""Dose-response: success against one protocol parameter (a duration, a gain, a latency), on the same states.
+"""Dose-response: success against one protocol parameter (a duration, a gain, a latency).
 
 Every swept value runs on the same initial states, so the outcomes are paired (clustered by
 state) and every comparison here respects that: the trend's standard errors are clustered by
