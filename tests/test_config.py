@@ -172,7 +172,10 @@ def test_duplicate_key_is_named_with_its_line(tmp_path):
 # The schema of conditions, thresholds, a sweep's parameter and the bands is the task's.
 CARTPOLE_SOURCE = "config/cartpole_latency.yaml"
 CARTPOLE = yaml.safe_load((REPO_ROOT / CARTPOLE_SOURCE).read_text())
-CARTPOLE_PARAMETERS = "['control_period', 'duration', 'latency']"
+CARTPOLE_PARAMETERS = (
+    "['angle_gain_scale', 'cart_gain_scale', 'cart_rate_gain_scale', 'control_period', "
+    "'duration', 'latency', 'rate_gain_scale']"
+)
 
 
 def test_the_cartpole_config_is_valid():
@@ -217,7 +220,8 @@ def test_the_cartpole_config_is_valid():
             CARTPOLE,
             CARTPOLE_SOURCE,
             lambda c: c["sweep"].update(parameter="lift_time"),
-            "sweep.parameter: expected one of ['latency', 'duration', 'control_period'], "
+            "sweep.parameter: expected one of ['latency', 'duration', 'control_period', "
+            "'cart_gain_scale', 'angle_gain_scale', 'cart_rate_gain_scale', 'rate_gain_scale'], "
             "got 'lift_time'",
         ),
         (

@@ -177,7 +177,7 @@ class ProtocolParameter:
 def _number_schema(p: ProtocolParameter | Threshold) -> dict[str, Any]:
     out: dict[str, Any] = {
         "type": "integer" if getattr(p, "integer", False) else "number",
-        "description": f"{p.description} ({p.unit})".strip(),
+        "description": f"{p.description} ({p.unit})".strip() if p.unit else p.description,
     }
     # a whole bound as an integer: the config's messages say "expected > 0", not "> 0.0"
     if p.minimum is not None:

@@ -49,6 +49,10 @@ JUDGED_OVER = 1.0  # s: the last second of the episode
 # LQR weights on [x, angle, x rate, angle rate] and on the motor force.
 STATE_COST = np.diag([10.0, 50.0, 1.0, 1.0])
 CONTROL_COST = np.eye(1) * 0.02
+# Protocol parameters that scale the LQR gain's columns, in the gain's state order: a method
+# with free parameters (a tuned controller) scales the designed gain; 1.0 is the design itself.
+GAIN_SCALES = ("cart_gain_scale", "angle_gain_scale", "cart_rate_gain_scale", "rate_gain_scale")
+GAIN_SCALED = ("cart position", "pole angle", "cart velocity", "pole rate")
 
 
 def _steps(seconds: float, model: mujoco.MjModel) -> int:
@@ -76,8 +80,10 @@ def design_gain(control_period: float) -> np.ndarray:
 
 def policy(model: mujoco.MjModel, params) -> EncoderFeedback:
     per_control = _steps(params["control_period"], model)
+    # times 1.0 is exact: with the default scales the gain is the design's, bit for bit
+    scales = np.array([[params[name] for name in GAIN_SCALES]])
     return EncoderFeedback(
-        design_gain(params["control_period"]),
+        design_gain(params["control_period"]) * scales,
         period=per_control * model.opt.timestep,
         ctrl_range=model.actuator_ctrlrange,
     )
@@ -163,6 +169,17 @@ TASK = Task(
             maximum=0.1,
             exclusive_minimum=True,
             description="time between control instants",
+        ),
+        *(
+            ProtocolParameter(
+                name,
+                "",
+                1.0,
+                minimum=0.2,
+                maximum=3.0,
+                description=f"factor on the LQR gain's {what} column (1: as designed)",
+            )
+            for name, what in zip(GAIN_SCALES, GAIN_SCALED, strict=True)
         ),
     ),
     controller=ClosedLoop(
