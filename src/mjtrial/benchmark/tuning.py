@@ -54,7 +54,7 @@ class TuningResult:
     """The tuned parameters and how they were found (see the module's docstring)."""
 
     parameters: dict[str, float]  # the final choice with the fixed values: the method's condition
-    score: float  # its success rate on every development state
+    score: float  # its rate on every development state (the best of the finalists': optimistic)
     finalists: tuple[dict, ...]  # each: origin, parameters, score on every development state
     tuned: dict[str, tuple[float, float]]
     fixed: dict[str, float]
