@@ -14,7 +14,7 @@ from mjtrial.scaffold import ScaffoldError, new_task
 
 def _provenance(args: argparse.Namespace) -> int:
     # Imported here: rerun-sdk takes about 0.5 s to import, which `mjtrial plan` need not pay.
-    from mjtrial import recording  # noqa: F401 - registers the .rrd stamp reader
+    from mjtrial import crate, recording  # noqa: F401 - register the .rrd and crate readers
 
     try:
         stamp = provenance.read_stamp(args.file)
@@ -162,7 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("provenance", help="print the provenance stamp of an output as JSON")
     p.add_argument(
-        "file", help="any output: .parquet, .json, .md, .png, .svg, .rrd or a folder of recordings"
+        "file",
+        help="any file under results: an output (.parquet, .json, .md, .png, .svg, .rrd, a "
+        "folder of recordings, the crate), a log, or a file inside a folder output",
     )
     p.set_defaults(run=_provenance)
     p = sub.add_parser("plan", help="episodes needed for an interval width or a paired effect")
