@@ -160,11 +160,11 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
         timeout=300,
     )
     lines = [line for line in proc.stdout.splitlines() if line.startswith("stale")]
-    named = {line.split()[1] for line in lines if f"code changed: {module}" in line}
+    named = {line.split()[1].rstrip(":") for line in lines if f"code changed: {module}" in line}
     assert proc.returncode != 0 and named
     # Every output of an importing stage, and only those, names the module.
     for line in proc.stdout.splitlines():
-        path = line.split()[1] if line.startswith(("ok", "stale")) else None
+        path = line.split()[1].rstrip(":") if line.startswith(("ok", "stale")) else None
         if path is None:
             continue
         assert (path in named) == (_stage_of(path) in importing), line

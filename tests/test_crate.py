@@ -12,7 +12,8 @@ import shutil
 import socket
 import subprocess
 import sys
-from datetime import datetime
+import time
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
@@ -336,6 +337,24 @@ def test_a_crate_whose_times_cannot_hold_its_stamps_is_tampered(work):
     assert "analysis starts at 2099-01-01" in report[CRATE].reasons[0]
 
 
+def test_an_output_forged_after_its_job_ended_is_seen_by_the_crates_times(work):
+    """A shard table rewritten under a fresh stamp, everything after it rebuilt by Snakemake:
+    the stamps and seals agree again, but the stamp was made after the job that Snakemake
+    records ran."""
+    import pyarrow.parquet as pq
+    from conftest import run_snakemake
+
+    shard = work / LAYOUT.shard_table("slow", "00001")
+    time.sleep(1.1)  # stamps have a resolution of one second
+    made = datetime.now(timezone.utc) + timedelta(seconds=120)  # beyond the crate's slack
+    stamp = dict(provenance.read_stamp(shard), created_utc=made.strftime("%Y-%m-%dT%H:%M:%SZ"))
+    provenance.write_parquet(pq.read_table(shard).replace_schema_metadata(None), shard, stamp)
+    run_snakemake(work)
+    report = verify(work)
+    assert [o.path for o in report.outputs if o.status is not Status.OK] == [CRATE]
+    assert "rollout:slow#00001 ends at" in report[CRATE].reasons[0]
+
+
 def test_a_missing_crate_is_missing(work):
     (work / LAYOUT.crate).unlink()
     report = verify(work)
@@ -372,3 +391,27 @@ def test_snakemake_rebuilds_a_deleted_crate_and_verify_is_ok_again(work):
     assert verify(work).ok
     proc = run_snakemake(work, "-n")
     assert "Nothing to be done" in proc.stdout + proc.stderr
+
+
+def test_the_license_the_config_gives_is_linked_and_none_is_said(built, entities):
+    from mjtrial.crate.check import covered_seals, recorded_times
+    from mjtrial.crate.graph import crate_metadata
+    from mjtrial.crate.record import read_record
+
+    assert entities["./"]["license"].startswith("No license chosen")  # the built-in config
+    stamp = json.loads(entities["#mjtrial-provenance"]["value"])
+    for given, identifier in [
+        ("CC-BY-4.0", "https://spdx.org/licenses/CC-BY-4.0"),
+        ("https://example.org/terms", "https://example.org/terms"),
+    ]:
+        licensed = {**stamp, "config_slice": {"license": given}}
+        record = read_record(
+            LAYOUT.__class__(built / LAYOUT.root),
+            repo_root=built,
+            seals=[built / p for p in covered_seals(stamp)],
+            crate_stamp=licensed,
+            times=recorded_times(entities),
+        )
+        graph_ = {e["@id"]: e for e in crate_metadata(record)["@graph"]}
+        assert graph_["./"]["license"] == {"@id": identifier}
+        assert graph_[identifier]["name"] == given

@@ -115,7 +115,7 @@ def test_dose_response_covers_the_sweep_on_the_same_states(studied):
     assert summary["per_value"][0]["successes"] == fast["successes"]
 
 
-def test_study_outputs_are_stamped_reported_sealed_and_verified(studied):
+def test_study_outputs_are_stamped_reported_sealed_and_verified(studied, tmp_path):
     for study in ("sensitivity", "dose_response"):
         for path in [
             LAYOUT.study_summary(study),
@@ -146,10 +146,12 @@ def test_study_outputs_are_stamped_reported_sealed_and_verified(studied):
         studied / LAYOUT.root, config_path=studied / "config" / "config.yaml", repo_root=studied
     )
     assert report.ok, report.format()
-    figure = studied / LAYOUT.study_figure_files("sensitivity")[1]  # the SVG
+    work = tmp_path / "copy"  # edited in a copy: the other tests read `studied` as built
+    shutil.copytree(studied, work, symlinks=True)
+    figure = work / LAYOUT.study_figure_files("sensitivity")[1]  # the SVG
     figure.write_text(figure.read_text().replace("<svg", "<svg data-x='1'", 1))
     report = verify_results(
-        studied / LAYOUT.root, config_path=studied / "config" / "config.yaml", repo_root=studied
+        work / LAYOUT.root, config_path=work / "config" / "config.yaml", repo_root=work
     )
     rel = (LAYOUT.study_figure_files("sensitivity")[1]).as_posix()
     assert report[rel].status is Status.TAMPERED
