@@ -30,7 +30,7 @@ from mujoco import rollout
 from mjtrial import REPO_ROOT
 from mjtrial.closed_loop import Pushes, Timing, run_batch
 from mjtrial.controllers import EncoderFeedback, lqr_gain
-from mjtrial.model_spec import FULLPHYSICS
+from mjtrial.physics import FULLPHYSICS
 
 MODEL = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
 STEPS_PER_CONTROL = 5

@@ -20,21 +20,26 @@ import tempfile
 import time
 from pathlib import Path
 
+# The gantry task's own modules (protocol, reference stepper) as the package `gantry_lift`.
+sys.path.append(str(Path(__file__).resolve().parents[1] / "tasks"))
+
 import mujoco
 import numpy as np
 import pyarrow.parquet as pq
 import yaml
+from gantry_lift.protocol import control_sequence
+from gantry_lift.simulate import episode_model, initial_physics_state, reference_episode
+from gantry_lift.states import STATE_PARAMETERS, states_from_table
 from mujoco import rollout
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
-from mjtrial.protocol import control_sequence
+from mjtrial.physics import load_model
 from mjtrial.replay import replay_episode
-from mjtrial.simulate import episode_model, initial_physics_state, load_model, reference_episode
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
-from mjtrial.states import generate_initial_states, states_from_table
+from mjtrial.states import generate_initial_states
 
 
 def timed(fn):
@@ -59,7 +64,11 @@ def main() -> None:
     print(f"replay logging at {config['recording']['rate_hz']:g} Hz")
     n = args.n or config["states"]["n"]
     s = config["states"]
-    states = states_from_table(generate_initial_states(seed=s["seed"], n=n, ranges=s["ranges"]))
+    states = states_from_table(
+        generate_initial_states(
+            seed=s["seed"], n=n, ranges=s["ranges"], parameters=STATE_PARAMETERS
+        )
+    )
     model_file = REPO_ROOT / config["model"]
     model = load_model(model_file)
     conditions = {name: c["lift_time"] for name, c in config["conditions"].items()}

@@ -40,19 +40,23 @@ import tempfile
 import time
 from pathlib import Path
 
+# The gantry task's own modules (protocol, reference stepper) as the package `gantry_lift`.
+sys.path.append(str(Path(__file__).resolve().parents[1] / "tasks"))
+
 import mujoco
 import numpy as np
 import pyarrow.parquet as pq
 import yaml
+from gantry_lift.protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, hold_steps
+from gantry_lift.states import STATE_PARAMETERS, states_from_table
 
 from mjtrial import REPO_ROOT
 from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
-from mjtrial.protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, hold_steps
-from mjtrial.simulate import load_model
+from mjtrial.physics import load_model
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
-from mjtrial.states import generate_initial_states, states_from_table
+from mjtrial.states import generate_initial_states
 
 WORKFLOW = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")
 RESOURCES = re.compile(r"# resources: wall ([\d.]+) s, cpu ([\d.]+) s")
@@ -95,7 +99,11 @@ def run_plain_loop(config: dict, n: int) -> tuple[float, float, dict[str, np.nda
     """(wall s, CPU s, final heights per condition) of the loop over n states."""
     model = load_model(REPO_ROOT / config["model"])
     s = config["states"]
-    states = states_from_table(generate_initial_states(seed=s["seed"], n=n, ranges=s["ranges"]))
+    states = states_from_table(
+        generate_initial_states(
+            seed=s["seed"], n=n, ranges=s["ranges"], parameters=STATE_PARAMETERS
+        )
+    )
     t0, c0 = time.perf_counter(), time.process_time()
     heights = {
         name: np.array([plain_loop_episode(model, st, c["lift_time"]) for st in states])

@@ -25,7 +25,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="session")
 def gantry_model():
     from mjtrial import model_path
-    from mjtrial.simulate import load_model
+    from mjtrial.physics import load_model
 
     return load_model(model_path("gantry_gripper"))
 
@@ -34,12 +34,17 @@ def gantry_model():
 def evaluation_states():
     """The built-in experiment's evaluation states (seed 2026, n = 200)."""
     import yaml
+    from gantry_lift.states import STATE_PARAMETERS, states_from_table
 
-    from mjtrial.states import generate_initial_states, states_from_table
+    from mjtrial.states import generate_initial_states
 
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     s = config["states"]
-    return states_from_table(generate_initial_states(seed=s["seed"], n=s["n"], ranges=s["ranges"]))
+    return states_from_table(
+        generate_initial_states(
+            seed=s["seed"], n=s["n"], ranges=s["ranges"], parameters=STATE_PARAMETERS
+        )
+    )
 
 
 SNAKEMAKE = str(Path(__import__("sys").executable).parent / "snakemake")
@@ -71,6 +76,15 @@ def run_snakemake(workdir: Path, *args: str, check: bool = True, env: dict | Non
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake {args} failed:\n{proc.stdout}\n{proc.stderr}")
     return proc
+
+
+def error_lines(proc) -> list[str]:
+    """What a failed Snakemake run printed on stderr, less its note on the profile it used."""
+    return [
+        line
+        for line in proc.stderr.splitlines()
+        if line.strip() and not line.startswith("Using workflow specific profile")
+    ]
 
 
 @pytest.fixture(scope="session")

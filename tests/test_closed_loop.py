@@ -22,7 +22,7 @@ from mjtrial.closed_loop import (
     run_batch,
 )
 from mjtrial.controllers import EncoderFeedback, lqr_gain
-from mjtrial.model_spec import FULLPHYSICS
+from mjtrial.physics import FULLPHYSICS
 
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
 STEPS_PER_CONTROL = 5

@@ -6,7 +6,9 @@ from __future__ import annotations
 import ast
 import re
 import subprocess
+import sys
 
+import pytest
 from conftest import REPO_ROOT
 
 from mjtrial import codehash
@@ -45,6 +47,35 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
         if name not in state and (cycle := visit(name)):
             return cycle
     return None
+
+
+# The built-in tasks' own words: their elements, parameters and protocol. The package holds
+# none of them; a task's words live beside its task file (tasks/<name>/).
+TASK_WORDS = re.compile(
+    r"\b(cart-pole|cartpole|cart|pole|cubes?|gripper|gantry|carriage|fingers?|pads?|lift_time"
+    r"|lifts?|grasp|yaw|latency_20ms)\b",
+    re.IGNORECASE,
+)
+
+
+def task_words(text: str) -> list[str]:
+    return sorted({m.group(0).lower() for m in TASK_WORDS.finditer(text)})
+
+
+def test_the_package_names_no_built_in_task():
+    found = {
+        name: words
+        for name, path in MODULES.items()
+        if (words := task_words(path.read_text(encoding="utf-8")))
+    }
+    assert not found, found
+
+
+def test_task_words_are_found_where_they_are():
+    assert task_words("the cube's yaw; a cart-pole") == ["cart-pole", "cube", "yaw"]
+    assert task_words("a cartesian polecat, a lifter") == []
+    gantry = REPO_ROOT / "tasks" / "gantry_lift"
+    assert "cube" in task_words((gantry / "model_spec.py").read_text())
 
 
 def test_no_import_cycle():
@@ -106,3 +137,17 @@ def test_nothing_refers_to_files_outside_the_repository():
         and outside.search((REPO_ROOT / f).read_text(errors="replace"))
     ]
     assert hits == []
+
+
+SCRIPTS = sorted([*REPO_ROOT.glob("benchmarks/*.py"), *REPO_ROOT.glob("models/*/*.py")])
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: str(p.relative_to(REPO_ROOT)))
+def test_every_script_beside_the_package_still_imports(script):
+    """Scripts no test runs whole (benchmarks, a model's calibration) rot silently when a module
+    moves; `--help` imports everything they use and stops before any work."""
+    done = subprocess.run(
+        [sys.executable, str(script), "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "usage:" in done.stdout

@@ -5,10 +5,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from gantry_lift.model_spec import ModelSpec
 
 from mjtrial import MODELS_DIR, model_path
-from mjtrial.model_spec import ModelError, ModelSpec
-from mjtrial.simulate import load_model
+from mjtrial.physics import ModelError, load_model
 
 MODELS = sorted(p.name for p in MODELS_DIR.iterdir() if (p / "scene.xml").is_file())
 

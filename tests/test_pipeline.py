@@ -193,11 +193,15 @@ def test_snakemake_html_report_holds_figures_and_summary(built, tmp_path):
 
 
 def test_evaluation_states_come_from_the_evaluation_seed(built):
+    from gantry_lift.states import STATE_PARAMETERS
+
     from mjtrial.states import generate_initial_states
 
     config = yaml.safe_load((built / "config" / "config.yaml").read_text())
     s = config["states"]
-    expected = generate_initial_states(seed=s["seed"], n=s["n"], ranges=s["ranges"])
+    expected = generate_initial_states(
+        seed=s["seed"], n=s["n"], ranges=s["ranges"], parameters=STATE_PARAMETERS
+    )
     stored = pq.read_table(built / "results" / "research_mode" / "states.parquet")
     assert stored.replace_schema_metadata(None).equals(expected)
 
@@ -212,7 +216,7 @@ def test_editing_the_included_model_file_reruns_both_rollouts(built, tmp_path):
 
 
 def test_every_failed_episode_has_exactly_one_category(built):
-    from mjtrial.taxonomy import FailureCategory
+    from gantry_lift.taxonomy import FailureCategory
 
     results = built / "results" / "research_mode"
     summary = json.loads((results / "analysis" / "summary.json").read_text())

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from mjtrial.protocol import CTRL_GRIPPER, CTRL_Z, Phase, control_sequence
+from gantry_lift.protocol import CTRL_GRIPPER, CTRL_Z, Phase, control_sequence
 
 
 @pytest.mark.parametrize(("lift_time", "lift_steps"), [(0.15, 75), (1.5, 750), (0.004, 2)])
@@ -38,7 +37,7 @@ def test_rejects_nonpositive_lift_time():
 @pytest.mark.parametrize("lift_time", [0.0123, 0.15, 0.3, 1.5])
 @pytest.mark.parametrize("timestep", [0.0003, 0.001, 0.002])
 def test_episode_steps_is_the_control_sequence_length(lift_time, timestep):
-    from mjtrial.protocol import episode_steps
+    from gantry_lift.protocol import episode_steps
 
     ctrl, _ = control_sequence(lift_time, timestep=timestep)
     assert episode_steps(lift_time, timestep=timestep) == len(ctrl)

@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 import rerun as rr
 from conftest import REPO_ROOT
+from gantry_lift.protocol import control_sequence
+from gantry_lift.simulate import iter_episode_batches
+from gantry_lift.states import InitialState
 
 from mjtrial import model_path
-from mjtrial.protocol import control_sequence
+from mjtrial.physics import load_model
 from mjtrial.provenance import read_stamp
 from mjtrial.recording import (
     EpisodeRecord,
@@ -31,9 +34,7 @@ from mjtrial.recording import (
 from mjtrial.recording import route as route_mod
 from mjtrial.recording import write as write_mod
 from mjtrial.recording.write import RecordingSpec
-from mjtrial.simulate import iter_episode_batches, load_model
 from mjtrial.stages.rollout import recording_spec
-from mjtrial.states import InitialState
 from mjtrial.task import BoundTask, load_task
 
 LIFT_TIME = 0.15

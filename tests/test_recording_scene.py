@@ -6,14 +6,15 @@ import mujoco
 import numpy as np
 import pytest
 import rerun as rr
+from gantry_lift.protocol import control_sequence
+from gantry_lift.simulate import iter_episode_batches
+from gantry_lift.states import InitialState
 
 from mjtrial import model_path
-from mjtrial.protocol import control_sequence
+from mjtrial.physics import load_model
 from mjtrial.recording import logged_steps, mujoco_to_rerun_quat, rerun_to_mujoco_quat
 from mjtrial.recording.arrow import archetype_columns, check_rerun_version, chunks
 from mjtrial.recording.scene import BodyPoses, static_scene
-from mjtrial.simulate import iter_episode_batches, load_model
-from mjtrial.states import InitialState
 
 # --------------------------------------------------------------------------------------------
 # Quaternions

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
+from conftest import REPO_ROOT, WORKFLOW_FILES, error_lines, run_snakemake
 
 from mjtrial.cli import main
 from mjtrial.scaffold import ScaffoldError, new_task
@@ -144,11 +144,7 @@ def test_bad_task_code_stops_with_one_line_and_touches_nothing(
     before = _digest(workdir / "results")
     proc = run_snakemake(workdir, "--configfile", CONFIG, check=False)
     assert proc.returncode != 0
-    lines = [
-        line
-        for line in proc.stderr.splitlines()
-        if line.strip() and not line.startswith("Using workflow specific profile")
-    ]
+    lines = error_lines(proc)
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith(f"Config error: {CONFIG}: task: ")
     assert f"tasks/{NAME}/task.py" in lines[0]

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from mjtrial.simulate import (
+from gantry_lift.simulate import (
     InitialState,
     episode_outcomes,
     iter_episode_batches,

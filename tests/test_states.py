@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 import pytest
+from gantry_lift.states import STATE_PARAMETERS, states_from_table
 
-from mjtrial.states import generate_initial_states, states_from_table
+from mjtrial.states import generate_initial_states
 
 RANGES = {"dx": [-0.018, 0.018], "dy": [-0.012, 0.012], "yaw": [-0.6, 0.6], "mass": [0.05, 0.6]}
 
 
 def test_draws_are_default_rng_uniform_in_order():
-    table = generate_initial_states(seed=2026, n=50, ranges=RANGES)
+    table = generate_initial_states(seed=2026, n=50, ranges=RANGES, parameters=STATE_PARAMETERS)
     rng = np.random.default_rng(2026)
     for name in ("dx", "dy", "yaw", "mass"):
         low, high = RANGES[name]
@@ -21,7 +22,11 @@ def test_draws_are_default_rng_uniform_in_order():
 
 
 def test_evaluation_mass_bands_hold_47_65_88():
-    mass = generate_initial_states(seed=2026, n=200, ranges=RANGES).column("mass").to_numpy()
+    mass = (
+        generate_initial_states(seed=2026, n=200, ranges=RANGES, parameters=STATE_PARAMETERS)
+        .column("mass")
+        .to_numpy()
+    )
     counts = [
         int(((mass >= 0.05) & (mass < 0.23)).sum()),
         int(((mass >= 0.23) & (mass < 0.42)).sum()),
@@ -32,13 +37,15 @@ def test_evaluation_mass_bands_hold_47_65_88():
 
 def test_rejects_bad_arguments():
     with pytest.raises(ValueError, match="n: expected at least 1"):
-        generate_initial_states(seed=1, n=0, ranges=RANGES)
+        generate_initial_states(seed=1, n=0, ranges=RANGES, parameters=STATE_PARAMETERS)
     with pytest.raises(ValueError, match=r"ranges\.yaw: expected low < high"):
-        generate_initial_states(seed=1, n=3, ranges={**RANGES, "yaw": [0.6, -0.6]})
+        generate_initial_states(
+            seed=1, n=3, ranges={**RANGES, "yaw": [0.6, -0.6]}, parameters=STATE_PARAMETERS
+        )
 
 
 def test_states_from_table_checks_columns_and_values():
-    table = generate_initial_states(seed=3, n=4, ranges=RANGES)
+    table = generate_initial_states(seed=3, n=4, ranges=RANGES, parameters=STATE_PARAMETERS)
     states = states_from_table(table)
     assert [s.state_id for s in states] == [0, 1, 2, 3]
     assert states[2].mass == table.column("mass")[2].as_py()
@@ -82,4 +89,6 @@ def test_the_task_declares_the_parameters_and_their_draw_order():
 
     gantry = {"seed": 2026, "development_seed": 1, "n": 50, "ranges": RANGES}
     table, _ = draw_states(gantry | {"task": "tasks/gantry_lift/task.py"}, repo_root=REPO_ROOT)
-    assert table.equals(generate_initial_states(seed=2026, n=50, ranges=RANGES))
+    assert table.equals(
+        generate_initial_states(seed=2026, n=50, ranges=RANGES, parameters=STATE_PARAMETERS)
+    )

@@ -14,7 +14,7 @@ from conftest import REPO_ROOT
 
 from mjtrial import closed_loop
 from mjtrial.engine import iter_batches
-from mjtrial.model_spec import FULLPHYSICS
+from mjtrial.physics import FULLPHYSICS
 from mjtrial.task import (
     BoundTask,
     Custom,

@@ -1,6 +1,6 @@
-"""The gantry experiment stated as a task (tasks/gantry_lift/task.py) gives the episodes of the
-engine the pipeline ran before tasks existed (`mjtrial.simulate` with `mjtrial.taxonomy`), bit
-for bit: every column of the rollout table, on evaluation states, both conditions; and its
+"""The gantry as a task (`tasks/gantry_lift/task.py`) run by `mjtrial.engine` equals the engine
+the pipeline ran before tasks existed (`gantry_lift.simulate` with `gantry_lift.taxonomy`),
+bit for bit: every column of the rollout table, on evaluation states, both conditions; and its
 final states equal the literal `mj_step` reference stepper's."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import REPO_ROOT
+from gantry_lift import taxonomy
+from gantry_lift.protocol import PROTOCOL, control_sequence
+from gantry_lift.simulate import episode_outcomes, iter_episode_batches, reference_episode
 
-from mjtrial import taxonomy
 from mjtrial.engine import iter_batches
-from mjtrial.protocol import PROTOCOL, control_sequence
-from mjtrial.simulate import episode_outcomes, iter_episode_batches, reference_episode
 from mjtrial.stages.rollout import rollout_columns
 from mjtrial.task import BoundTask, load_task
 from mjtrial.task_checks import run_task_code

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from mjtrial.protocol import Phase
-from mjtrial.taxonomy import FailureCategory, Thresholds, Trajectories, classify, tilt
+from gantry_lift.protocol import Phase
+from gantry_lift.taxonomy import FailureCategory, Thresholds, Trajectories, classify, tilt
 
 DT = 0.01
 # A short protocol: 10 steps before the lift (settle..close), 10 of lift, 10 of hold.

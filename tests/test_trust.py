@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import REPO_ROOT, SNAKEMAKE, edit_config, run_snakemake
+from conftest import REPO_ROOT, SNAKEMAKE, edit_config, error_lines, run_snakemake
 
 import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
@@ -437,11 +437,7 @@ def test_bad_input_stops_with_one_line_and_touches_nothing(built, tmp_path, case
     before = digest(workdir / "results")
     proc = run_snakemake(workdir, check=False)
     assert proc.returncode != 0
-    lines = [
-        line
-        for line in proc.stderr.splitlines()
-        if line.strip() and not line.startswith("Using workflow specific profile")
-    ]
+    lines = error_lines(proc)
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith("Config error: ")
     assert message in lines[0], lines[0]

@@ -214,9 +214,7 @@ def test_every_condition_parameter_works_end_to_end(built, tmp_path, parameter, 
 def test_a_sweep_over_a_hold_is_planned(built, tmp_path):
     """Survey case 10: a sweep over hold_time gave a PointerToNowhere stack dump on every call."""
     workdir = copy_of(built, tmp_path)
-    edit_config(
-        workdir, lambda c: c["sweep"].update(parameter="hold_time", values=[0.3, 0.5, 0.8])
-    )
+    edit_config(workdir, lambda c: c["sweep"].update(parameter="hold_time", values=[0.3, 0.5, 0.8]))
     proc = run_snakemake(workdir, "-n", "dose_response")
     assert "PointerToNowhere" not in proc.stderr
     assert "rollout" in proc.stdout
@@ -316,9 +314,10 @@ def test_a_run_given_command_line_values_verifies_against_them(built, tmp_path):
     command = "snakemake -c2 --config 'analysis={n_resamples: 300}'"
     assert manifest["rerun"]["command"] == command
     assert manifest["rerun"]["command_line"] == {"analysis": {"n_resamples": 300}}
-    assert "Nothing to be done" in run_snakemake(
-        workdir, "-n", "--config", "analysis={n_resamples: 300}"
-    ).stdout
+    assert (
+        "Nothing to be done"
+        in run_snakemake(workdir, "-n", "--config", "analysis={n_resamples: 300}").stdout
+    )
 
     report = verified(workdir)
     assert report.ok, report.format()

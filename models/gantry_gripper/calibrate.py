@@ -11,16 +11,22 @@ variants of its physical parameters, so the README's calibration table can be re
 from __future__ import annotations
 
 import argparse
+import sys
 
 import mujoco
 import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, model_path
-from mjtrial.model_spec import ModelSpec
-from mjtrial.protocol import PROTOCOL
-from mjtrial.simulate import iter_episode_batches, load_model
-from mjtrial.states import generate_initial_states, states_from_table
+from mjtrial.physics import load_model
+from mjtrial.states import generate_initial_states
+
+# The gantry's own modules live in its task package, tasks/gantry_lift.
+sys.path.insert(0, str(REPO_ROOT / "tasks"))
+from gantry_lift.model_spec import ModelSpec  # noqa: E402
+from gantry_lift.protocol import PROTOCOL  # noqa: E402
+from gantry_lift.simulate import iter_episode_batches  # noqa: E402
+from gantry_lift.states import STATE_PARAMETERS, states_from_table  # noqa: E402
 
 BANDS = (0.05, 0.23, 0.42, 0.6)
 
@@ -66,7 +72,9 @@ def main() -> None:
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     s = config["states"]
     states = states_from_table(
-        generate_initial_states(seed=s["development_seed"], n=args.n, ranges=s["ranges"])
+        generate_initial_states(
+            seed=s["development_seed"], n=args.n, ranges=s["ranges"], parameters=STATE_PARAMETERS
+        )
     )
     load_model(model_path("gantry_gripper"))  # the checks the pipeline applies
     print(f"development seed {s['development_seed']}, n = {args.n}; bands {BANDS} kg")

@@ -18,7 +18,7 @@ import psutil
 from mjtrial import engine
 from mjtrial.engine import BATCH_SIZE
 from mjtrial.layout import shard_ids
-from mjtrial.model_spec import FULLPHYSICS
+from mjtrial.physics import FULLPHYSICS
 from mjtrial.task import BoundTask, call
 
 # Steps of one episode: the preflight steps every condition's nominal episode, and a batch holds

@@ -32,7 +32,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from mjtrial.model_spec import FULLPHYSICS
+from mjtrial.physics import FULLPHYSICS
 
 # What mujoco.rollout's control columns hold: the actuators' ctrl, then every body's applied
 # wrench (force, torque in the world frame), so pushes travel with the controls.

@@ -2,9 +2,9 @@
 
 A sweep runs one protocol parameter over several values, each value a condition: the sweep's
 base condition with that parameter set. A value whose condition equals one of the design's
-conditions is that condition (the built-in sweep's 0.15 s and 1.5 s lifts are `fast` and
-`slow`), so its episodes are never run twice; the others are named `<parameter>-<value>`
-(`lift_time-0.3`).
+conditions is that condition (a sweep of `push_time` whose value 0.25 s is the `firm`
+condition's), so its episodes are never run twice; the others are named
+`<parameter>-<value>` (`push_time-0.5`).
 """
 
 from __future__ import annotations

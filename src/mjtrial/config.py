@@ -22,10 +22,9 @@ from mjtrial import REPO_ROOT, budget
 from mjtrial.conditions import all_conditions, sweep_base
 from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
-from mjtrial.model_spec import ModelError
+from mjtrial.physics import ModelError, load_model
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
-from mjtrial.simulate import load_model
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
 from mjtrial.task_checks import check_observations, run_task_code

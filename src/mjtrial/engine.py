@@ -16,7 +16,7 @@ import numpy as np
 from mujoco import rollout
 
 from mjtrial import closed_loop
-from mjtrial.model_spec import FULLPHYSICS, halted, nonfinite, steps_simulated
+from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 from mjtrial.task import (
     UNHEALTHY,
     BoundTask,

@@ -114,7 +114,7 @@ class Layout:
     # -- states ---------------------------------------------------------------------------
     @property
     def states(self) -> Path:
-        """The evaluation states: `state_id, dx, dy, yaw, mass`."""
+        """The evaluation states: `state_id`, then the task's state parameters."""
         return self.root / "states.parquet"
 
     @property
@@ -133,7 +133,7 @@ class Layout:
         return self.rollouts_dir(variant) / f"{condition}.parquet"
 
     def nominal_episode(self, condition: str, variant: str = NOMINAL) -> Path:
-        """The nominal state's episode (no offset, no yaw, mass as compiled)."""
+        """The nominal state's episode (each state parameter at its nominal value)."""
         return self.rollouts_dir(variant) / f"{condition}.nominal.json"
 
     def recordings(self, condition: str, variant: str = NOMINAL) -> Path:

@@ -1,7 +1,7 @@
 """Statistics for a paired binary-outcome experiment.
 
 The experiment runs the same initial states under two conditions and records success or
-failure of a lift for each, so the natural data are two aligned 0/1 arrays of shape
+failure of an episode for each, so the natural data are two aligned 0/1 arrays of shape
 ``(n_pairs,)``. This module provides the interval estimates, the paired test and the sample-size
 calculations used to plan and report such an experiment.
 
@@ -134,7 +134,7 @@ def _ceil_count(x: float) -> int:
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
     """Wilson score interval for a binomial proportion.
 
-    Preferred over the Wald interval because it keeps sensible coverage near 0 and 1, where lift
+    Preferred over the Wald interval because it keeps sensible coverage near 0 and 1, where
     success rates often sit.
 
     Args:

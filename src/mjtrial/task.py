@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
-from mjtrial.model_spec import FULLPHYSICS, STATE_QPOS
+from mjtrial.physics import FULLPHYSICS, STATE_QPOS
 
 ENTRY_POINT_GROUP = "mjtrial.tasks"
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
@@ -266,7 +266,7 @@ class Series:
     Attributes:
       name: the series' name in the recording and the viewer.
       body: the body whose entity holds it (it shares that body's time-series chunk).
-      plot: the title of the plot it is drawn in, with its unit ("pole angle (rad)"); series
+      plot: the title of the plot it is drawn in, with its unit ("joint angle (rad)"); series
         of one plot share it, in order of first appearance.
       read: `read(model)` gives a function from a batch of logged rows to the values.
     """
@@ -370,7 +370,7 @@ class Task:
     every `Measure` by name, plus any other arrays the categories' tests read."""
 
     name: str
-    title: str  # a noun phrase for reports: "cart-pole balance under a push"
+    title: str  # a noun phrase for reports: "a block pushed to a line"
     model: Path  # resolved against the task file's folder at load
     state_parameters: tuple[StateParameter, ...]
     protocol_parameters: tuple[ProtocolParameter, ...]
@@ -389,8 +389,8 @@ class Task:
     # `check_model(model)` raises, saying what the model lacks, before anything is resolved.
     check_model: Callable[[mujoco.MjModel], None] | None = None
     keyframe: int | None = None  # the reset pose (None: the model's qpos0)
-    # The report's and the manifest's words (a cart-pole's report never says "cube"):
-    success_text: str = ""  # when an episode succeeds, as a sentence's end ("the pole ...")
+    # The report's and the manifest's words (the package has none of a task's own):
+    success_text: str = ""  # when an episode succeeds, a sentence's end ("the block's centre ...")
     nominal_text: str = ""  # the nominal state in words (default: each parameter's value)
     limitations: tuple[str, ...] = ()  # what the experiment does not show, one point each
     trace: str | None = None  # the series drawn for sample episodes (default: the first)
@@ -521,18 +521,43 @@ def _element(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
 
 
 def _from_file(path: Path) -> Task:
+    """Import a task file afresh. In a folder with an `__init__.py` (a task package, whose
+    siblings it imports relatively: `from .protocol import ...`), the folder is imported as a
+    package of a name unique to its path, so two copies of one task never share modules and an
+    edit is always seen; else the file alone is imported."""
     name = f"mjtrial_task_{abs(hash(path.resolve()))}"
-    spec = importlib.util.spec_from_file_location(name, path)
-    if spec is None or spec.loader is None:
-        raise TaskError(f"{path}: not a Python file")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
     try:
+        if (path.parent / "__init__.py").is_file():
+            for cached in [m for m in sys.modules if m == name or m.startswith(f"{name}.")]:
+                del sys.modules[cached]
+            package_spec = importlib.util.spec_from_file_location(
+                name, path.parent / "__init__.py", submodule_search_locations=[str(path.parent)]
+            )
+            package = importlib.util.module_from_spec(package_spec)
+            sys.modules[name] = package
+            package_spec.loader.exec_module(package)
+            name = f"{name}.{path.stem}"
+        spec = importlib.util.spec_from_file_location(name, path)
+        if spec is None or spec.loader is None:
+            raise TaskError(f"{path}: not a Python file")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
         spec.loader.exec_module(module)
+    except TaskError:
+        raise
     except Exception as err:  # noqa: BLE001 - any error in the user's file is one line
         sys.modules.pop(name, None)
         raise TaskError(f"{path}: the task file raised {type(err).__name__}: {err}") from None
     return _task_of(module, str(path), path.parent)
+
+
+def task_files(task_file: Path) -> list[Path]:
+    """The files a task named by path is made of: the file, or every `.py` file of its folder
+    when the folder is a task package (sorted): what stamps record and an edit reruns."""
+    folder = Path(task_file).parent
+    if (folder / "__init__.py").is_file():
+        return sorted(folder.rglob("*.py"))
+    return [Path(task_file)]
 
 
 def _task_of(module: Any, where: str, folder: Path) -> Task:

@@ -20,7 +20,7 @@ import numpy as np
 
 from mjtrial.closed_loop import Pushes, Timing
 from mjtrial.controllers import EncoderFeedback, lqr_gain
-from mjtrial.model_spec import STATE_QPOS
+from mjtrial.physics import STATE_QPOS
 from mjtrial.task import (
     DISTURBANCE,
     BodyMass,

@@ -5,10 +5,10 @@ state puts the cube off the gripper's axis (dx, dy), turned (yaw) and with its o
 open-loop protocol descends, closes, lifts over `lift_time` and holds. Success: the cube's
 centre above 0.2 m at the end of the hold.
 
-The protocol's timings, the model's element names and the failure taxonomy still live in the
-package (`mjtrial.protocol`, `mjtrial.model_spec`, `mjtrial.taxonomy`) while the pipeline is
-moved onto tasks; this file states the experiment through the task interface, and its
-episodes equal the pipeline's bit for bit (tests/test_task_gantry.py).
+The protocol's timings (`protocol.py`), the model's element names (`model_spec.py`), the
+failure taxonomy (`taxonomy.py`) and a literal `mj_step` reference stepper (`simulate.py`) live
+beside this file, which states the experiment through the task interface; its episodes equal
+the reference's bit for bit (tests/test_task_gantry.py).
 """
 
 from __future__ import annotations
@@ -18,19 +18,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from mjtrial import taxonomy
-from mjtrial.model_spec import ModelError, ModelSpec
-from mjtrial.protocol import (
-    CONDITION_PARAMETERS,
-    PROTOCOL,
-    Phase,
-    condition_protocol,
-    control_sequence,
-    episode_steps,
-    hold_durations,
-    hold_steps,
-)
-from mjtrial.simulate import yaw_quaternion
+from mjtrial.physics import ModelError
 from mjtrial.task import (
     FAILURE_CATEGORY,
     NONFINITE,
@@ -49,6 +37,20 @@ from mjtrial.task import (
     Task,
     Threshold,
 )
+
+from . import taxonomy
+from .model_spec import ModelSpec
+from .protocol import (
+    CONDITION_PARAMETERS,
+    PROTOCOL,
+    Phase,
+    condition_protocol,
+    control_sequence,
+    episode_steps,
+    hold_durations,
+    hold_steps,
+)
+from .simulate import yaw_quaternion
 
 CUBE = "cube"  # the cube's body and its free joint
 

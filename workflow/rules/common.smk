@@ -15,6 +15,7 @@ from mjtrial.layout import (
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
+from mjtrial.task import task_files
 from mjtrial.workflow_script import import_in_background, run_in_process
 
 # Every path comes from the layout; rules pass wildcards ("{condition}") to its methods.
@@ -181,10 +182,12 @@ def model_content(wildcards=None):
 
 
 def task_content(wildcards=None):
-    """Content of the task file (or the name of an installed task), so that an edit to it
-    reruns what it defines and a `touch` reruns nothing."""
+    """Content of the task's files (or the name of an installed task), so that an edit to
+    one reruns what it defines and a `touch` reruns nothing."""
     reference = config["task"]
-    return file_sha256(reference) if reference.endswith(".py") else reference
+    if not reference.endswith(".py"):
+        return reference
+    return ",".join(file_sha256(p) for p in task_files(Path(reference)))
 
 
 def per_condition(path_of):

@@ -1,6 +1,6 @@
 """Rerun recordings of episodes: the one package that talks to rerun.
 
-Why rerun: an episode's outcome is a handful of numbers, but *why* a grasp failed is only
+Why rerun: an episode's outcome is a handful of numbers, but *why* an episode failed is only
 visible in its motion. Every condition gets a folder holding one ``.rrd`` per episode (one
 recording each) and a ``blueprint.rbl``; the failed episodes of all conditions are gathered
 into one ``failures.rrd``.
@@ -8,23 +8,21 @@ into one ``failures.rrd``.
 Layout of a recording (names in :mod:`~mjtrial.recording.names`):
 
 * ``world``: view coordinates (z up) and the geoms of MuJoCo's world body (the floor), static.
-* ``world/<body>``, nested as MuJoCo's body tree (``world/carriage/left_finger``): the body's
+* ``world/<body>``, nested as MuJoCo's body tree (``world/arm/hand``): the body's
   pose *in its parent body* per logged step (``Transform3D``; a body without joints gets it
   once, static) and, static, its visible geoms: one archetype per geom type (``Boxes3D`` for
   boxes and planes, ``Ellipsoids3D`` for spheres and ellipsoids, ``Capsules3D``,
   ``Cylinders3D``, one ``Mesh3D`` for all its meshes) whose instances are the geoms, each posed
   in the body frame and drawn in MuJoCo's colour (:mod:`~mjtrial.recording.scene`).
 * the signals (``Scalars``), on the entity of the body they belong to, named by a static
-  ``SeriesLines``: ``cube_height`` on the cube; ``finger_opening`` and the control targets
-  ``ctrl_x``, ``ctrl_y``, ``ctrl_z``, ``ctrl_gripper`` on the fingers' parent (the carriage);
-  ``left_normal_force`` and ``right_normal_force`` on the bodies of the pads (the fingers).
+  ``SeriesLines``: the task's series (`mjtrial.task.Series`), each on the body it names.
 * recording properties ``episode`` (one struct: condition, state id and parameters, success,
-  final height, failure category or null, ``log_every``, ``n_steps``) and ``provenance`` (the
-  stamp as JSON, see :mod:`mjtrial.provenance`).
+  the task's recorded measures, failure category or null, ``log_every``, ``n_steps``) and
+  ``provenance`` (the stamp as JSON, see :mod:`mjtrial.provenance`).
 
 Time series use one timeline, ``sim_time``: simulated seconds, stored by rerun as integer
-nanoseconds. `names.default_blueprint` lays out the scene beside plots of the cube height and
-of the contact forces: a condition's folder holds it as ``blueprint.rbl``; ``failures.rrd`` and
+nanoseconds. `names.default_blueprint` lays out the scene beside one plot per title of the task's
+series: a condition's folder holds it as ``blueprint.rbl``; ``failures.rrd`` and
 a replay's file hold it themselves.
 
 Modules: `names` (names, blueprint), `scene` (geoms, body poses), `series` (an episode's time

@@ -32,7 +32,7 @@ FAILURE_PREFIX = "failures-"  # recording ids of episodes copied into failures.r
 def body_entity(model: mujoco.MjModel, body_id: int) -> str:
     """Entity path of a body: its parent's path, then its name (or ``body_<i>``).
 
-    MuJoCo's world body is ``world``, so the gantry's fingers are ``world/carriage/left_finger``.
+    MuJoCo's world body is ``world``, so a hand on an arm is ``world/arm/hand``.
     """
     parts = []
     while body_id != 0:
@@ -43,7 +43,7 @@ def body_entity(model: mujoco.MjModel, body_id: int) -> str:
 
 
 def top_level_entity(body_name: str) -> str:
-    """Entity path of a child of the world body, by its name (the cube, with its free joint)."""
+    """Entity path of a child of the world body, by its name (a free body)."""
     return f"{WORLD}/{rr.escape_entity_path_part(body_name)}"
 
 

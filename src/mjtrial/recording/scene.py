@@ -219,7 +219,7 @@ class BodyPoses:
     """Each moving body's pose in its parent body, for many joint configurations at once.
 
     The pose MuJoCo's `mj_kinematics` computes, in the parent's frame. Bodies that only slide
-    and free bodies at the top of the tree (the gantry's) have it in closed form from qpos and
+    and free bodies at the top of the tree have it in closed form from qpos and
     the model's constants (`body_pos`, `body_quat` and the joints' axes, rotated by MuJoCo),
     computed over all rows at once. Other bodies (hinge and ball joints) take it from
     `mj_kinematics` run on each row, which costs a few microseconds a row: as much as all the

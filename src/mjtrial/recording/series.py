@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from mjtrial.model_spec import FULLPHYSICS, STATE_QPOS, STATE_TIME
+from mjtrial.physics import FULLPHYSICS, STATE_QPOS, STATE_TIME
 from mjtrial.recording.arrow import (
     QUATERNION,
     SCALARS,

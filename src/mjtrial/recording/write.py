@@ -13,8 +13,8 @@ recording ~0.5 kB of index in the file's footer, which ``ChunkStore.write_rrd`` 
 recording. So geoms are instances of one archetype on their body's entity, not entities of their
 own; the signals share their body's time-series chunk; the episode's fields are one struct;
 solid shapes are a default of the 3D view rather than a component of each shape; and a child
-body's pose in its parent keeps its constant components constant (the fingers only slide along
-y), which compresses well.
+body's pose in its parent keeps its constant components constant (a body that slides along one
+axis), which compresses well.
 """
 
 from __future__ import annotations

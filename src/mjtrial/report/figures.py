@@ -339,7 +339,7 @@ def figure_sample_traces(
         ax.set_title(f"{name} ({setting(summary['conditions'][name], task)})")
         ax.set_xlabel("Time (s)")
         ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), ncols=1, handlelength=2.2)
-    # The plot's title ends with its unit: "cube height, finger opening, ctrl (m)".
+    # The plot's title ends with its unit: "block position, target (m)".
     unit = series.plot.rpartition("(")[2].rstrip(")") if series.plot.endswith(")") else ""
     label = series.name.replace("_", " ").capitalize()
     axes[0].set_ylabel(f"{label} ({unit})" if unit else label)

@@ -18,7 +18,7 @@ def band_parameter(parameter: str, task: Task) -> tuple[str, str]:
 
 
 def setting(record: Mapping[str, Any], task: Task) -> str:
-    """A condition's protocol parameters from its summary record: `lift_time 1.5 s`."""
+    """A condition's protocol parameters from its summary record: `push_time 0.25 s`."""
     return ", ".join(
         f"{k} {v:g} {task.unit_of(k)}".rstrip() for k, v in condition_settings(record).items()
     )

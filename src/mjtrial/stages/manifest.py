@@ -14,7 +14,7 @@ import mujoco
 
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd stamps
 from mjtrial.layout import CONFIG_FILE
-from mjtrial.simulate import load_model
+from mjtrial.physics import load_model
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.task import load_task
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, report
-from mjtrial.simulate import load_model
+from mjtrial.physics import load_model
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.task import BoundTask, load_task
 

@@ -14,9 +14,9 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, engine, provenance, recording
 from mjtrial.engine import BATCH_SIZE
+from mjtrial.physics import load_model
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
-from mjtrial.simulate import load_model
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import BoundTask, Measure, Task, load_task

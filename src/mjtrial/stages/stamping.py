@@ -11,6 +11,7 @@ from typing import Any
 from mjtrial import REPO_ROOT, codehash, provenance
 from mjtrial.conditions import all_conditions
 from mjtrial.layout import STAGES
+from mjtrial.task import task_files
 
 
 class ConfigSlice(dict):
@@ -117,9 +118,13 @@ def model_inputs(model_file: Path) -> dict[str, Any]:
 
 
 def task_inputs(reference: str, *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:
-    """A stamp's record of the task: its file, when the config names it by path (a task
-    named by module is code of an installed package, recorded by the library versions)."""
-    return {"task": Path(repo_root) / reference} if str(reference).endswith(".py") else {}
+    """A stamp's record of the task: its file, or every file of its task package, when the
+    config names it by path (a task named by module is code of an installed package, recorded
+    by the library versions)."""
+    if not str(reference).endswith(".py"):
+        return {}
+    files = task_files(Path(repo_root) / reference)
+    return {"task": files[0] if len(files) == 1 else files}
 
 
 def make_stage_stamp(

@@ -1,4 +1,4 @@
-"""Dose-response: success against one protocol parameter (the lift time), on the same states.
+"""Dose-response: success against one protocol parameter (a duration, a gain, a latency).
 
 Every swept value runs on the same initial states, so the outcomes are paired (clustered by
 state) and every comparison here respects that: the trend's standard errors are clustered by
@@ -29,7 +29,7 @@ SCALES = ("log", "linear")
 
 
 def sweep_scale(values: Sequence[float]) -> str:
-    """`log` when every swept value is positive (a lift time), else `linear`."""
+    """`log` when every swept value is positive (a duration), else `linear`."""
     return "log" if min(values) > 0 else "linear"
 
 
@@ -119,9 +119,9 @@ def summarize_dose_response(
     """The content of `analysis/dose_response.json`.
 
     Args:
-      tables: per swept value (e.g. lift time, s), the columns of its rollout table
+      tables: per swept value (e.g. a duration, s), the columns of its rollout table
         (`ROLLOUT_COLUMNS`), each `(n,)`, all on the same states.
-      parameter: the swept protocol parameter's name (e.g. "lift_time"), recorded.
+      parameter: the swept protocol parameter's name (e.g. "push_time"), recorded.
       states: the states table's columns (state_id and the state parameters), each `(n,)`.
       band_parameter: the state parameter whose bands split each value's rate (the first of
         `analysis.bands`; `abs_<name>` for its magnitude).

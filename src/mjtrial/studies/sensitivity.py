@@ -22,7 +22,7 @@ from mjtrial.analysis import (
     rate_record,
     unhealthy,
 )
-from mjtrial.taxonomy import FailureCategory
+from mjtrial.task import UNHEALTHY
 
 NOMINAL = "nominal"
 
@@ -147,7 +147,7 @@ def summarize_sensitivity(
         "seed": int(analysis["seed"]),
         "unhealthy_definition": (
             "an episode with a MuJoCo warning, a non-finite state, or halted early "
-            f"(failure category {FailureCategory.UNHEALTHY.value!r})"
+            f"(failure category {UNHEALTHY!r})"
         ),
         "variants": records,
         "n_variants": len(others),

@@ -3,9 +3,9 @@
 A variant is a mapping of overrides, each naming an attribute by its MJCF name:
 
     {"option": {"timestep": 0.001, "integrator": "RK4", "cone": "pyramidal"},
-     "geom": {"left_pad": {"friction": [0.6, 0.003, 0.0001]}},
-     "actuator": {"gripper": {"forcerange": [-15, 15]}},
-     "body": {"carriage": {"gravcomp": 0.5}}}
+     "geom": {"floor": {"friction": [0.6, 0.003, 0.0001]}},
+     "actuator": {"motor": {"forcerange": [-15, 15]}},
+     "body": {"arm": {"gravcomp": 0.5}}}
 
 MuJoCo's own editing API applies them (no XML text is edited), and the edited model is recorded
 as the sha256 of `MjSpec.to_xml()`: one flattened XML (included files inlined) that compiles to
@@ -23,7 +23,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.model_spec import ModelError
+from mjtrial.physics import ModelError
 
 OVERRIDE_KINDS = ("option", "geom", "actuator", "body")
 

@@ -13,36 +13,17 @@ from __future__ import annotations
 import copy
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
 from mujoco import rollout
 
-from mjtrial.model_spec import (
-    FULLPHYSICS,
-    ModelError,
-    ModelSpec,
-    halted,
-    nonfinite,
-    steps_simulated,
-)
-from mjtrial.protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, Protocol, control_sequence, hold_steps
-from mjtrial.states import InitialState
+from mjtrial.engine import warning_names
+from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 
-
-def load_model(path: str | Path) -> mujoco.MjModel:
-    """Compile a model file; one line (`ModelError`) naming the file when it cannot be."""
-    path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"{path}: model file not found")
-    try:
-        model = mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as err:
-        # MuJoCo's message spans lines (an XML error names its line on the second): one line.
-        message = " ".join(str(err).replace("'", "").split()) or "compile error"
-        raise ModelError(f"{path}: MuJoCo could not compile the model: {message}") from None
-    return model
+from .model_spec import ModelSpec
+from .protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, Protocol, control_sequence, hold_steps
+from .states import InitialState
 
 
 def yaw_quaternion(yaw: float) -> np.ndarray:
@@ -209,11 +190,6 @@ EPISODE_COLUMNS = (
     "nonfinite",
     "warning",
 )
-
-
-def warning_names(counters: np.ndarray) -> str:
-    """MuJoCo warnings that fired, by name (e.g. "mjWARN_BADQACC"), comma-separated."""
-    return ",".join(mujoco.mjtWarning(i).name for i, n in enumerate(counters) if n)
 
 
 def episode_outcomes(

@@ -4,8 +4,7 @@ Every module that reads the simulation (the engine, the failure taxonomy, the re
 report) takes indices from a `ModelSpec` instead of looking names up itself, so a model that
 lacks an element fails once, at load, with a `ModelError` naming the file and the element.
 
-It also holds the layout of MuJoCo's mjSTATE_FULLPHYSICS vector and the one definition of a
-healthy episode.
+The physics-state layout and what a healthy episode is are every task's: `mjtrial.physics`.
 """
 
 from __future__ import annotations
@@ -13,9 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import mujoco
-import numpy as np
 
-from mjtrial.protocol import N_CTRL
+from mjtrial.physics import FULLPHYSICS, STATE_QPOS, ModelError
+
+from .protocol import N_CTRL
 
 # Element names in models/gantry_gripper/gantry_gripper.xml.
 CUBE = "cube"  # the cube's body, its free joint and its box geom
@@ -26,16 +26,7 @@ PADS = ("left_pad", "right_pad")  # geoms
 PAD_CONTACT_SENSORS = ("left_pad_cube", "right_pad_cube")
 CONTACT_SENSOR_DIM = 4
 CONTACT_NORMAL_AXIS = 1  # the pads face each other along world y: normal force = |F_y|
-ACTUATORS = ("x", "y", "z", "gripper")  # in ctrl order (mjtrial.protocol.CTRL_*)
-
-# Layout of an mjSTATE_FULLPHYSICS vector: time, qpos, qvel, act, ...
-FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
-STATE_TIME = 0
-STATE_QPOS = 1
-
-
-class ModelError(ValueError):
-    """The model file is missing, malformed, or lacks what the protocol needs."""
+ACTUATORS = ("x", "y", "z", "gripper")  # in ctrl order (protocol.CTRL_*)
 
 
 @dataclass(frozen=True)
@@ -158,30 +149,3 @@ class ModelSpec:
             nq=int(model.nq),
             nstate=int(mujoco.mj_stateSize(model, FULLPHYSICS)),
         )
-
-
-def halted(physics: np.ndarray) -> np.ndarray:
-    """Where an episode stopped early, from its physics states `(..., n_steps, nstate)`.
-
-    `mujoco.rollout` stops stepping at a MuJoCo warning and repeats the last state (a bad
-    acceleration resets it first), so time is not a step counter: a repeated time is the halt.
-    Returns `(...)` booleans.
-    """
-    return (np.diff(physics[..., STATE_TIME], axis=-1) == 0).any(axis=-1)
-
-
-def steps_simulated(physics: np.ndarray) -> np.ndarray:
-    """Steps an episode ran before it halted (all of them if it did not), shape `(...)`."""
-    frozen = np.diff(physics[..., STATE_TIME], axis=-1) == 0
-    n_steps = physics.shape[-2]
-    return np.where(frozen.any(axis=-1), frozen.argmax(axis=-1) + 1, n_steps).astype(np.int64)
-
-
-def nonfinite(physics: np.ndarray) -> np.ndarray:
-    """Where an episode's state went NaN or infinite at any step, shape `(...)`."""
-    return ~np.isfinite(physics).all(axis=(-2, -1))
-
-
-def healthy(physics: np.ndarray) -> np.ndarray:
-    """An episode is healthy when it ran to the end with a finite state: `(...)` booleans."""
-    return ~halted(physics) & ~nonfinite(physics)

@@ -24,8 +24,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.model_spec import ModelSpec, healthy
-from mjtrial.protocol import Phase
+from mjtrial.physics import healthy
+
+from .model_spec import ModelSpec
+from .protocol import Phase
 
 
 class FailureCategory(enum.Enum):
