@@ -415,3 +415,28 @@ def test_the_license_the_config_gives_is_linked_and_none_is_said(built, entities
         graph_ = {e["@id"]: e for e in crate_metadata(record)["@graph"]}
         assert graph_["./"]["license"] == {"@id": identifier}
         assert graph_[identifier]["name"] == given
+
+
+def test_every_file_the_jobs_read_travels_in_the_copy_of_the_sources(built):
+    """The model and the task the stamps record are in the copy, as they were read."""
+    from mjtrial.crate.record import read_inputs, sealed_stamps
+
+    read = read_inputs(sealed_stamps([built / LAYOUT.seal], repo_root=built))
+    assert {"models/gantry_gripper/scene.xml", "tasks/gantry_lift/task.py"} <= set(read)
+    for path in read:
+        if not path.startswith(f"{LAYOUT.root.as_posix()}/"):
+            assert sha256(built / LAYOUT.source / path) == sha256(built / path), path
+
+
+def test_a_model_or_task_outside_the_usual_folders_is_copied_and_nothing_outside(tmp_path):
+    """A lab keeps its model and task in its own folder: the copy holds them; a path that
+    leaves the working folder is never followed."""
+    from mjtrial.crate.sources import source_files
+
+    (tmp_path / "lab" / "arm").mkdir(parents=True)
+    (tmp_path / "lab" / "arm" / "arm.xml").write_text("<mujoco/>")
+    (tmp_path / "secret.txt").write_text("not a source")
+    read = ["lab/arm/arm.xml", "../secret.txt", str(tmp_path / "secret.txt"), "lab/missing.py"]
+    files = source_files(tmp_path / "lab" / "..", read)
+    assert files["lab/arm/arm.xml"] == tmp_path / "lab" / ".." / "lab/arm/arm.xml"
+    assert not [k for k in files if "secret" in k or "missing" in k]

@@ -169,6 +169,39 @@ def read_record(
     )
 
 
+def sealed_stamps(seals: Iterable[Path], *, repo_root: Path) -> dict[str, dict[str, Any]]:
+    """The stamps of `seals` and of every output they list (repository-relative path ->
+    stamp); what cannot be read is left out (`read_record` names it)."""
+    repo_root = Path(repo_root)
+    stamps: dict[str, dict[str, Any]] = {}
+    for seal in seals:
+        rel = _repo_path(seal, repo_root)
+        try:
+            listed = json.loads((repo_root / rel).read_text(encoding="utf-8"))["outputs"]
+            stamps[rel] = dict(provenance.read_stamp(repo_root / rel))
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        for path in listed:
+            if path not in stamps:
+                try:
+                    stamps[path] = dict(provenance.read_stamp(repo_root / path))
+                except (OSError, ValueError):
+                    continue
+    return stamps
+
+
+def read_inputs(stamps: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """The files the stamped jobs read that none of them wrote (the model, the task): the
+    paths their stamps record, in the order they first appear."""
+    seen: dict[str, None] = {}
+    for stamp in stamps.values():
+        for record in input_records(stamp.get("inputs", {})):
+            path = record.get("path")
+            if isinstance(path, str) and path not in stamps:
+                seen.setdefault(path)
+    return list(seen)
+
+
 def input_records(inputs: Mapping[str, Any]) -> Iterable[Mapping[str, Any]]:
     """A stamp's input records, whether an input names one file or a list."""
     for value in inputs.values():

@@ -41,12 +41,14 @@ def _files_under(path: Path) -> Iterator[Path]:
             yield p
 
 
-def source_files(workdir: Path) -> dict[str, Path]:
+def source_files(workdir: Path, read: Iterable[str] = ()) -> dict[str, Path]:
     """What the copy holds: its path in `source/` -> the file it copies.
 
     `WORKFLOW_SOURCES` from `workdir` (a copy of the workflow without `pyproject.toml` or
-    `README.md` takes them from the package's repository, when it has them), and the package
-    Python imports as `src/mjtrial/`. Hidden files, `__pycache__` and compiled files are left.
+    `README.md` takes them from the package's repository, when it has them), the package
+    Python imports as `src/mjtrial/`, and the files in `read` (paths relative to `workdir`
+    that the jobs read: a model or a task kept outside those folders travels too). Hidden
+    files, `__pycache__` and compiled files are left.
     """
     workdir = Path(workdir)
     package = Path(mjtrial.__file__).resolve().parent
@@ -61,12 +63,16 @@ def source_files(workdir: Path) -> dict[str, Path]:
             files[(Path(name) / f.relative_to(top)).as_posix() if top.is_dir() else name] = f
     for f in _files_under(package):
         files[(Path("src") / package.name / f.relative_to(package)).as_posix()] = f
+    for rel in read:
+        if not Path(rel).is_absolute() and ".." not in Path(rel).parts:
+            if (workdir / rel).is_file():
+                files.setdefault(Path(rel).as_posix(), workdir / rel)
     return dict(sorted(files.items()))
 
 
-def copy_sources(workdir: Path, output: Path) -> None:
+def copy_sources(workdir: Path, output: Path, read: Iterable[str] = ()) -> None:
     """Write the copy of the sources to the folder `output`, atomically (whole or not at all)."""
-    files = source_files(workdir)
+    files = source_files(workdir, read)
     with atomic_directory(output) as tmp:
         for rel, src in files.items():
             dest = tmp / rel

@@ -12,7 +12,14 @@ from typing import Any
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.atomic import write_json_atomic
 from mjtrial.crate.graph import crate_metadata
-from mjtrial.crate.record import iso_time, read_record, running_job_start, snakemake_times
+from mjtrial.crate.record import (
+    iso_time,
+    read_inputs,
+    read_record,
+    running_job_start,
+    sealed_stamps,
+    snakemake_times,
+)
 from mjtrial.crate.sources import copy_sources, stage_scripts
 from mjtrial.layout import Layout
 from mjtrial.stages.stamping import make_stage_stamp
@@ -36,9 +43,12 @@ def write_crate(
     """
     layout = Layout(Path(output).parent)
     started = running_job_start(repo_root, provenance.repo_relative(output, repo_root))
-    copy_sources(repo_root, source_output)
+    stamps = sealed_stamps(seals, repo_root=repo_root)
+    results = provenance.repo_relative(layout.root, repo_root)
+    read = [p for p in read_inputs(stamps) if not p.startswith(f"{results}/")]
+    copy_sources(repo_root, source_output, read=read)
     stamp = make_stage_stamp(rule, dict(crate_slice), {"seals": list(seals)}, repo_root=repo_root)
-    record = read_record(layout, repo_root=repo_root, seals=seals, crate_stamp=stamp)
+    record = read_record(layout, repo_root=repo_root, seals=seals, crate_stamp=stamp, stamps=stamps)
     times = snakemake_times(repo_root, record.jobs())
     times["crate"] = (started, iso_time(time.time()))
     record = dataclasses.replace(record, times=times)
