@@ -61,6 +61,7 @@ include: "workflow/rules/manifest.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/seal.smk"
 include: "workflow/rules/studies.smk"
+include: "workflow/rules/crate.smk"
 
 
 report: "workflow/report/workflow.rst"
@@ -73,6 +74,7 @@ rule all:
         failures=[LAYOUT.failures] if RECORDED else [],
         report=LAYOUT.report,
         seal=LAYOUT.seal,
+        crate=LAYOUT.crate,
 
 
 # No good result is lost (mjtrial.safekeeping): the results are snapshot before any job runs,

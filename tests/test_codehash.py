@@ -101,14 +101,15 @@ def test_digest_changes_with_any_file_and_names_it():
 
 # Rules whose inputs come from each stage, directly or not (workflow/rules/*.smk).
 DOWNSTREAM = {  # within the built-in experiment, what `snakemake -c2` plans
-    "states": {"rollout", "gather", "failures", "analysis", "manifest", "report", "seal"},
-    "rollout": {"gather", "failures", "analysis", "manifest", "report", "seal"},
-    "gather": {"failures", "analysis", "manifest", "report", "seal"},
-    "failures": {"manifest", "report", "seal"},
-    "analysis": {"manifest", "report", "seal"},
-    "manifest": {"report", "seal"},
-    "report": {"seal"},
-    "seal": set(),
+    "states": {"rollout", "gather", "failures", "analysis", "manifest", "report", "seal", "crate"},
+    "rollout": {"gather", "failures", "analysis", "manifest", "report", "seal", "crate"},
+    "gather": {"failures", "analysis", "manifest", "report", "seal", "crate"},
+    "failures": {"manifest", "report", "seal", "crate"},
+    "analysis": {"manifest", "report", "seal", "crate"},
+    "manifest": {"report", "seal", "crate"},
+    "report": {"seal", "crate"},
+    "seal": {"crate"},
+    "crate": set(),
     "sensitivity": set(),  # the studies' stages are not part of `snakemake -c2`
     "dose_response": set(),
 }
@@ -184,4 +185,6 @@ def _stage_of(path: str) -> str:
         return "states"
     if rel == "seal.json":
         return "seal"
+    if rel == "ro-crate-metadata.json" or rel == "source":
+        return "crate"
     return "report"

@@ -86,15 +86,17 @@ def test_builds_everything_and_second_run_has_nothing_to_do(built):
 def test_every_output_is_stamped_with_commit_state_and_versions(built):
     results = built / "results" / "research_mode"
     folders = [results / "rollouts" / c / f"shard-{s}" for c in ("fast", "slow") for s in SHARDS]
+    folders.append(results / "source")  # the crate's copy of the sources
     outputs = [
         p
         for p in results.rglob("*")
-        if (p.is_file() and "logs" not in p.parts and p.parent not in folders) or p in folders
+        if (p.is_file() and "logs" not in p.parts and not any(f in p.parents for f in folders))
+        or p in folders
     ]
     # 15 data files (states, 2 tables, 2 nominal episodes, 6 shard tables, failures.rrd and
     # .parquet, summary, manifest), 6 folders of recordings, report.md, 5 figures as PNG and SVG,
-    # the seal
-    assert len(outputs) == 33
+    # the seal, the crate and its copy of the sources
+    assert len(outputs) == 35
     for path in [*outputs, *(p for f in folders for p in f.glob("*.rrd"))]:
         stamp = provenance.read_stamp(path)
         assert stamp["versions"]["mujoco"] == "3.14.0"
@@ -147,6 +149,7 @@ def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_p
         "manifest": 1,
         "report": 1,
         "seal": 1,
+        "crate": 1,
     }
 
 
@@ -164,6 +167,7 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
         "rollout": 3,  # fast's 3 shards
         "gather": 1,
         "seal": 1,
+        "crate": 1,
     }
     assert "wildcards: condition=fast" in out and "condition=slow" not in out
 

@@ -20,6 +20,7 @@ from mjtrial.provenance import (
     MissingStampError,
     formats,
     read_stamp,
+    register_folder_reader,
     register_reader,
     write_figure,
     write_json,
@@ -347,6 +348,50 @@ def test_a_folder_is_read_as_rrd_recordings(readers: dict, tmp_path: Path) -> No
         read_stamp(folder)
     register_reader(".rrd", lambda path: {**STAMP, "from": path.name})
     assert read_stamp(folder) == {**STAMP, "from": "fast"}
+
+
+def test_a_file_without_a_stamp_in_a_folder_output_answers_with_the_folders(
+    readers: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A shard's blueprint.rbl and Snakemake's timestamp answer with the shard's stamp; the
+    files of a registered folder (nested, or Markdown without front matter) with its own."""
+    monkeypatch.setattr(formats, "_FOLDER_READERS", [])
+    register_reader(".rrd", lambda path: {**STAMP, "from": path.name} if path.is_dir() else None)
+    shard = tmp_path / "shard-00000"
+    shard.mkdir()
+    (shard / "blueprint.rbl").write_bytes(b"layout")
+    (shard / ".snakemake_timestamp").write_bytes(b"")
+    assert read_stamp(shard / "blueprint.rbl") == {**STAMP, "from": "shard-00000"}
+    assert read_stamp(shard / ".snakemake_timestamp") == {**STAMP, "from": "shard-00000"}
+    (tmp_path / "loose.rbl").write_bytes(b"")  # in no folder output: no reader for it
+    with pytest.raises(ValueError, match=r"no reader of provenance stamps for \.rbl files"):
+        read_stamp(tmp_path / "loose.rbl")
+    with pytest.raises(FileNotFoundError):  # a missing file is not its folder's
+        read_stamp(shard / "absent.json")
+
+    register_folder_reader(lambda p: p.name == "copy", lambda p: {**STAMP, "from": "copy"})
+    nested = tmp_path / "copy" / "src"
+    nested.mkdir(parents=True)
+    (nested / "a.py").write_text("x = 1\n")
+    (tmp_path / "copy" / "README.md").write_text("# no front matter\n")
+    assert read_stamp(nested / "a.py") == {**STAMP, "from": "copy"}
+    assert read_stamp(tmp_path / "copy" / "README.md") == {**STAMP, "from": "copy"}
+    assert read_stamp(tmp_path / "copy") == {**STAMP, "from": "copy"}
+    assert formats.is_folder_output(tmp_path / "copy") and formats.is_folder_output(shard)
+    assert not formats.is_folder_output(nested)
+
+
+def test_a_reader_registered_by_name_comes_before_the_suffixs(
+    readers: dict, tmp_path: Path
+) -> None:
+    register_reader("ro-crate-metadata.json", lambda path: {**STAMP, "from": "by name"})
+    (tmp_path / "ro-crate-metadata.json").write_text("{}")
+    (tmp_path / "other.json").write_text("{}")
+    assert read_stamp(tmp_path / "ro-crate-metadata.json") == {**STAMP, "from": "by name"}
+    with pytest.raises(MissingStampError):
+        read_stamp(tmp_path / "other.json")
+    with pytest.raises(ValueError, match="a file name has one"):
+        register_reader("Snakefile", lambda path: None)
 
 
 def test_unregistered_suffixes_are_clear_errors(readers: dict, tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ from test_pipeline import planned_jobs
 
 import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
+from mjtrial.crate import validation
 from mjtrial.layout import Layout
 from mjtrial.verify import Status, verify_results
 
@@ -58,6 +59,8 @@ def planned_jobs_for(workdir: Path, target: str) -> dict[str, int]:
     from conftest import run_snakemake as run
 
     out = run(workdir, "-n", target).stdout
+    if "Nothing to be done" in out:
+        return {}
     table = out.split("Job stats:")[1]
     jobs = {}
     for line in table.splitlines()[3:]:
@@ -79,6 +82,7 @@ def test_adding_a_variant_runs_only_its_episodes(studied, tmp_path):
         "gather_variant": 2,
         "study_sensitivity": 1,
         "seal_study": 1,
+        "crate": 1,
         "sensitivity": 1,
     }
 
@@ -111,7 +115,7 @@ def test_dose_response_covers_the_sweep_on_the_same_states(studied):
     assert summary["per_value"][0]["successes"] == fast["successes"]
 
 
-def test_study_outputs_are_stamped_reported_sealed_and_verified(studied):
+def test_study_outputs_are_stamped_reported_sealed_and_verified(studied, tmp_path):
     for study in ("sensitivity", "dose_response"):
         for path in [
             LAYOUT.study_summary(study),
@@ -142,10 +146,55 @@ def test_study_outputs_are_stamped_reported_sealed_and_verified(studied):
         studied / LAYOUT.root, config_path=studied / "config" / "config.yaml", repo_root=studied
     )
     assert report.ok, report.format()
-    figure = studied / LAYOUT.study_figure_files("sensitivity")[1]  # the SVG
+    work = tmp_path / "copy"  # edited in a copy: the other tests read `studied` as built
+    shutil.copytree(studied, work, symlinks=True)
+    figure = work / LAYOUT.study_figure_files("sensitivity")[1]  # the SVG
     figure.write_text(figure.read_text().replace("<svg", "<svg data-x='1'", 1))
     report = verify_results(
-        studied / LAYOUT.root, config_path=studied / "config" / "config.yaml", repo_root=studied
+        work / LAYOUT.root, config_path=work / "config" / "config.yaml", repo_root=work
     )
     rel = (LAYOUT.study_figure_files("sensitivity")[1]).as_posix()
     assert report[rel].status is Status.TAMPERED
+
+
+def test_the_crate_covers_the_studies_and_validates_offline(studied, tmp_path):
+    crate = studied / LAYOUT.crate
+    stamp = provenance.read_stamp(crate)
+    assert [r["path"] for r in stamp["inputs"]["seals"]] == [
+        LAYOUT.seal.as_posix(),
+        LAYOUT.study_seal("sensitivity").as_posix(),
+        LAYOUT.study_seal("dose_response").as_posix(),
+    ]
+    entities = {e["@id"]: e for e in json.loads(crate.read_text())["@graph"]}
+    jobs = {e["name"] for i, e in entities.items() if i.startswith("#job/")}
+    assert {"sensitivity", "dose_response", "seal:sensitivity", "seal:dose_response"} <= jobs
+    assert {f"rollout:unstable/slow#{s}" for s in ("00000", "00001", "00002")} <= jobs
+    assert "rollout:lift_time-0.3#00000" in jobs  # the sweep's own value
+    sealed = json.loads((studied / LAYOUT.study_seal("sensitivity")).read_text())["outputs"]
+    for path, sha in sealed.items():
+        rel = path.removeprefix(LAYOUT.root.as_posix() + "/")
+        entity = entities.get(rel) or entities[rel + "/"]
+        assert entity["sha256"] == sha
+    findings = validation.validate(studied / LAYOUT.root, cache_path=tmp_path / "cache" / "http")
+    assert findings == [], "\n".join(f.line() for f in findings)
+
+
+def test_the_studies_stay_out_of_snakemake_c2_after_they_ran(studied, tmp_path):
+    """The crate reads an earlier study's seal as it is (`before_update`): a change to what the
+    studies depend on reruns the built-in experiment and its crate, never a study."""
+    workdir = tmp_path / "copy"
+    shutil.copytree(studied, workdir, symlinks=True)
+    assert planned_jobs(workdir) == {}
+    assert planned_jobs_for(workdir, "studies") == {}
+    edit_config(workdir, lambda c: c["analysis"].update(n_resamples=600))
+    assert planned_jobs(workdir) == {
+        "all": 1,
+        "analysis": 1,
+        "manifest": 1,
+        "report": 1,
+        "seal": 1,
+        "crate": 1,
+    }
+    jobs = planned_jobs_for(workdir, "sensitivity")
+    assert jobs["study_sensitivity"] == 1 and jobs["crate"] == 1
+    assert "rollout_variant" not in jobs  # the analysis settings are not a rollout's

@@ -472,12 +472,15 @@ def _data(folder: Path) -> dict[str, object]:
     for path in sorted(folder.rglob("*.parquet")):
         out[str(path.relative_to(folder))] = pq.read_table(path).replace_schema_metadata(None)
     for path in sorted(folder.rglob("*.json")):
+        rel = path.relative_to(folder)
+        if rel.parts[0] == "source" or rel.name == "ro-crate-metadata.json":
+            continue  # the crate's copy of the code; the crate holds the jobs' times and stamps
         data = json.loads(path.read_text())
         data.pop("provenance", None)
         data.pop("stamps", None)  # the manifest's copies of every stamp
         if path.name == "seal.json":
             data.pop("outputs")  # sha256 of stamped files, whose stamps hold their time
-        out[str(path.relative_to(folder))] = data
+        out[str(rel)] = data
     return out
 
 

@@ -90,18 +90,19 @@ def test_fresh_build_verifies(built, monkeypatch, capsys):
     folders = {
         built / RESULTS / "rollouts" / c / f"shard-{s}" for c in ("fast", "slow") for s in SHARDS
     }
+    folders.add(built / RESULTS / "source")  # the crate's copy of the sources: one output
     stamped = sorted(
         p.relative_to(built).as_posix()
         for p in (built / RESULTS).rglob("*")
         if p in folders
         or (
             p.suffix in (".parquet", ".json", ".md", ".png", ".svg", ".rrd")
-            and p.parent not in folders
+            and not any(f in p.parents for f in folders)
         )
     )
     assert sorted(o.path for o in report.outputs) == stamped
     assert {STATES, SUMMARY, MANIFEST, FAILURES, FAILURES_TABLE, REPORT, *ROLLOUTS} <= set(stamped)
-    assert len(stamped) == 33
+    assert len(stamped) == 35  # with the crate and its copy of the sources
     assert report.ok and report.exit_code == 0, report.format()
     assert report.warnings == () and report.skipped == ()
 

@@ -55,8 +55,9 @@ def test_a_fresh_build_recomputes_equal(built):
     report = verified(built, resimulate=5)
     assert report.ok, report.format()
     [line] = report.checks
-    # states, 2 gathered tables, 2 nominal episodes, 6 shard tables, summary, manifest, report
-    assert line.startswith("recomputed 14 outputs from their inputs and re-simulated 24 episodes")
+    # states, 2 gathered tables, 2 nominal episodes, 6 shard tables, summary, manifest, report,
+    # the crate and its copy of the sources
+    assert line.startswith("recomputed 16 outputs from their inputs and re-simulated 24 episodes")
     assert line.endswith(": 0 differ")
 
 
@@ -99,12 +100,13 @@ def test_a_forged_summary_restamped_with_the_manifest_forced_is_named(built, tmp
 
 
 def test_a_forged_episode_rebuilt_downstream_is_found_by_resimulation(built, tmp_path):
-    """Nudge an episode's final height in a shard table under a fresh stamp and let Snakemake
+    """Nudge an episode's final height in a shard table under its own stamp and let Snakemake
     rebuild everything after it: only re-simulating the episode can tell. (Flipping its
-    success is caught by the failures stage already: its recording says otherwise.)"""
+    success is caught by the failures stage already: its recording says otherwise; a stamp
+    made after the job ended, by the crate's record of the job's times: test_crate.)"""
     workdir = copy_of(built, tmp_path)
     shard = workdir / RESULTS / "rollouts" / "slow" / "shard-00001.parquet"
-    stamp = dict(provenance.read_stamp(shard), created_utc=now_utc())
+    stamp = provenance.read_stamp(shard)
     table = pq.read_table(shard).replace_schema_metadata(None)
     height = table.column("final_height").to_numpy().copy()
     height[2] += 1e-6  # state 7

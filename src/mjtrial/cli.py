@@ -5,16 +5,19 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 from mjtrial import foreign_package, provenance, stats
 from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
 from mjtrial.scaffold import ScaffoldError, new_task
 
+PROFILE_NAME = "Provenance Run Crate 0.5 on RO-Crate 1.1"
+
 
 def _provenance(args: argparse.Namespace) -> int:
     # Imported here: rerun-sdk takes about 0.5 s to import, which `mjtrial plan` need not pay.
-    from mjtrial import recording  # noqa: F401 - registers the .rrd stamp reader
+    from mjtrial import crate, recording  # noqa: F401 - register the .rrd and crate readers
 
     try:
         stamp = provenance.read_stamp(args.file)
@@ -139,6 +142,61 @@ def _verify(args: argparse.Namespace) -> int:
     return report.exit_code
 
 
+def _crate(args: argparse.Namespace) -> int:
+    # Imported here: the crate reads stamps (rerun-sdk) and uses the rocrate library, which
+    # `mjtrial plan` need not load.
+    from mjtrial.config import ConfigError, read_config_file
+    from mjtrial.crate.archive import ArchiveError, check_crate, write_archive
+
+    repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
+    foreign = foreign_package(repo_root)
+    if foreign:
+        print(f"mjtrial crate: {foreign}", file=sys.stderr)
+        return 2
+    try:
+        if args.results_dir:
+            results_dir = Path(args.results_dir)
+        else:
+            config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
+            experiment = read_config_file(config_path)["experiment"]
+            results_dir = Layout.of(experiment, base=repo_root / RESULTS_DIR).root
+        layout = Layout(results_dir)
+        differs = check_crate(layout, repo_root=repo_root)
+        if differs:
+            for path, why in differs.items():
+                print(
+                    f"mjtrial crate: {path} and the folder differ: {why}; `mjtrial verify` "
+                    "says which changed",
+                    file=sys.stderr,
+                )
+            return 1
+        print(f"crate ok: {layout.crate} describes the folder as it is")
+        if args.zip:
+            archive = write_archive(results_dir, Path(args.zip), repo_root=repo_root)
+            print(f"wrote {archive.path}: {archive.files} files, {archive.bytes / 1e6:.1f} MB")
+        if args.validate:
+            from mjtrial.crate.validation import validate  # the validator: a test dependency
+
+            with tempfile.TemporaryDirectory(prefix="mjtrial-validator-") as cache:
+                findings = validate(layout.root, cache_path=Path(cache) / "http_cache")
+            for finding in findings:
+                print(finding.line())
+            print(f"validator: {len(findings)} REQUIRED issues ({PROFILE_NAME}, offline)")
+            if findings:
+                return 1
+    except ImportError as err:
+        print(
+            f"mjtrial crate: --validate needs rocrate-validator ({err}): pip install -e '.[test]'",
+            file=sys.stderr,
+        )
+        return 2
+    except (ArchiveError, ConfigError, OSError, ValueError, KeyError) as err:
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"mjtrial crate: {message}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _new_task(args: argparse.Namespace) -> int:
     root = Path(args.repo_root or ".")
     try:
@@ -162,7 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("provenance", help="print the provenance stamp of an output as JSON")
     p.add_argument(
-        "file", help="any output: .parquet, .json, .md, .png, .svg, .rrd or a folder of recordings"
+        "file",
+        help="any file under results: an output (.parquet, .json, .md, .png, .svg, .rrd, a "
+        "folder of recordings, the crate), a log, or a file inside a folder output",
     )
     p.set_defaults(run=_provenance)
     p = sub.add_parser("plan", help="episodes needed for an interval width or a paired effect")
@@ -206,6 +266,24 @@ def main(argv: list[str] | None = None) -> int:
         "mjtrial.verify.DEFAULT_RESIMULATE; 0: none)",
     )
     p.set_defaults(run=_verify)
+    p = sub.add_parser(
+        "crate",
+        help="check a results folder's RO-Crate (ro-crate-metadata.json) against the folder; "
+        "--zip packs the folder, its crate and its sources into one archive",
+    )
+    p.add_argument("results_dir", nargs="?", help="results folder (default: results/<experiment>)")
+    p.add_argument("--zip", metavar="OUT.zip", help="write the archive here")
+    p.add_argument("--config", help="config file of the experiment (default: config/config.yaml)")
+    p.add_argument(
+        "--repo-root",
+        help="folder the pipeline ran in; the seals record paths relative to it (default: .)",
+    )
+    p.add_argument(
+        "--validate",
+        action="store_true",
+        help=f"also run rocrate-validator offline ({PROFILE_NAME}, REQUIRED); needs the test extra",
+    )
+    p.set_defaults(run=_crate)
     p = sub.add_parser(
         "new-task",
         help="write tasks/NAME/ (a model and task.py to edit) and config/NAME.yaml, which run "

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 RESULTS_DIR = "results"
+CRATE_FILE = "ro-crate-metadata.json"  # RO-Crate's name for a crate's metadata file
 CONFIG_FILE = "config/config.yaml"  # the design, relative to the repository root
 NOMINAL = "nominal"  # the variant that is the model as committed
 STUDIES = ("sensitivity", "dose_response")  # each a target: `snakemake -c2 sensitivity`
@@ -30,6 +31,20 @@ FIGURES = (
     "sample_traces",
 )
 FIGURE_FORMATS = ("png", "svg")
+
+# What the crate stage copies into `source/` of a results folder, relative to the working
+# folder: the workflow's files as they ran (the package itself comes from where it is imported,
+# `src/mjtrial`). `pyproject.toml` and `README.md` make the copy installable (`pip install -e .`).
+WORKFLOW_SOURCES = (
+    "Snakefile",
+    "workflow",
+    "config",
+    "models",
+    "tasks",
+    "profiles",
+    "pyproject.toml",
+    "README.md",
+)
 
 
 def script_path(script: str) -> str:
@@ -69,6 +84,7 @@ STAGES: dict[str, Stage] = {
         Stage("seal", "seal"),
         Stage("sensitivity", "study"),
         Stage("dose_response", "study"),
+        Stage("crate", "crate"),
     )
 }
 
@@ -216,6 +232,18 @@ class Layout:
     def study_seal(self, study: str) -> Path:
         """The sha256 of the study's outputs and of the rollouts it read."""
         return self.root / f"seal_{study}.json"
+
+    # -- the crate --------------------------------------------------------------------------
+    @property
+    def crate(self) -> Path:
+        """The RO-Crate metadata of the folder: a Provenance Run Crate of every sealed run."""
+        return self.root / CRATE_FILE
+
+    @property
+    def source(self) -> Path:
+        """The workflow's sources as they ran (`WORKFLOW_SOURCES` and `src/mjtrial`), copied
+        by the crate stage: the crate's workflow is a file of the crate."""
+        return self.root / "source"
 
     def sealed_outputs(
         self, conditions: list[str], shards: list[str], *, recorded: bool

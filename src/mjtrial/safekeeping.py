@@ -62,6 +62,16 @@ def _record_subject(record: Path, folder: Path) -> Path | None:
         return None
 
 
+def record_path(folder: Path, subject: str) -> Path:
+    """Where Snakemake keeps its record of the output `subject` (its path as Snakemake names
+    it) in `folder` (the metadata or incomplete folder): the inverse of `_record_subject`."""
+    max_len = os.pathconf(folder, "PC_NAME_MAX") if os.name == "posix" else 255
+    max_len = max_len or 255
+    encoded = base64.urlsafe_b64encode(subject.encode()).decode()
+    parts = [encoded[i : i + max_len - 1] for i in range(0, len(encoded), max_len - 1)]
+    return folder.joinpath(*["@" + p for p in parts[:-1]], parts[-1])
+
+
 def _link_or_copy(src: Path | str, dst: Path | str) -> None:
     Path(dst).parent.mkdir(parents=True, exist_ok=True)
     try:

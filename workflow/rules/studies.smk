@@ -64,17 +64,21 @@ rule seal_study:
         run_script("seal", input, output, params, wildcards, threads, log, rule)
 
 
+# Each target ends with the folder's crate (crate.smk), which then covers the study.
 rule sensitivity:
     input:
         LAYOUT.study_seal("sensitivity"),
+        LAYOUT.crate,
 
 
 rule dose_response:
     input:
         LAYOUT.study_seal("dose_response"),
+        LAYOUT.crate,
 
 
 rule studies:
     input:
         LAYOUT.study_seal("sensitivity"),
         LAYOUT.study_seal("dose_response"),
+        LAYOUT.crate,

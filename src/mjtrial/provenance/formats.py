@@ -12,8 +12,12 @@ Every output format carries its stamp in-band:
 * A job's log (``.log``): its first line, ``# mjtrial.provenance: <single-line JSON>``.
 * Rerun ``.rrd``, a file or a folder of them: a recording property. Its reader lives in
   :mod:`mjtrial.recording`, which registers it here when imported (:func:`register_reader`).
+* A run's RO-Crate (``ro-crate-metadata.json``): an entity of its graph, read by
+  :mod:`mjtrial.crate`, which registers that reader by the file's name.
 
-:func:`read_stamp` reads any of them back with the reader registered for the file's suffix.
+:func:`read_stamp` reads any of them back with the reader registered for the file's name or
+suffix. A file with no stamp of its own inside a folder written as one output (a shard's
+``blueprint.rbl``, a file of the crate's copy of the sources) answers with the folder's stamp.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import escape as xml_escape
 
 from mjtrial.atomic import atomic_path, write_json_atomic, write_text_atomic
-from mjtrial.provenance.stamp import is_stamp
+from mjtrial.provenance.stamp import is_recording_folder, is_stamp
 
 if TYPE_CHECKING:  # pragma: no cover
     import pyarrow
@@ -38,10 +42,12 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "STAMP_KEY",
     "MissingStampError",
+    "is_folder_output",
     "StampReader",
     "log_stamp_line",
     "markdown_with_stamp",
     "read_stamp",
+    "register_folder_reader",
     "register_reader",
     "write_figure",
     "write_json",
@@ -301,41 +307,80 @@ _READERS: dict[str, StampReader] = {
 }
 
 # Formats whose reader lives in a module that imports this one, and registers itself.
-_REGISTERED_BY = {".rrd": "mjtrial.recording"}
+_REGISTERED_BY = {".rrd": "mjtrial.recording", "ro-crate-metadata.json": "mjtrial.crate"}
+
+# Folders written as one output other than folders of recordings (which the ".rrd" reader
+# reads): (is such a folder, its stamp reader), registered by the modules that write them.
+_FOLDER_READERS: list[tuple[Callable[[Path], bool], StampReader]] = []
 
 
-def register_reader(suffix: str, reader: StampReader) -> None:
-    """Make :func:`read_stamp` read files ending in ``suffix`` (such as ``".rrd"``) with ``reader``.
+def register_reader(key: str, reader: StampReader) -> None:
+    """Make :func:`read_stamp` read files ending in ``key`` (a suffix such as ``".rrd"``) or
+    named ``key`` (a file name such as ``"ro-crate-metadata.json"``, which takes precedence over
+    its suffix) with ``reader``.
 
     ``reader(path)`` returns the stamp, or None when the file carries none, and raises
-    ``ValueError`` for a corrupt file. A suffix registered again gets the new reader.
+    ``ValueError`` for a corrupt file. A key registered again gets the new reader.
     """
-    if not suffix.startswith(".") or len(suffix) < 2:
-        raise ValueError(f"a file suffix starts with '.', got {suffix!r}")
-    _READERS[suffix.lower()] = reader
+    if len(key) < 2 or "/" in key or (not key.startswith(".") and "." not in key):
+        raise ValueError(f"a file suffix starts with '.', a file name has one; got {key!r}")
+    _READERS[key.lower()] = reader
+
+
+def register_folder_reader(is_folder: Callable[[Path], bool], reader: StampReader) -> None:
+    """Make :func:`read_stamp` read a folder for which ``is_folder(folder)`` holds (one output
+    made of many files) with ``reader``, and answer for a file inside it that has no stamp of
+    its own with that folder's stamp."""
+    _FOLDER_READERS.append((is_folder, reader))
+
+
+def _folder_reader(path: Path) -> StampReader | None:
+    for is_folder, reader in _FOLDER_READERS:
+        if is_folder(path):
+            return reader
+    return _READERS.get(".rrd")  # any other folder is read as a folder of recordings
+
+
+def is_folder_output(path: str | os.PathLike[str]) -> bool:
+    """Whether `path` is a folder written as one output: a folder of recordings, or a folder a
+    module registered (`register_folder_reader`)."""
+    path = Path(path)
+    return is_recording_folder(path) or any(is_folder(path) for is_folder, _ in _FOLDER_READERS)
 
 
 def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read the stamp embedded in an output file, with the reader registered for its suffix.
+    """Read the stamp embedded in an output file, with the reader registered for its name or
+    suffix.
 
-    A folder is read as a folder of ``.rrd`` recordings, one output that all of them stamp.
-    Raises :class:`MissingStampError` when the file has no stamp, ``ValueError`` for a suffix
-    with no reader or a corrupt file/stamp, ``FileNotFoundError`` when it does not exist.
+    A folder is read as one output: a folder of ``.rrd`` recordings, or a folder registered with
+    :func:`register_folder_reader`. A file with no stamp of its own (no reader for it, or none
+    in it) inside such a folder answers with the folder's stamp. Raises
+    :class:`MissingStampError` when the file has no stamp, ``ValueError`` for a suffix with no
+    reader or a corrupt file/stamp, ``FileNotFoundError`` when it does not exist.
     """
     path = Path(path)
-    suffix = ".rrd" if path.is_dir() else path.suffix.lower()
-    reader = _READERS.get(suffix)
+    if path.is_dir():
+        reader = _folder_reader(path)
+        suffix = ".rrd"
+    else:
+        suffix = path.suffix.lower()
+        reader = _READERS.get(path.name.lower()) or _READERS.get(suffix)
+    stamp = reader(path) if reader is not None else None
+    if stamp is None and path.is_file():
+        folder = next((p for p in path.parents if is_folder_output(p)), None)
+        if folder is not None:
+            return read_stamp(folder)
     if reader is None:
         kind = f"{suffix} files" if suffix else "files without a suffix"
+        key = path.name.lower() if path.name.lower() in _REGISTERED_BY else suffix
         if path.is_dir():
             kind = "folders of .rrd recordings"
         hint = (
-            f"{_REGISTERED_BY[suffix]} registers that reader when imported"
-            if suffix in _REGISTERED_BY
-            else f"supported: {', '.join(sorted(_READERS))}"
+            f"{_REGISTERED_BY[key]} registers that reader when imported"
+            if key in _REGISTERED_BY
+            else f"supported: {', '.join(sorted(k for k in _READERS if k.startswith('.')))}"
         )
         raise ValueError(f"{path}: no reader of provenance stamps for {kind} ({hint})")
-    stamp = reader(path)
     if stamp is None:
         raise MissingStampError(f"{path}: no mjtrial provenance stamp")
     return stamp

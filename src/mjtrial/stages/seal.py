@@ -20,10 +20,14 @@ log = logging.getLogger("mjtrial")
 
 
 def seal_outputs(
-    *, outputs: Sequence[Path], output: Path, repo_root: Path = REPO_ROOT
+    *, outputs: Sequence[Path], output: Path, rule: str = "seal", repo_root: Path = REPO_ROOT
 ) -> dict[str, Any]:
-    """Write `seal.json`: `{"outputs": {path: sha256}}`, stamped with the same records."""
-    stamp = make_stage_stamp("seal", {}, {p.as_posix(): p for p in outputs}, repo_root=repo_root)
+    """Write `seal.json`: `{"outputs": {path: sha256}}`, stamped with the same records.
+
+    `rule` is the job's: `seal`, or `seal:<study>` for a study's seal (`seal_<study>.json`), so
+    that each seal's stamp names the job that wrote it.
+    """
+    stamp = make_stage_stamp(rule, {}, {p.as_posix(): p for p in outputs}, repo_root=repo_root)
     sealed = {record["path"]: record["sha256"] for record in stamp["inputs"].values()}
     provenance.write_json({"outputs": sealed}, output, stamp)
     log.info("seal: %d outputs -> %s", len(sealed), output)

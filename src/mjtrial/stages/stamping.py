@@ -81,6 +81,8 @@ def _slice(
         return {"failures_max": config["recording"]["failures_max"]}
     if stage == "seal":
         return {}
+    if stage == "crate":  # the crate's license, if the config gives one
+        return {"license": config["provenance"].get("license")}
     if stage in ("manifest", "report"):
         # The whole design, but not the studies' (their own outputs record it): adding a
         # variant never reruns the built-in experiment.

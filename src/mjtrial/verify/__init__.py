@@ -35,6 +35,7 @@ from typing import Any
 from mjtrial import provenance, recording  # noqa: F401 - recording registers the .rrd reader
 from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
+from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout, shard_ids
 from mjtrial.verify.chain import (
     STAMPED_SUFFIXES,
@@ -86,7 +87,8 @@ def _relative(path: Path, root: Path) -> str:
 def _stamped_files(results_dir: Path) -> list[Path]:
     """Outputs under ``results_dir`` that should carry a stamp (hidden temp files excluded).
 
-    A folder of recordings (`provenance.is_recording_folder`) is one output, not its files.
+    A folder written as one output (a shard's recordings, the crate's copy of the sources:
+    `provenance.is_folder_output`) is one output, not its files.
     """
     if not results_dir.is_dir():
         return []
@@ -95,7 +97,7 @@ def _stamped_files(results_dir: Path) -> list[Path]:
         for p in results_dir.rglob("*")
         if not any(part.startswith(".") for part in p.relative_to(results_dir).parts)
     ]
-    folders = {p for p in visible if provenance.is_recording_folder(p)}
+    folders = {p for p in visible if provenance.is_folder_output(p)}
     return sorted(
         p
         for p in visible
@@ -161,6 +163,21 @@ def _studies_run(layout: Layout) -> list[str]:
             for p in (layout.study_summary(s), layout.study_report(s), layout.study_seal(s))
         )
     ]
+
+
+def _crate_outdated(layout: Layout, stamps: Mapping[str, Any], repo_root: Path) -> dict[str, str]:
+    """The crate, when a seal is there that it does not cover (a study sealed after it)."""
+    crate = _relative(layout.crate, repo_root)
+    stamp = stamps.get(crate)
+    if not isinstance(stamp, Mapping):
+        return {}
+    covered = set(covered_seals(stamp))
+    missed = [_relative(s, repo_root) for s in _seals(layout) if s.exists()]
+    missed = [s for s in missed if s not in covered]
+    if not missed:
+        return {}
+    names = ", ".join(Path(s).name for s in missed)
+    return {crate: f"it does not cover {names}, sealed after it"}
 
 
 def _recorded_command(manifest: Mapping[str, Any] | None) -> str:
@@ -287,10 +304,18 @@ def verify_results(
             seal_paths=[_relative(p, repo_root) for p in _seals(layout)],
             expected_paths=[
                 _relative(p, repo_root)
-                for s in _studies_run(layout)
-                for p in (layout.study_summary(s), layout.study_report(s))
+                for p in [
+                    layout.crate,
+                    layout.source,
+                    *(
+                        p
+                        for s in _studies_run(layout)
+                        for p in (layout.study_summary(s), layout.study_report(s))
+                    ),
+                ]
             ],
             recomputed_differs=differs,
+            outdated=_crate_outdated(layout, stamps, repo_root),
         )
 
     report = check()
@@ -305,6 +330,7 @@ def verify_results(
         # as the Snakefile records it: relative to the repository, even from outside it
         config_file=provenance.path_in_repo(config_path, repo_root)
         or os.path.relpath(config_path, repo_root),
+        stamps=stamps,
     )
     if found.differs:
         report = check(found.differs)

@@ -379,6 +379,7 @@ def check_stamps(
     seal_paths: Iterable[str] = (),
     expected_paths: Iterable[str] = (),
     recomputed_differs: Mapping[str, str] | None = None,
+    outdated: Mapping[str, str] | None = None,
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -392,6 +393,8 @@ def check_stamps(
     edit to any of them is seen there. ``expected_paths`` are further outputs that must be
     there (a study's summary beside its report). ``recomputed_differs`` maps outputs that
     differ from their recomputation (:mod:`mjtrial.verify.recompute`) to why: tampered.
+    ``outdated`` maps outputs that miss something built after them (a crate that does not
+    cover a study sealed since) to why: stale.
     """
     unreadable = dict(unreadable or {})
     prefix = outputs_prefix.rstrip("/") + "/"
@@ -432,6 +435,8 @@ def check_stamps(
         tampered[path].append(f"no readable stamp ({why})")
     for path, why in (recomputed_differs or {}).items():
         tampered[path].append(why)
+    for path, why in (outdated or {}).items():
+        stale[path].append(why)
 
     model_path = current.config.get("model")
     for path, stamp in pipeline_stamps.items():

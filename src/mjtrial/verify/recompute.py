@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 
 from mjtrial import provenance
 from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.crate.check import crate_differences
 from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
 from mjtrial.report import report_text
 from mjtrial.stages.analysis import summarize_tables
@@ -359,6 +360,20 @@ class _Checker:
             ),
         )
 
+    def crate(self, stamps: Mapping[str, Mapping[str, Any]]) -> None:
+        """The crate and its copy of the sources, rebuilt from the folder (`mjtrial.crate`)."""
+        layout = self.layout
+        if not self.is_current(layout.crate):
+            return
+        self.found.recomputed += 2
+        try:
+            differs = crate_differences(layout, repo_root=self.repo_root, stamps=stamps)
+        except (OSError, ValueError) as err:
+            why = " ".join(str(err).split())[:160]
+            differs = {self.rel(layout.crate): f"cannot be recomputed ({why})"}
+        for path, why in differs.items():
+            self.found.differs[path] = f"differs from its recomputation: {why}"
+
     def studies(self) -> None:
         layout, config = self.layout, self.config
         for study in STUDIES:
@@ -417,13 +432,15 @@ def recompute(
     command_line: Mapping[str, Any] | None = None,
     command: str = "snakemake -c2",
     config_file: str = CONFIG_FILE,
+    stamps: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> Recomputation:
     """Recompute every light output of `layout` that the stamps judged current (`current`,
     repository-relative paths) and re-simulate `resimulate` episodes per shard.
 
     `command_line` and `command` are what the manifest records of the run's command line
     (`mjtrial.stages.manifest`): the config values it was given, and the command itself;
-    `config_file` the run's config file, repository-relative.
+    `config_file` the run's config file, repository-relative; `stamps` the stamps verify read
+    (repository-relative path -> stamp), from which the crate is rebuilt.
     """
     checker = _Checker(layout, config, Path(repo_root), current, command_line or {}, command)
     checker.config_file = config_file
@@ -433,4 +450,5 @@ def recompute(
     checker.manifest()
     checker.report()
     checker.studies()
+    checker.crate(stamps or {})
     return checker.found
