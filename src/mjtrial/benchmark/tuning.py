@@ -72,12 +72,17 @@ class TuningResult:
 
 
 def check_search(
-    task: Task, tuned: Mapping[str, Sequence[float]], fixed: Mapping[str, float]
+    task: Task,
+    tuned: Mapping[str, Sequence[float]],
+    fixed: Mapping[str, float],
+    *,
+    require_tuned: bool = True,
 ) -> dict[str, tuple[float, float]]:
     """The tuned parameters' bounds, checked against the task's protocol parameters; a
-    problem is a one-line ValueError naming the parameter."""
+    problem is a one-line ValueError naming the parameter (`tuned.NAME: ...`, `fixed.NAME:
+    ...`). `require_tuned=False` checks fixed values alone."""
     known = {p.name: p for p in task.protocol_parameters}
-    if not tuned:
+    if require_tuned and not tuned:
         raise ValueError("tuned: expected at least one protocol parameter to tune")
     out = {}
     for name, bounds in tuned.items():
