@@ -85,6 +85,7 @@ STAGES: dict[str, Stage] = {
         Stage("sensitivity", "study"),
         Stage("dose_response", "study"),
         Stage("crate", "crate"),
+        Stage("train", "train"),  # a benchmark's tuning of one method, task and seed
     )
 }
 

@@ -159,3 +159,30 @@ def _search_problem(err: ValueError, prefix: str) -> tuple[str, str]:
     if prefix.endswith(("condition.", "reference.")):
         field = ""
     return f"{prefix}{field}{name or kind}", expectation
+
+
+def train_slice(
+    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], task: str, method: str, seed: int
+) -> dict[str, Any]:
+    """What one training job depends on (its rule's params, its stamp's record): the task's
+    reference, thresholds and development seed, the benchmark's condition for it, the method's
+    budget and what it fixes and tunes on this task, the seed. Nothing else reruns it."""
+    spec = config["benchmark"]["methods"][method]
+    experiment = tasks[task].config
+    return {
+        "task": experiment["task"],
+        "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
+        "development_seed": experiment["states"]["development_seed"],
+        "condition": dict(tasks[task].condition),
+        "method": {
+            "name": method,
+            "budget": spec["budget"],
+            **(
+                {"episodes_per_candidate": spec["episodes_per_candidate"]}
+                if "episodes_per_candidate" in spec
+                else {}
+            ),
+            **{k: v for k, v in spec["tasks"][task].items() if v},
+        },
+        "seed": seed,
+    }

@@ -1,0 +1,116 @@
+"""The training stage of a benchmark: one method tuned on one task for one training seed, on
+the task's development states only, written as a stamped parameter file.
+
+The split is enforced here, not advised: the job reads one states file, and refuses it unless
+its stamp says the states stage drew it as development states (`states:development`). The
+stamp of the parameter file records that file's sha256, so `mjtrial verify` can check, on any
+machine, that no training read an evaluation state.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from mjtrial import REPO_ROOT, provenance
+from mjtrial.benchmark.tuning import tune, tuned_parameter_record
+from mjtrial.stages.rollout import condition_task, read_state_values, thresholds_of
+from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
+
+log = logging.getLogger("mjtrial")
+
+DEVELOPMENT_RULE = "states:development"  # the stamp's rule of development states
+
+
+def check_development_states(path: Path) -> dict[str, Any]:
+    """The stamp of `path`, which must be development states; a ValueError names it else."""
+    try:
+        stamp = provenance.read_stamp(path)
+    except (OSError, ValueError) as err:
+        raise ValueError(
+            f"{path}: no readable stamp ({err}); expected development states"
+        ) from None
+    if stamp.get("rule") != DEVELOPMENT_RULE:
+        raise ValueError(
+            f"{path}: states drawn by {stamp.get('rule')!r}, not development states "
+            f"({DEVELOPMENT_RULE!r}); a training job reads development states only"
+        )
+    return stamp
+
+
+def train_method(
+    *,
+    development_states: Path,
+    model_file: Path,
+    train_slice: Mapping[str, Any],
+    output: Path,
+    nthread: int = 0,
+    rule: str = "train",
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """Tune the slice's method on its task for its seed; write the parameter file `output`.
+
+    `train_slice`: `task` (the task's reference), `failure_taxonomy`, `condition` (what every
+    method runs with), `method` (its name, `budget`, `episodes_per_candidate`, and this
+    task's `fixed` and `tune`), `seed` (the training seed), `development_seed`.
+    """
+    check_development_states(Path(development_states))
+    bound = condition_task(train_slice, Path(model_file), repo_root=repo_root)
+    values = read_state_values(Path(development_states), bound.task)
+    values.pop("state_id")
+    method = train_slice["method"]
+    tuned = {k: tuple(v) for k, v in method.get("tune", {}).items()}
+    fixed = {**train_slice.get("condition", {}), **method.get("fixed", {})}
+    fixed = {k: float(v) for k, v in fixed.items() if k not in tuned}
+    if tuned:
+        result = tune(
+            bound,
+            values,
+            tuned=tuned,
+            fixed=fixed,
+            thresholds=thresholds_of(bound, train_slice),
+            budget_episodes=method["budget"],
+            episodes_per_candidate=method["episodes_per_candidate"],
+            seed=train_slice["seed"],
+            nthread=nthread,
+        )
+        record = tuned_parameter_record(
+            result,
+            development_seed=train_slice["development_seed"],
+            task=bound.task.name,
+            method=method["name"],
+        )
+    else:  # nothing to tune: the parameters as given, no episode spent
+        record = {
+            "task": bound.task.name,
+            "method": method["name"],
+            "parameters": bound.task.parameters(fixed),
+            "budget_episodes": 0,
+            "episodes_used": 0,
+            "seed": train_slice["seed"],
+        }
+    inputs = {
+        "development_states": Path(development_states),
+        **model_inputs(Path(model_file)),
+        **task_inputs(train_slice["task"], repo_root=repo_root),
+    }
+    stamp = make_stage_stamp(
+        rule,
+        dict(train_slice),
+        inputs,
+        seeds={"training": train_slice["seed"]},
+        repo_root=repo_root,
+    )
+    provenance.write_json(record, Path(output), stamp)
+    log.info(
+        "train %s on %s, seed %s: %s (%d episodes) -> %s",
+        method["name"],
+        bound.task.name,
+        train_slice["seed"],
+        record["parameters"],
+        record["episodes_used"],
+        output,
+    )
+    return record

@@ -1,0 +1,96 @@
+"""A benchmark's training job (mjtrial.stages.train): on development states only, refused on
+any other states file; a stamped parameter file whose parameters run as recorded."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT
+
+from mjtrial import engine, provenance
+from mjtrial.benchmark.config import check_benchmark_config, train_slice
+from mjtrial.config import read_config_file
+from mjtrial.stages.rollout import condition_task, read_state_values, thresholds_of
+from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.states import build_states
+from mjtrial.stages.train import train_method
+
+SOURCE = "config/benchmark.yaml"
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("train")
+    config = read_config_file(REPO_ROOT / SOURCE)
+    config["benchmark"]["methods"]["tuned"]["budget"] = 240
+    config["benchmark"]["methods"]["tuned"]["episodes_per_candidate"] = 6
+    tasks = check_benchmark_config(config, source=SOURCE)
+    experiment = dict(tasks["gantry_lift"].config)
+    experiment["states"] = {**experiment["states"], "n": 30}
+    states = config_slice("states", experiment)
+    build_states(states_slice=states, output=folder / "development.parquet", development=True)
+    build_states(states_slice=states, output=folder / "evaluation.parquet")
+    model = REPO_ROOT / experiment["model"]
+    return folder, config, tasks, model
+
+
+def test_a_tuned_method_writes_a_stamped_parameter_file_that_runs_as_recorded(setup):
+    folder, config, tasks, model = setup
+    out = folder / "tuned-gantry-1.json"
+    sl = train_slice(config, tasks, "gantry_lift", "tuned", 1)
+    train_method(
+        development_states=folder / "development.parquet",
+        model_file=model,
+        train_slice=sl,
+        output=out,
+        rule="train:tuned:gantry_lift:1",
+    )
+    record = json.loads(out.read_text())
+    stamp = provenance.read_stamp(out)
+    assert stamp["rule"] == "train:tuned:gantry_lift:1" and stamp["seeds"] == {"training": 1}
+    recorded = stamp["inputs"]["development_states"]
+    assert recorded["sha256"] == provenance.file_sha256(folder / "development.parquet")
+    assert record["episodes_used"] <= 240 and record["budget_episodes"] == 240
+    assert 0.15 <= record["parameters"]["lift_time"] <= 1.5
+    # The recorded score is the rate of the recorded parameters on every development state,
+    # run here directly through the engine.
+    bound = condition_task(sl, model)
+    values = read_state_values(folder / "development.parquet", bound.task)
+    values.pop("state_id")
+    success = np.concatenate(
+        [
+            b.outcome["success"]
+            for b in engine.iter_batches(
+                bound, values, record["parameters"], thresholds=thresholds_of(bound, sl)
+            )
+        ]
+    )
+    assert record["score_on_development"] == pytest.approx(success.mean())
+
+
+def test_a_method_with_nothing_to_tune_spends_nothing(setup):
+    folder, config, tasks, model = setup
+    out = folder / "fixed.json"
+    train_method(
+        development_states=folder / "development.parquet",
+        model_file=model,
+        train_slice=train_slice(config, tasks, "gantry_lift", "as_designed", 3),
+        output=out,
+    )
+    record = json.loads(out.read_text())
+    assert record["episodes_used"] == 0 and record["parameters"]["lift_time"] == 0.15
+
+
+def test_training_on_evaluation_states_is_refused_and_writes_nothing(setup):
+    folder, config, tasks, model = setup
+    out = folder / "cheat.json"
+    with pytest.raises(ValueError, match="not development states"):
+        train_method(
+            development_states=folder / "evaluation.parquet",
+            model_file=model,
+            train_slice=train_slice(config, tasks, "gantry_lift", "tuned", 1),
+            output=out,
+        )
+    assert not out.exists()
