@@ -86,6 +86,7 @@ STAGES: dict[str, Stage] = {
         Stage("dose_response", "study"),
         Stage("crate", "crate"),
         Stage("train", "train"),  # a benchmark's tuning of one method, task and seed
+        Stage("evaluate", "evaluate"),  # its parameters on the task's evaluation states
     )
 }
 
@@ -259,3 +260,22 @@ class Layout:
             self.report,
             *self.figure_files(),
         ]
+
+
+@dataclass(frozen=True)
+class BenchmarkLayout(Layout):
+    """A benchmark's results folder (`results/<benchmark>`): each task's states in a folder laid
+    out as an experiment's (`tasks/<task>/`), then one parameter file and one evaluation table
+    per task, method and training seed; the summary, report, logs and seal as an experiment's."""
+
+    def task(self, task: str) -> Layout:
+        """The task's own folder: its evaluation and development states."""
+        return Layout(self.root / "tasks" / task)
+
+    def parameters(self, task: str, method: str, seed: int | str) -> Path:
+        """A method's parameters for a task and training seed (the training job's output)."""
+        return self.root / "training" / task / method / f"seed-{seed}.json"
+
+    def evaluation(self, task: str, method: str, seed: int | str) -> Path:
+        """Those parameters' outcomes on the task's evaluation states (one row per state)."""
+        return self.root / "evaluation" / task / method / f"seed-{seed}.parquet"

@@ -228,6 +228,7 @@ def run_shard(
     rule: str,
     batch_size: int = BATCH_SIZE,
     repo_root: Path = REPO_ROOT,
+    extra_inputs: Mapping[str, Any] | None = None,
 ) -> pa.Table:
     """Roll out the states with ids in [first, stop) under one condition: one shard.
 
@@ -245,6 +246,7 @@ def run_shard(
         "states": states_path,
         **model_inputs(model_file),
         **task_inputs(condition_slice["task"], repo_root=repo_root),
+        **(extra_inputs or {}),  # a benchmark's evaluation: the parameter file it ran
     }
     stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
     columns: dict[str, list[np.ndarray]] = {c: [] for c in rollout_columns(task)}
