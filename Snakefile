@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from mjtrial import foreign_package
+from mjtrial.benchmark.config import check_benchmark_config, is_benchmark
 from mjtrial.config import (
     ConfigError,
     check_config,
@@ -34,47 +35,70 @@ try:
     CONFIG_SOURCE = os.path.relpath(CONFIG_SOURCE)
     config.clear()
     config.update(run_config)
-    check_config(
-        config,
-        source=", ".join(
-            dict.fromkeys([CONFIG_SOURCE, *map(os.path.relpath, workflow.configfiles)])
-        ),
-        repo_root=Path.cwd(),
-        overrides=COMMAND_LINE_CONFIG,
-    )
-    RERUN_COMMAND = rerun_command(
-        [os.path.relpath(f) for f in workflow.configfiles],
-        workflow.config_settings.config_args or [],
-    )
-    for warning in preflight(config, repo_root=Path.cwd()):
-        print(warning, file=sys.stderr)
+    # A benchmark's config (config/benchmark.yaml) names tasks by their experiment configs
+    # and methods to tune and compare on them (mjtrial.benchmark).
+    BENCHMARK = is_benchmark(config)
+    if BENCHMARK:
+        BENCHMARK_TASKS = check_benchmark_config(
+            config, source=CONFIG_SOURCE, repo_root=Path.cwd()
+        )
+    else:
+        check_config(
+            config,
+            source=", ".join(
+                dict.fromkeys(
+                    [CONFIG_SOURCE, *map(os.path.relpath, workflow.configfiles)]
+                )
+            ),
+            repo_root=Path.cwd(),
+            overrides=COMMAND_LINE_CONFIG,
+        )
+        RERUN_COMMAND = rerun_command(
+            [os.path.relpath(f) for f in workflow.configfiles],
+            workflow.config_settings.config_args or [],
+        )
+        for warning in preflight(config, repo_root=Path.cwd()):
+            print(warning, file=sys.stderr)
 except ConfigError as err:
     sys.exit(f"Config error: {err}")
 
 
-include: "workflow/rules/common.smk"
-include: "workflow/rules/states.smk"
-include: "workflow/rules/rollout.smk"
-include: "workflow/rules/failures.smk"
-include: "workflow/rules/analysis.smk"
-include: "workflow/rules/manifest.smk"
-include: "workflow/rules/report.smk"
-include: "workflow/rules/seal.smk"
-include: "workflow/rules/studies.smk"
-include: "workflow/rules/crate.smk"
+if BENCHMARK:
+
+    include: "workflow/rules/benchmark.smk"
+
+else:
+
+    include: "workflow/rules/common.smk"
+    include: "workflow/rules/states.smk"
+    include: "workflow/rules/rollout.smk"
+    include: "workflow/rules/failures.smk"
+    include: "workflow/rules/analysis.smk"
+    include: "workflow/rules/manifest.smk"
+    include: "workflow/rules/report.smk"
+    include: "workflow/rules/seal.smk"
+    include: "workflow/rules/studies.smk"
+    include: "workflow/rules/crate.smk"
+
+    report: "workflow/report/workflow.rst"
+
+    ALL_TARGETS = {
+        "manifest": LAYOUT.manifest,
+        "failures": [LAYOUT.failures] if RECORDED else [],
+        "report": LAYOUT.report,
+        "seal": LAYOUT.seal,
+        "crate": LAYOUT.crate,
+    }
 
 
-report: "workflow/report/workflow.rst"
+include: "workflow/rules/run.smk"
 
 
+# The default target (here: an included file's rules never are): every result of the run.
 rule all:
     default_target: True
     input:
-        manifest=LAYOUT.manifest,
-        failures=[LAYOUT.failures] if RECORDED else [],
-        report=LAYOUT.report,
-        seal=LAYOUT.seal,
-        crate=LAYOUT.crate,
+        **ALL_TARGETS,
 
 
 # No good result is lost (mjtrial.safekeeping): the results are snapshot before any job runs,

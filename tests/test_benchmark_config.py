@@ -95,6 +95,11 @@ CASES = {
         _set(("methods", "tuned", "budget"), 0),
         "benchmark.methods.tuned.budget: expected a budget of episodes > 0",
     ),
+    "a budget too small to tune": (
+        _set(("methods", "tuned", "budget"), 500),
+        # 6 candidates x 16 states, then 3 finalists x 200 development states
+        "benchmark.methods.tuned.budget: expected at least 696 episodes to tune on gantry_lift",
+    ),
     "a fixed method with a budget": (
         _set(("methods", "as_designed", "budget"), 400),
         "benchmark.methods.as_designed.budget: expected 0 for a method that tunes nothing",

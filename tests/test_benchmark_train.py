@@ -24,9 +24,10 @@ SOURCE = "config/benchmark.yaml"
 def setup(tmp_path_factory):
     folder = tmp_path_factory.mktemp("train")
     config = read_config_file(REPO_ROOT / SOURCE)
+    tasks = check_benchmark_config(config, source=SOURCE)
+    # 30 development states here, not 200: a smaller budget than the config check allows
     config["benchmark"]["methods"]["tuned"]["budget"] = 240
     config["benchmark"]["methods"]["tuned"]["episodes_per_candidate"] = 6
-    tasks = check_benchmark_config(config, source=SOURCE)
     experiment = dict(tasks["gantry_lift"].config)
     experiment["states"] = {**experiment["states"], "n": 30}
     states = config_slice("states", experiment)

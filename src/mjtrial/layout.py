@@ -87,6 +87,8 @@ STAGES: dict[str, Stage] = {
         Stage("crate", "crate"),
         Stage("train", "train"),  # a benchmark's tuning of one method, task and seed
         Stage("evaluate", "evaluate"),  # its parameters on the task's evaluation states
+        Stage("benchmark", "benchmark"),  # the benchmark's summary
+        Stage("benchmark_report", "benchmark_report"),
     )
 }
 

@@ -13,10 +13,8 @@ from mjtrial.layout import (
     shard_range,
 )
 from mjtrial.provenance import file_sha256, model_sha256
-from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
-from mjtrial.workflow_script import import_in_background, run_in_process
 
 # Every path comes from the layout; rules pass wildcards ("{condition}") to its methods.
 LAYOUT = Layout.of(config["experiment"])
@@ -28,24 +26,6 @@ SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
 SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
 RECORDED = config["recording"]["episodes"] != "none"
-
-
-def run_script(script, input, output, params, wildcards, threads, log, rule_name):
-    """Run `workflow/scripts/<script>.py` for a job inside Snakemake's own process (a rule's
-    `run:` block; profiles/default/config.yaml sets `force-use-threads`, or Snakemake would
-    start a Snakemake process per such job). The light stages run so: a process of their own
-    would cost more in start-up and imports than their work (mjtrial.workflow_script).
-    """
-    run_in_process(
-        script_path(script),
-        input=input,
-        output=output,
-        params=params,
-        wildcards=wildcards,
-        threads=threads,
-        logs=log,
-        rule_name=rule_name,
-    )
 
 
 def qualified(wildcards):
@@ -207,57 +187,3 @@ def figure_outputs():
         )
         outputs[f"{name}_svg"] = LAYOUT.figure(name, "svg")
     return outputs
-
-
-SAFEKEEPING = Snapshot(LAYOUT.root, logs=LAYOUT.logs_dir, workdir=Path.cwd())
-
-
-def recover_killed_run():
-    """Whatever the run does next (even nothing), put back what a killed run had removed: in
-    the main Snakemake process only, never in a cluster job's."""
-    recovery = SAFEKEEPING.recover()
-    if recovery is None:
-        return
-    if recovery.restored:
-        print(
-            f"mjtrial: the last run was killed; put back {len(recovery.restored)} output(s) it "
-            f"had removed: {', '.join(map(str, recovery.restored))}",
-            file=sys.stderr,
-        )
-    if recovery.error:
-        print(
-            f"mjtrial: the snapshot a killed run left could not be used ({recovery.error}); "
-            f"it is kept in {recovery.set_aside} and this run goes on without it",
-            file=sys.stderr,
-        )
-
-
-if workflow.is_main_process:
-    recover_killed_run()
-
-
-def on_start():
-    """Clear what killed jobs left and take the snapshot before any job removes an output;
-    load the later stages' libraries while the rollouts run."""
-    import_in_background()
-    for path in remove_stale_temporaries(LAYOUT.root):
-        print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
-    try:
-        SAFEKEEPING.take()
-    except OSError as err:
-        sys.exit(
-            f"mjtrial: could not snapshot {LAYOUT.root} before the run ({err}); no job was "
-            "started, so nothing was removed"
-        )
-
-
-def on_error():
-    """Put back every output the failed run removed, and say so."""
-    restored = SAFEKEEPING.restore()
-    SAFEKEEPING.drop()
-    if restored:
-        print(
-            f"mjtrial: a job failed; the previous results were put back unchanged: "
-            f"{', '.join(map(str, restored))}",
-            file=sys.stderr,
-        )

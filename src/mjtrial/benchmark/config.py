@@ -18,7 +18,7 @@ import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.benchmark.stats import SEEDS_FOR_DEVELOPMENT_DECISION, SEEDS_FOR_REPORTED_RESULT
-from mjtrial.benchmark.tuning import check_search
+from mjtrial.benchmark.tuning import check_search, minimum_budget
 from mjtrial.config import (
     ConfigError,
     _non_finite,
@@ -141,6 +141,20 @@ def _check_method(
         except ValueError as err:
             fail(*_search_problem(err, f"{key}.tasks.{task_name}."))
         tunes = tunes or bool(tune)
+        if tune and method["budget"] > 0 and "episodes_per_candidate" in method:
+            n_dev = bt.config["states"]["n"]  # the development states: as many as evaluated
+            least = minimum_budget(
+                len(tune),
+                episodes_per_candidate=method["episodes_per_candidate"],
+                n_development=n_dev,
+            )
+            if method["budget"] < least:
+                fail(
+                    f"{key}.budget",
+                    f"expected at least {least} episodes to tune on {task_name} (one generation "
+                    f"of candidates, and the finalists on its {n_dev} development states), got "
+                    f"{method['budget']}",
+                )
     if tunes and method["budget"] == 0:
         fail(f"{key}.budget", "expected a budget of episodes > 0 for a method that tunes")
     if not tunes and method["budget"] != 0:
@@ -185,4 +199,31 @@ def train_slice(
             **{k: v for k, v in spec["tasks"][task].items() if v},
         },
         "seed": seed,
+    }
+
+
+def evaluate_slice(tasks: Mapping[str, BenchmarkTask], task: str) -> dict[str, Any]:
+    """What an evaluation job depends on besides its parameter file: the task and thresholds."""
+    experiment = tasks[task].config
+    return {
+        "task": experiment["task"],
+        "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
+    }
+
+
+def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
+    """What the summary depends on: the tasks, methods (budgets, descriptions), seeds, the
+    headline, the reason for unequal budgets and the analysis settings."""
+    bench = config["benchmark"]
+    return {
+        "question": bench["question"],
+        "tasks": list(bench["tasks"]),
+        "methods": {
+            m: {"description": spec["description"], "budget": spec["budget"]}
+            for m, spec in bench["methods"].items()
+        },
+        "seeds": list(bench["seeds"]),
+        "headline": bench["headline"],
+        "unequal_budgets": bench.get("unequal_budgets"),
+        "analysis": dict(bench["analysis"]),
     }

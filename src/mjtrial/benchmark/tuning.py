@@ -21,6 +21,7 @@ The search stops before a generation that would spend the rest; the budget is ne
 from __future__ import annotations
 
 import importlib.metadata
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -69,6 +70,24 @@ class TuningResult:
     popsize: int
     optimizer: str = OPTIMIZER
     optimizer_version: str = importlib.metadata.version("cma")
+
+
+def default_popsize(n_tuned: int) -> int:
+    """pycma's default population for a search over `n_tuned` parameters (its `popsize`
+    option, `4 + 3 * log(N)`, in the search's dimension: at least 2, see the module)."""
+    return 4 + int(3 * math.log(max(2, n_tuned)))
+
+
+def minimum_budget(
+    n_tuned: int,
+    *,
+    episodes_per_candidate: int,
+    n_development: int,
+    final_candidates: int = FINAL_CANDIDATES,
+) -> int:
+    """The fewest episodes a tuning can run with: one generation, and the finalists on every
+    development state."""
+    return default_popsize(n_tuned) * episodes_per_candidate + final_candidates * n_development
 
 
 def check_search(
@@ -164,6 +183,7 @@ def tune(
     if popsize is not None:
         options["popsize"] = popsize
     es = cma.CMAEvolutionStrategy([0.5] * dim, SIGMA0, options)
+    assert popsize is not None or es.popsize == default_popsize(len(box)), es.popsize
     reserve = final_candidates * n_dev
     generation_cost = es.popsize * episodes_per_candidate
     if budget_episodes < reserve + generation_cost:

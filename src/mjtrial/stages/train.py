@@ -86,7 +86,7 @@ def train_method(
         record = {
             "task": bound.task.name,
             "method": method["name"],
-            "parameters": bound.task.parameters(fixed),
+            "parameters": dict(fixed),  # the task's defaults for the rest, as tuned ones have
             "budget_episodes": 0,
             "episodes_used": 0,
             "seed": train_slice["seed"],

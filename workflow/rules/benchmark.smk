@@ -1,0 +1,142 @@
+# A benchmark (config/benchmark.yaml, mjtrial.benchmark): for each task its evaluation and
+# development states; for each task, method and training seed a training job that reads the
+# development states only, and an evaluation job on the evaluation states; then the summary
+# and the report. Adding a seed adds only its jobs, and what reads every seed.
+from mjtrial.benchmark.config import evaluate_slice, summary_slice, train_slice
+from mjtrial.layout import BenchmarkLayout
+from mjtrial.provenance import file_sha256, model_sha256
+from mjtrial.stages.stamping import config_slice, stage_code_hash
+from mjtrial.task import task_files
+
+LAYOUT = BenchmarkLayout.of(config["experiment"])
+BENCH = config["benchmark"]
+TASKS = list(BENCHMARK_TASKS)
+METHODS = list(BENCH["methods"])
+SEEDS = [str(s) for s in BENCH["seeds"]]
+RUNS = [(t, m, s) for t in TASKS for m in METHODS for s in SEEDS]
+
+
+wildcard_constraints:
+    task="|".join(TASKS),
+    method="|".join(METHODS),
+    seed=r"\d+",
+
+
+def experiment_of(wildcards):
+    """The experiment config of the job's task."""
+    return BENCHMARK_TASKS[wildcards.task].config
+
+
+def model_of(wildcards):
+    return experiment_of(wildcards)["model"]
+
+
+def task_content_of(wildcards):
+    """Content of the task's files, so that an edit reruns what it defines and a `touch`
+    reruns nothing (an installed task: its name)."""
+    reference = experiment_of(wildcards)["task"]
+    if not reference.endswith(".py"):
+        return reference
+    return ",".join(file_sha256(p) for p in task_files(Path(reference)))
+
+
+rule benchmark_states:
+    output:
+        states=LAYOUT.task("{task}").states,
+    log:
+        LAYOUT.log("states_{task}"),
+    params:
+        slice=lambda w: config_slice("states", experiment_of(w)),
+        task_sha256=task_content_of,
+        development=False,
+        code=stage_code_hash("states"),
+    run:
+        run_script("states", input, output, params, wildcards, threads, log, rule)
+
+
+rule benchmark_development_states:
+    output:
+        states=LAYOUT.task("{task}").development_states,
+    log:
+        LAYOUT.log("development_states_{task}"),
+    params:
+        slice=lambda w: config_slice("states", experiment_of(w)),
+        task_sha256=task_content_of,
+        development=True,
+        code=stage_code_hash("states"),
+    run:
+        run_script("states", input, output, params, wildcards, threads, log, rule)
+
+
+rule train:
+    input:
+        development_states=LAYOUT.task("{task}").development_states,
+        model=model_of,
+    output:
+        LAYOUT.parameters("{task}", "{method}", "{seed}"),
+    log:
+        LAYOUT.log("train_{task}_{method}_{seed}"),
+    threads: 1
+    params:
+        slice=lambda w: train_slice(
+            config, BENCHMARK_TASKS, w.task, w.method, int(w.seed)
+        ),
+        model_sha256=lambda w: model_sha256(model_of(w)),
+        task_sha256=task_content_of,
+        code=stage_code_hash("train"),
+    script:
+        "../scripts/train.py"
+
+
+rule evaluate:
+    input:
+        states=LAYOUT.task("{task}").states,
+        parameters=LAYOUT.parameters("{task}", "{method}", "{seed}"),
+        model=model_of,
+    output:
+        LAYOUT.evaluation("{task}", "{method}", "{seed}"),
+    log:
+        LAYOUT.log("evaluate_{task}_{method}_{seed}"),
+    threads: 1
+    params:
+        slice=lambda w: evaluate_slice(BENCHMARK_TASKS, w.task),
+        model_sha256=lambda w: model_sha256(model_of(w)),
+        task_sha256=task_content_of,
+        code=stage_code_hash("evaluate"),
+    script:
+        "../scripts/evaluate.py"
+
+
+rule benchmark_summary:
+    input:
+        evaluations=[LAYOUT.evaluation(t, m, s) for t, m, s in RUNS],
+        parameters=[LAYOUT.parameters(t, m, s) for t, m, s in RUNS],
+    output:
+        summary=LAYOUT.summary,
+    log:
+        LAYOUT.log("benchmark"),
+    params:
+        runs=[f"{t}:{m}:{s}" for t, m, s in RUNS],
+        slice=summary_slice(config),
+        code=stage_code_hash("benchmark"),
+    run:
+        run_script("benchmark", input, output, params, wildcards, threads, log, rule)
+
+
+rule benchmark_report:
+    input:
+        summary=LAYOUT.summary,
+    output:
+        report=LAYOUT.report,
+    log:
+        LAYOUT.log("benchmark_report"),
+    params:
+        code=stage_code_hash("benchmark_report"),
+    run:
+        run_script(
+            "benchmark_report", input, output, params, wildcards, threads, log, rule
+        )
+
+
+# What `snakemake -c2 --configfile config/benchmark.yaml` builds (the Snakefile's `all`).
+ALL_TARGETS = {"report": LAYOUT.report}
