@@ -18,4 +18,5 @@ run_job(
     evaluate_slice=snakemake.params.slice,
     output=Path(snakemake.output[0]),
     nthread=snakemake.threads,
+    repo_root=Path.cwd(),
 )

@@ -16,4 +16,5 @@ run_job(
     train_slice=snakemake.params.slice,
     output=Path(snakemake.output[0]),
     nthread=snakemake.threads,
+    repo_root=Path.cwd(),
 )

@@ -1,0 +1,138 @@
+"""The benchmark from nothing (`snakemake -c2 --configfile config/benchmark.yaml`), small: the
+report is built and a second run does nothing; adding a seed runs only that seed's training and
+evaluation, and what reads every seed; the fixed method's outcomes equal the gantry's plain
+`mj_step` reference on the same evaluation states; both overall rates in the summary equal
+sums done here from the evaluation tables."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
+
+from mjtrial import provenance
+from mjtrial.layout import BenchmarkLayout
+
+CONFIG = "config/benchmark.yaml"
+LAYOUT = BenchmarkLayout.of("benchmark")
+N_STATES = 24
+
+
+def edit_yaml(path: Path, edit) -> None:
+    data = yaml.safe_load(path.read_text())
+    edit(data)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def small(config):
+    bench = config["benchmark"]
+    bench["seeds"] = [1, 2, 3]
+    bench["result"] = "development"
+    bench["methods"]["tuned"]["budget"] = 120  # 6 x 4 for a generation, 3 x 24 for the finalists
+    bench["methods"]["tuned"]["episodes_per_candidate"] = 4
+    bench["analysis"]["n_resamples"] = 200
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory) -> Path:
+    workdir = tmp_path_factory.mktemp("benchmark")
+    for name in WORKFLOW_FILES:
+        src = REPO_ROOT / name
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    for experiment in ("config/config.yaml", "config/cartpole_latency.yaml"):
+        edit_yaml(workdir / experiment, lambda c: c["states"].update(n=N_STATES))
+    edit_yaml(workdir / CONFIG, small)
+    run_snakemake(workdir, "--configfile", CONFIG)
+    return workdir
+
+
+def planned(workdir: Path, *args: str) -> dict[str, int]:
+    out = run_snakemake(workdir, "-n", "--configfile", CONFIG, *args).stdout
+    table = out.split("Job stats:")[1] if "Job stats:" in out else ""
+    return {
+        m[1]: int(m[2])
+        for m in re.finditer(r"^(\w+)\s+(\d+)$", table, re.MULTILINE)
+        if m[1] != "total"
+    }
+
+
+def test_the_benchmark_builds_its_report_and_a_second_run_does_nothing(bench):
+    report = (bench / LAYOUT.report).read_text()
+    assert "Development decision" in report and "## Overall success rates" in report
+    assert "**The budgets differ.**" in report
+    assert planned(bench) == {}
+
+
+def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_every_seed(bench):
+    edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].append(4))
+    try:
+        jobs = planned(bench)
+    finally:
+        edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].remove(4))
+    # 2 tasks x 2 methods for seed 4, then the summary and the report
+    assert jobs == {
+        "train": 4,
+        "evaluate": 4,
+        "benchmark_summary": 1,
+        "benchmark_report": 1,
+        "all": 1,
+    }
+
+
+def test_the_fixed_method_equals_the_plain_reference_on_the_evaluation_states(bench):
+    from gantry_lift.model_spec import ModelSpec
+    from gantry_lift.protocol import PROTOCOL
+    from gantry_lift.simulate import reference_episode
+    from gantry_lift.states import states_from_table
+
+    from mjtrial.physics import load_model
+
+    model = load_model(REPO_ROOT / "models" / "gantry_gripper" / "scene.xml")
+    states = states_from_table(pq.read_table(bench / LAYOUT.task("gantry_lift").states))
+    z = ModelSpec.of(model).state_cube_z
+    expected = [
+        bool(reference_episode(model, s, lift_time=0.15)[0][-1, z] > PROTOCOL.success_height)
+        for s in states
+    ]
+    for seed in (1, 2, 3):
+        table = pq.read_table(bench / LAYOUT.evaluation("gantry_lift", "as_designed", seed))
+        assert table.column("state_id").to_pylist() == [s.state_id for s in states]
+        assert table.column("success").to_pylist() == expected
+
+
+def test_both_overall_rates_equal_sums_over_the_evaluation_tables(bench):
+    summary = json.loads((bench / LAYOUT.summary).read_text())
+    for method in ("as_designed", "tuned"):
+        for seed in (1, 2, 3):
+            rates = {
+                task: pq.read_table(bench / LAYOUT.evaluation(task, method, seed))
+                .column("success")
+                .to_numpy()
+                for task in ("gantry_lift", "cartpole_latency")
+            }
+            episode_mean = sum(r.sum() for r in rates.values()) / sum(
+                r.size for r in rates.values()
+            )
+            task_mean = np.mean([r.mean() for r in rates.values()])
+            got = summary["overall"][method]
+            assert got["episode_mean"]["per_seed"][str(seed)]["estimate"] == pytest.approx(
+                episode_mean
+            )
+            assert got["task_mean"]["per_seed"][str(seed)]["estimate"] == pytest.approx(task_mean)
+
+
+def test_every_training_read_the_development_states_only(bench):
+    for task in ("gantry_lift", "cartpole_latency"):
+        development = bench / LAYOUT.task(task).development_states
+        for seed in (1, 2, 3):
+            stamp = provenance.read_stamp(bench / LAYOUT.parameters(task, "tuned", seed))
+            recorded = stamp["inputs"]["development_states"]
+            assert recorded["path"] == development.relative_to(bench).as_posix()
+            assert recorded["sha256"] == provenance.file_sha256(development)
