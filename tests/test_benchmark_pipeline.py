@@ -136,3 +136,62 @@ def test_every_training_read_the_development_states_only(bench):
             recorded = stamp["inputs"]["development_states"]
             assert recorded["path"] == development.relative_to(bench).as_posix()
             assert recorded["sha256"] == provenance.file_sha256(development)
+
+
+def verify(workdir: Path):
+    import subprocess
+    import sys
+
+    return subprocess.run(
+        [sys.executable, "-m", "mjtrial.cli", "verify", "--config", CONFIG],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_verify_passes_the_benchmark_as_built(bench):
+    done = verify(bench)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "verified: results/benchmark:" in done.stdout and " 0 problems" in done.stdout
+
+
+def test_verify_fails_a_training_that_read_the_evaluation_states(bench, tmp_path):
+    """A training job pointed at the evaluation states (its stage refuses them, so the stamp is
+    forged here as a job that got past it would have written it)."""
+    from mjtrial.stages.stamping import make_stage_stamp
+
+    workdir = tmp_path / "copy"
+    shutil.copytree(bench, workdir, symlinks=True)
+    parameters = workdir / LAYOUT.parameters("gantry_lift", "tuned", 2)
+    record = json.loads(parameters.read_text())
+    old = provenance.read_stamp(parameters)
+    evaluation = LAYOUT.task("gantry_lift").states
+    stamp = make_stage_stamp(
+        old["rule"],
+        old["config_slice"],
+        {"development_states": workdir / evaluation},
+        repo_root=workdir,
+    )
+    provenance.write_json(record, parameters, stamp)
+    done = verify(workdir)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert (
+        f"{LAYOUT.parameters('gantry_lift', 'tuned', 2).as_posix()}: read "
+        f"'{evaluation.as_posix()}' as development_states, expected "
+        f"{LAYOUT.task('gantry_lift').development_states.as_posix()}"
+    ) in done.stdout
+
+
+def test_verify_fails_development_states_that_hold_evaluation_states(bench, tmp_path):
+    workdir = tmp_path / "copy"
+    shutil.copytree(bench, workdir, symlinks=True)
+    task = LAYOUT.task("cartpole_latency")
+    development = workdir / task.development_states
+    stamp = provenance.read_stamp(development)
+    provenance.write_parquet(pq.read_table(workdir / task.states), development, stamp)
+    done = verify(workdir)
+    assert done.returncode == 1
+    assert f"{task.development_states.as_posix()}: {N_STATES} state(s) also among" in done.stdout
+    assert "changed since it was read" in done.stdout  # every training read other states

@@ -124,6 +124,8 @@ def _verify(args: argparse.Namespace) -> int:
         print(f"mjtrial verify: {foreign}", file=sys.stderr)
         return 2
     try:
+        if args.results_dir is None and _is_benchmark_file(config_path):
+            return _verify_benchmark(config_path, repo_root)
         if args.results_dir:
             results_dir = Path(args.results_dir)
         else:
@@ -140,6 +142,26 @@ def _verify(args: argparse.Namespace) -> int:
         return 2
     print(report.format())
     return report.exit_code
+
+
+def _is_benchmark_file(config_path: Path) -> bool:
+    from mjtrial.benchmark.config import is_benchmark
+    from mjtrial.config import read_config_file
+
+    return config_path.is_file() and is_benchmark(read_config_file(config_path))
+
+
+def _verify_benchmark(config_path: Path, repo_root: Path) -> int:
+    """`mjtrial verify --config config/benchmark.yaml`: the benchmark's split and files."""
+    from mjtrial.benchmark.config import check_benchmark_config
+    from mjtrial.benchmark.verify import verify_benchmark
+    from mjtrial.config import read_config_file
+
+    config = read_config_file(config_path)
+    tasks = check_benchmark_config(config, source=str(config_path), repo_root=repo_root)
+    verdict = verify_benchmark(config, tasks, repo_root=repo_root)
+    print(verdict.format())
+    return verdict.exit_code
 
 
 def _crate(args: argparse.Namespace) -> int:
