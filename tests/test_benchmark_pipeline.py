@@ -195,3 +195,29 @@ def test_verify_fails_development_states_that_hold_evaluation_states(bench, tmp_
     assert done.returncode == 1
     assert f"{task.development_states.as_posix()}: {N_STATES} state(s) also among" in done.stdout
     assert "changed since it was read" in done.stdout  # every training read other states
+
+
+def test_the_solvability_check_runs_the_corners_under_the_reference_and_lists_failures(bench):
+    from gantry_lift.model_spec import ModelSpec
+    from gantry_lift.protocol import PROTOCOL
+    from gantry_lift.simulate import reference_episode
+    from gantry_lift.states import InitialState
+
+    from mjtrial.physics import load_model
+
+    table = pq.read_table(bench / LAYOUT.solvability("gantry_lift")).to_pylist()
+    assert len(table) == 16 and {r["probe"] for r in table} == {"corners"}
+    model = load_model(REPO_ROOT / "models" / "gantry_gripper" / "scene.xml")
+    z = ModelSpec.of(model).state_cube_z
+    for i, r in enumerate(table):  # the reference controller: the slow lift (1.5 s)
+        state = InitialState(i, r["dx"], r["dy"], r["yaw"], r["mass"])
+        physics, _ = reference_episode(model, state, lift_time=1.5)
+        assert r["success"] == bool(physics[-1, z] > PROTOCOL.success_height)
+    summary = json.loads((bench / LAYOUT.summary).read_text())["solvability"]
+    assert summary["gantry_lift"]["n"] == 16
+    assert summary["gantry_lift"]["reference"] == {"lift_time": 1.5}
+    unsolved = [r for r in table if not r["success"]]
+    assert len(summary["gantry_lift"]["unsolved"]) == len(unsolved)
+    report = (bench / LAYOUT.report).read_text()
+    assert f"**gantry_lift**: {16 - len(unsolved)} of 16 probe states (corners" in report
+    assert summary["cartpole_latency"]["n"] == 32  # five state parameters: 2^5 corners

@@ -87,6 +87,7 @@ STAGES: dict[str, Stage] = {
         Stage("crate", "crate"),
         Stage("train", "train"),  # a benchmark's tuning of one method, task and seed
         Stage("evaluate", "evaluate"),  # its parameters on the task's evaluation states
+        Stage("solvability", "solvability"),  # a benchmark's tasks under their reference
         Stage("benchmark", "benchmark"),  # the benchmark's summary
         Stage("benchmark_report", "benchmark_report"),
     )
@@ -277,6 +278,10 @@ class BenchmarkLayout(Layout):
     def parameters(self, task: str, method: str, seed: int | str) -> Path:
         """A method's parameters for a task and training seed (the training job's output)."""
         return self.root / "training" / task / method / f"seed-{seed}.json"
+
+    def solvability(self, task: str) -> Path:
+        """The task's probe states under its reference controller, with their outcomes."""
+        return self.root / "solvability" / f"{task}.parquet"
 
     def evaluation(self, task: str, method: str, seed: int | str) -> Path:
         """Those parameters' outcomes on the task's evaluation states (one row per state)."""

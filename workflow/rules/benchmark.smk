@@ -2,7 +2,12 @@
 # development states; for each task, method and training seed a training job that reads the
 # development states only, and an evaluation job on the evaluation states; then the summary
 # and the report. Adding a seed adds only its jobs, and what reads every seed.
-from mjtrial.benchmark.config import evaluate_slice, summary_slice, train_slice
+from mjtrial.benchmark.config import (
+    evaluate_slice,
+    solvability_slice,
+    summary_slice,
+    train_slice,
+)
 from mjtrial.layout import BenchmarkLayout
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.stages.stamping import config_slice, stage_code_hash
@@ -107,8 +112,26 @@ rule evaluate:
         "../scripts/evaluate.py"
 
 
+rule solvability:
+    input:
+        model=model_of,
+    output:
+        LAYOUT.solvability("{task}"),
+    log:
+        LAYOUT.log("solvability_{task}"),
+    threads: 1
+    params:
+        slice=lambda w: solvability_slice(config, BENCHMARK_TASKS, w.task),
+        model_sha256=lambda w: model_sha256(model_of(w)),
+        task_sha256=task_content_of,
+        code=stage_code_hash("solvability"),
+    script:
+        "../scripts/solvability.py"
+
+
 rule benchmark_summary:
     input:
+        solvability=[LAYOUT.solvability(t) for t in TASKS],
         evaluations=[LAYOUT.evaluation(t, m, s) for t, m, s in RUNS],
         parameters=[LAYOUT.parameters(t, m, s) for t, m, s in RUNS],
     output:
@@ -117,6 +140,7 @@ rule benchmark_summary:
         LAYOUT.log("benchmark"),
     params:
         runs=[f"{t}:{m}:{s}" for t, m, s in RUNS],
+        tasks=TASKS,
         slice=summary_slice(config),
         code=stage_code_hash("benchmark"),
     run:

@@ -12,6 +12,9 @@ run_job(
     snakemake,
     write_summary,
     rule="benchmark",
+    solvability=dict(
+        zip(snakemake.params.tasks, map(Path, snakemake.input.solvability), strict=True)
+    ),
     evaluations=dict(zip(keys, map(Path, snakemake.input.evaluations), strict=True)),
     parameters=dict(zip(keys, map(Path, snakemake.input.parameters), strict=True)),
     summary_slice=snakemake.params.slice,

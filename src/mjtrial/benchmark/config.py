@@ -227,3 +227,24 @@ def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
         "unequal_budgets": bench.get("unequal_budgets"),
         "analysis": dict(bench["analysis"]),
     }
+
+
+# The solvability check when the config says nothing (`benchmark.solvability`).
+SOLVABILITY_DEFAULTS = {"max_corner_parameters": 6, "states": 64, "seed": 0}
+
+
+def solvability_slice(
+    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], task: str
+) -> dict[str, Any]:
+    """What a task's solvability check depends on: its ranges, its reference controller (the
+    benchmark's condition with the task's `reference` on top) and the probe's settings."""
+    experiment = tasks[task].config
+    entry = config["benchmark"]["tasks"][task]
+    return {
+        "task": experiment["task"],
+        "ranges": dict(experiment["states"]["ranges"]),
+        "reference": {**tasks[task].condition, **entry.get("reference", {})},
+        "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
+        **SOLVABILITY_DEFAULTS,
+        **config["benchmark"].get("solvability", {}),
+    }

@@ -66,6 +66,16 @@ def benchmark_report(summary: Mapping[str, Any]) -> str:
             f"- {method}: {_spread(rec[headline]['spread_over_seeds'])} (min / median / max over "
             f"seeds); IQM over seeds and tasks {_ci(rec['iqm'])}"
         )
+    out += ["", "## Solvability", ""]
+    for task, rec in summary["solvability"].items():
+        reference = ", ".join(f"{k} {v:g}" for k, v in rec["reference"].items()) or "its defaults"
+        out.append(
+            f"- **{task}**: {rec['solved']} of {rec['n']} probe states ({rec['probe']} of the "
+            f"state ranges) solved by the reference controller ({reference})."
+        )
+        for r in rec["unsolved"]:
+            where = ", ".join(f"{k} {v:.4g}" for k, v in r.items() if k != "failure_category")
+            out.append(f"  - unsolvable: {where} ({r['failure_category']})")
     out += ["", "## Overall success rates", ""]
     out += [
         "Two different overall rates; each is in a table of its own and they are never mixed. "
