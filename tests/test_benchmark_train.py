@@ -95,3 +95,26 @@ def test_training_on_evaluation_states_is_refused_and_writes_nothing(setup):
             output=out,
         )
     assert not out.exists()
+
+
+def test_evaluating_on_development_states_is_refused_and_writes_nothing(setup):
+    from mjtrial.stages.evaluate import evaluate_method
+
+    folder, config, tasks, model = setup
+    parameters = folder / "fixed-for-evaluation.json"
+    train_method(
+        development_states=folder / "development.parquet",
+        model_file=model,
+        train_slice=train_slice(config, tasks, "gantry_lift", "as_designed", 1),
+        output=parameters,
+    )
+    out = folder / "evaluation-on-development.parquet"
+    with pytest.raises(ValueError, match="not evaluation states"):
+        evaluate_method(
+            states=folder / "development.parquet",
+            parameters=parameters,
+            model_file=model,
+            evaluate_slice={"task": "tasks/gantry_lift/task.py"},
+            output=out,
+        )
+    assert not out.exists()
