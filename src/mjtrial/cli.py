@@ -145,6 +145,8 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _is_benchmark_file(config_path: Path) -> bool:
+    # Imported here (jsonschema, mujoco through the config module): `mjtrial plan` need not
+    # pay for them.
     from mjtrial.benchmark.config import is_benchmark
     from mjtrial.config import read_config_file
 
@@ -153,6 +155,7 @@ def _is_benchmark_file(config_path: Path) -> bool:
 
 def _verify_benchmark(config_path: Path, repo_root: Path) -> int:
     """`mjtrial verify --config config/benchmark.yaml`: the benchmark's split and files."""
+    # Imported here (mujoco, cma, scipy): `mjtrial plan` need not pay for them.
     from mjtrial.benchmark.config import check_benchmark_config
     from mjtrial.benchmark.verify import verify_benchmark
     from mjtrial.config import read_config_file
