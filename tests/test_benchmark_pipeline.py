@@ -22,7 +22,7 @@ from mjtrial.layout import BenchmarkLayout
 
 CONFIG = "config/benchmark.yaml"
 LAYOUT = BenchmarkLayout.of("benchmark")
-N_STATES = 24
+N_STATES = 16
 
 
 def edit_yaml(path: Path, edit) -> None:
@@ -35,7 +35,7 @@ def small(config):
     bench = config["benchmark"]
     bench["seeds"] = [1, 2, 3]
     bench["result"] = "development"
-    bench["methods"]["tuned"]["budget"] = 120  # 6 x 4 for a generation, 3 x 24 for the finalists
+    bench["methods"]["tuned"]["budget"] = 96  # 6 x 4 for a generation, 3 x 16 for the finalists
     bench["methods"]["tuned"]["episodes_per_candidate"] = 4
     bench["analysis"]["n_resamples"] = 200
 

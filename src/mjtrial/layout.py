@@ -94,6 +94,10 @@ STAGES: dict[str, Stage] = {
 }
 
 
+# The stages only a benchmark runs (`workflow/rules/benchmark.smk`); it also runs `states`.
+BENCHMARK_STAGES = ("train", "evaluate", "solvability", "benchmark", "benchmark_report")
+
+
 def shard_ids(n_states: int, shard_size: int) -> list[str]:
     """The shards of `n_states` states, `shard_size` each (the last may hold fewer)."""
     return [f"{i:05d}" for i in range((n_states + shard_size - 1) // shard_size)]
