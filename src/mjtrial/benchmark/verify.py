@@ -22,8 +22,7 @@ import pyarrow.parquet as pq
 from mjtrial import provenance
 from mjtrial.benchmark.config import BenchmarkTask
 from mjtrial.layout import BenchmarkLayout
-from mjtrial.stages.evaluate import EVALUATION_RULE
-from mjtrial.stages.train import DEVELOPMENT_RULE
+from mjtrial.stages.states import DEVELOPMENT_RULE, EVALUATION_RULE
 
 
 @dataclass

@@ -17,10 +17,9 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, provenance
+from mjtrial import REPO_ROOT
 from mjtrial.stages.rollout import run_shard
-
-EVALUATION_RULE = "states"  # the stamp's rule of evaluation states
+from mjtrial.stages.states import check_drawn_as
 
 
 def evaluate_method(
@@ -38,16 +37,7 @@ def evaluate_method(
 
     `evaluate_slice`: `task`, `failure_taxonomy` (what the training does not decide).
     """
-    try:
-        drawn_by = provenance.read_stamp(states).get("rule")
-    except (OSError, ValueError) as err:
-        raise ValueError(
-            f"{states}: no readable stamp ({err}); expected evaluation states"
-        ) from None
-    if drawn_by != EVALUATION_RULE:
-        raise ValueError(
-            f"{states}: states drawn by {drawn_by!r}, not evaluation states ({EVALUATION_RULE!r})"
-        )
+    check_drawn_as(Path(states), development=False, reader="an evaluation job")
     record = json.loads(Path(parameters).read_text(encoding="utf-8"))
     n = pq.read_metadata(states).num_rows
     condition_slice = {

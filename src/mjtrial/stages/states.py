@@ -17,6 +17,28 @@ from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
 
+# The stamp's rule of each set of states: what a job that must read one of them checks.
+EVALUATION_RULE = "states"
+DEVELOPMENT_RULE = "states:development"
+
+
+def check_drawn_as(path: Path, *, development: bool, reader: str) -> dict[str, Any]:
+    """The stamp of the states file `path`, which must be development (or evaluation) states;
+    a one-line ValueError naming the file and `reader` (the job that may read only those)."""
+    rule, what = (
+        (DEVELOPMENT_RULE, "development") if development else (EVALUATION_RULE, "evaluation")
+    )
+    try:
+        stamp = provenance.read_stamp(path)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: no readable stamp ({err}); expected {what} states") from None
+    if stamp.get("rule") != rule:
+        raise ValueError(
+            f"{path}: states drawn by {stamp.get('rule')!r}, not {what} states ({rule!r}); "
+            f"{reader} reads {what} states only"
+        )
+    return stamp
+
 
 def build_states(
     *,
@@ -32,7 +54,7 @@ def build_states(
     """
     table, tuning = draw_states(states_slice, repo_root=repo_root)
     stamp = make_stage_stamp(
-        "states:development" if development else "states",
+        DEVELOPMENT_RULE if development else EVALUATION_RULE,
         dict(states_slice),
         task_inputs(states_slice["task"], repo_root=repo_root),
         seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},

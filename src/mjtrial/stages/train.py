@@ -18,26 +18,9 @@ from mjtrial import REPO_ROOT, provenance
 from mjtrial.benchmark.tuning import tune, tuned_parameter_record
 from mjtrial.stages.rollout import condition_task, read_state_values, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
+from mjtrial.stages.states import check_drawn_as
 
 log = logging.getLogger("mjtrial")
-
-DEVELOPMENT_RULE = "states:development"  # the stamp's rule of development states
-
-
-def check_development_states(path: Path) -> dict[str, Any]:
-    """The stamp of `path`, which must be development states; a ValueError names it else."""
-    try:
-        stamp = provenance.read_stamp(path)
-    except (OSError, ValueError) as err:
-        raise ValueError(
-            f"{path}: no readable stamp ({err}); expected development states"
-        ) from None
-    if stamp.get("rule") != DEVELOPMENT_RULE:
-        raise ValueError(
-            f"{path}: states drawn by {stamp.get('rule')!r}, not development states "
-            f"({DEVELOPMENT_RULE!r}); a training job reads development states only"
-        )
-    return stamp
 
 
 def train_method(
@@ -56,7 +39,7 @@ def train_method(
     method runs with), `method` (its name, `budget`, `episodes_per_candidate`, and this
     task's `fixed` and `tune`), `seed` (the training seed), `development_seed`.
     """
-    check_development_states(Path(development_states))
+    check_drawn_as(Path(development_states), development=True, reader="a training job")
     bound = condition_task(train_slice, Path(model_file), repo_root=repo_root)
     values = read_state_values(Path(development_states), bound.task)
     values.pop("state_id")
