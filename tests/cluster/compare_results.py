@@ -4,7 +4,7 @@ Usage: python compare_results.py RESULTS_A RESULTS_B. Prints one line per differ
 exits 1 if there is any: the same set of files (logs aside), every Parquet table equal
 (values and schema, its provenance metadata aside) and every JSON result equal but for its
 `provenance` stamp (the summary, the nominal episodes). Other files (recordings, figures,
-the report, the manifest, the seal) carry their run's stamp inside, so equal tables and
+the report, the manifest, the seal, the crate) carry their run's stamp inside, so equal tables and
 summary are what "the same results" means here.
 """
 
@@ -15,9 +15,9 @@ from pathlib import Path
 import pyarrow.parquet as pq
 
 STAMP_KEY = "provenance"
-# JSON files that hold results; the manifest and the seal record the run itself (its
-# command, times and the hashes of stamped files), so they differ between two runs.
-RUN_RECORDS = {"manifest.json", "seal.json"}
+# JSON files that hold results; the manifest, the seal and the crate record the run itself (its
+# command, job times and the hashes of stamped files), so they differ between two runs.
+RUN_RECORDS = {"manifest.json", "seal.json", "ro-crate-metadata.json"}
 
 
 def relative_files(root: Path) -> set[Path]:
@@ -45,8 +45,9 @@ def differences(a: Path, b: Path) -> list[str]:
     )
     for rel in results:
         doc_a, doc_b = (json.loads((root / rel).read_text()) for root in (a, b))
-        doc_a.pop(STAMP_KEY, None)
-        doc_b.pop(STAMP_KEY, None)
+        for doc in (doc_a, doc_b):  # a JSON list (the crate's copy of a source) has no stamp
+            if isinstance(doc, dict):
+                doc.pop(STAMP_KEY, None)
         if doc_a != doc_b:
             found.append(f"result differs: {rel}")
     if not tables:
