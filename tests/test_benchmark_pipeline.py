@@ -23,6 +23,7 @@ from mjtrial.layout import BenchmarkLayout
 CONFIG = "config/benchmark.yaml"
 LAYOUT = BenchmarkLayout.of("benchmark")
 N_STATES = 16
+CLOSEST_K = 3
 
 
 def edit_yaml(path: Path, edit) -> None:
@@ -38,6 +39,7 @@ def small(config):
     bench["methods"]["tuned"]["budget"] = 96  # 6 x 4 for a generation, 3 x 16 for the finalists
     bench["methods"]["tuned"]["episodes_per_candidate"] = 4
     bench["analysis"]["n_resamples"] = 200
+    bench["closest_calls"] = CLOSEST_K
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +83,7 @@ def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_ever
         "train": 4,
         "evaluate": 4,
         "benchmark_summary": 1,
+        "closest_calls": 1,
         "benchmark_report": 1,
         "all": 1,
     }
@@ -221,3 +224,60 @@ def test_the_solvability_check_runs_the_corners_under_the_reference_and_lists_fa
     report = (bench / LAYOUT.report).read_text()
     assert f"**gantry_lift**: {16 - len(unsolved)} of 16 probe states (corners" in report
     assert summary["cartpole_latency"]["n"] == 32  # five state parameters: 2^5 corners
+
+
+def _margins_by_hand(bench: Path, task: str) -> list[tuple[float, bool, str, int, int]]:
+    """(margin, success, method, seed, state) of every candidate episode, from the evaluation
+    tables and the tasks' success tests as their modules state them (the fixed method ran the
+    same episodes under every seed: its first seed's)."""
+    from gantry_lift.protocol import PROTOCOL
+
+    rows = []
+    for method in ("as_designed", "tuned"):
+        for seed in (1,) if method == "as_designed" else (1, 2, 3):
+            table = pq.read_table(bench / LAYOUT.evaluation(task, method, seed)).to_pylist()
+            for r in table:
+                if task == "gantry_lift":  # success: final height above the success height
+                    margin = r["final_height"] - PROTOCOL.success_height
+                else:  # success: below 1 of the limits over the judged second
+                    margin = 1.0 - r["peak_limit_fraction"]
+                rows.append((margin, r["success"], method, seed, r["state_id"]))
+    return rows
+
+
+@pytest.mark.parametrize("task", ["gantry_lift", "cartpole_latency"])
+def test_the_closest_calls_are_the_smallest_and_largest_margins(bench, task):
+    rows = _margins_by_hand(bench, task)
+    assert all((m > 0) == s for m, s, *_ in rows if m != 0)  # the margin's sign is success
+    closest = sorted((r for r in rows if r[1]), key=lambda r: r[0])[:CLOSEST_K]
+    rest = [r for r in rows if r not in closest]
+    highest = sorted(rest, key=lambda r: -r[0])[:CLOSEST_K]
+    table = [r for r in pq.read_table(bench / LAYOUT.closest_calls_table).to_pylist()]
+    got = [r for r in table if r["task"] == task]
+    expected = [("closest success", r) for r in closest] + [("highest score", r) for r in highest]
+    assert [(r["kind"], r["method"], r["seed"], r["state_id"]) for r in got] == [
+        (kind, method, seed, state) for kind, (_, _, method, seed, state) in expected
+    ]
+    assert [r["margin"] for r in got] == pytest.approx([r[0] for _, r in expected], abs=1e-12)
+
+
+def test_the_closest_calls_replay_file_holds_each_episode_as_its_table_scored_it(bench):
+    from mjtrial.recording import list_recordings
+
+    table = pq.read_table(bench / LAYOUT.closest_calls_table).to_pylist()
+    recordings = list_recordings(bench / LAYOUT.closest_calls)
+    assert recordings[0]["recording_id"] == "closest_calls"
+    assert recordings[0]["provenance"]["rule"] == "closest_calls"
+    by_id = {r["recording_id"]: r for r in recordings[1:]}
+    assert sorted(by_id) == sorted(r["recording_id"] for r in table)
+    assert len(table) == 2 * 2 * CLOSEST_K
+    for row in table:
+        recorded = by_id[row["recording_id"]]
+        assert recorded["state_id"] == row["state_id"] and recorded["success"] == row["success"]
+        evaluation = pq.read_table(
+            bench / LAYOUT.evaluation(row["task"], row["method"], row["seed"])
+        ).to_pylist()[row["state_id"]]
+        measure = "final_height" if row["task"] == "gantry_lift" else "peak_limit_fraction"
+        assert recorded[measure] == evaluation[measure]  # the re-simulation, bit for bit
+    report = (bench / LAYOUT.report).read_text()
+    assert "## Closest calls" in report and "closest success 1" in report

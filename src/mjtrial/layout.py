@@ -89,13 +89,21 @@ STAGES: dict[str, Stage] = {
         Stage("evaluate", "evaluate"),  # its parameters on the task's evaluation states
         Stage("solvability", "solvability"),  # a benchmark's tasks under their reference
         Stage("benchmark", "benchmark"),  # the benchmark's summary
+        Stage("closest_calls", "closest_calls"),  # a benchmark's episodes to watch
         Stage("benchmark_report", "benchmark_report"),
     )
 }
 
 
 # The stages only a benchmark runs (`workflow/rules/benchmark.smk`); it also runs `states`.
-BENCHMARK_STAGES = ("train", "evaluate", "solvability", "benchmark", "benchmark_report")
+BENCHMARK_STAGES = (
+    "train",
+    "evaluate",
+    "solvability",
+    "benchmark",
+    "closest_calls",
+    "benchmark_report",
+)
 
 
 def shard_ids(n_states: int, shard_size: int) -> list[str]:
@@ -290,3 +298,13 @@ class BenchmarkLayout(Layout):
     def evaluation(self, task: str, method: str, seed: int | str) -> Path:
         """Those parameters' outcomes on the task's evaluation states (one row per state)."""
         return self.root / "evaluation" / task / method / f"seed-{seed}.parquet"
+
+    @property
+    def closest_calls(self) -> Path:
+        """Each task's successes of smallest margin and episodes of largest, re-simulated."""
+        return self.root / "replay" / "closest_calls.rrd"
+
+    @property
+    def closest_calls_table(self) -> Path:
+        """The episodes of `closest_calls`: task, kind, rank, method, seed, state, margin."""
+        return self.root / "replay" / "closest_calls.parquet"

@@ -333,6 +333,29 @@ ENGINE_MEASURES = (STEPS_SIMULATED, NONFINITE, WARNING, FAILURE_CATEGORY)
 
 
 @dataclass(frozen=True)
+class Margin:
+    """How far an episode was from the success test's boundary, from one of the table's
+    measures: `measure - boundary` (`above`: success is the measure above the boundary) or
+    `boundary - measure`; positive for a success, zero or below for a failure.
+
+    The closest calls (`mjtrial.closest_calls`) are the successes of smallest margin, which a
+    small change would have failed, and the episodes of largest margin, the task's highest
+    scores, where a success test that can be gamed (a cube thrown above the line) shows.
+    `boundary` is a number, or a function of the condition's protocol parameters.
+    """
+
+    measure: str
+    boundary: float | Callable[[Mapping[str, float]], float]
+    above: bool = True
+
+    def of(self, values: np.ndarray, params: Mapping[str, float]) -> np.ndarray:
+        """The margins of the measure's `values` under a condition's parameters."""
+        boundary = self.boundary(params) if callable(self.boundary) else self.boundary
+        values = np.asarray(values, dtype=np.float64)
+        return values - float(boundary) if self.above else float(boundary) - values
+
+
+@dataclass(frozen=True)
 class Episodes:
     """What a task's outcome functions read about a batch of finished episodes.
 
@@ -397,6 +420,7 @@ class Task:
     # `trace_marks(model, params)`: label -> time (s) of a protocol event drawn on the traces.
     trace_marks: Callable[[mujoco.MjModel, Mapping[str, float]], Mapping[str, float]] | None = None
     trace_levels: tuple[tuple[str, float], ...] = ()  # (label, value) lines across the traces
+    margin: Margin | None = None  # the success test's margin (the closest calls; None: none)
     source: Path | None = field(default=None, compare=False)  # the task file, set at load
 
     @property
@@ -572,6 +596,12 @@ def _task_of(module: Any, where: str, folder: Path) -> Task:
     names = [s.name for s in task.series]
     if task.trace is not None and task.trace not in names:
         raise TaskError(f"{source or where}: trace: expected one of the series {names}")
+    measures = [m.name for m in task.measures]
+    if task.margin is not None and task.margin.measure not in measures:
+        raise TaskError(
+            f"{source or where}: margin: expected the name of one of the measures {measures}, "
+            f"got {task.margin.measure!r}"
+        )
     return replace(task, model=model, source=source)
 
 

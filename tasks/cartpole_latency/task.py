@@ -29,6 +29,7 @@ from mjtrial.task import (
     FailureCategory,
     JointPosition,
     JointVelocity,
+    Margin,
     Measure,
     Observation,
     ProtocolParameter,
@@ -118,6 +119,7 @@ def success(episodes: Episodes) -> np.ndarray:
 
 def measure(episodes: Episodes) -> dict[str, np.ndarray]:
     x, angle = _angles(episodes)
+    tail = slice(-_steps(JUDGED_OVER, episodes.model), None)
 
     def first(mask: np.ndarray) -> np.ndarray:
         return np.where(mask.any(axis=1), mask.argmax(axis=1), mask.shape[1])
@@ -126,6 +128,9 @@ def measure(episodes: Episodes) -> dict[str, np.ndarray]:
         "peak_angle": np.abs(angle).max(axis=1),
         "peak_cart_offset": np.abs(x).max(axis=1),
         "final_angle": angle[:, -1],
+        "peak_limit_fraction": np.maximum(
+            np.abs(angle[:, tail]) / UPRIGHT, np.abs(x[:, tail]) / TRACK
+        ).max(axis=1),
         # steps at which the cart first left the track, the pole first passed fall angles
         "_left_track_step": first(np.abs(x) >= TRACK),
         "_angles": np.abs(angle),
@@ -219,7 +224,16 @@ TASK = Task(
         Measure("peak_angle", "rad", "largest |pole angle| over the episode"),
         Measure("peak_cart_offset", "m", "largest |cart position| over the episode"),
         Measure("final_angle", "rad", "pole angle at the end", recorded=True),
+        Measure(
+            "peak_limit_fraction",
+            "",
+            f"largest fraction of the success test's limits (|angle| / {UPRIGHT:g} rad, "
+            f"|x| / {TRACK:g} m) in the last {JUDGED_OVER:g} s: a success is below 1",
+            recorded=True,
+        ),
     ),
+    # how far below the success test's limits the judged second stayed
+    margin=Margin("peak_limit_fraction", boundary=1.0, above=False),
     failure_categories=(
         FailureCategory("fell", "the pole passed fall_angle before the cart left the track", _fell),
         FailureCategory(

@@ -29,6 +29,7 @@ from mjtrial.task import (
     Episodes,
     FailureCategory,
     JointPosition,
+    Margin,
     Measure,
     OpenLoop,
     ProtocolParameter,
@@ -263,6 +264,9 @@ TASK = Task(
     trace_marks=phase_times,
     trace_levels=(("success height (m)", PROTOCOL.success_height),),
     success=success,
+    # the cube's final height above the success height: the closest calls and, at the other
+    # end, the highest cubes (one still in flight would pass the test)
+    margin=Margin("final_height", boundary=lambda params: _protocol(params).success_height),
     success_text=(
         f"the cube's centre is above {PROTOCOL.success_height:g} m at the end of the hold after "
         f"the lift ({PROTOCOL.hold_time:g} s unless a condition sets hold_time)"

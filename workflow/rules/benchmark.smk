@@ -3,6 +3,7 @@
 # development states only, and an evaluation job on the evaluation states; then the summary
 # and the report. Adding a seed adds only its jobs, and what reads every seed.
 from mjtrial.benchmark.config import (
+    closest_calls_slice,
     evaluate_slice,
     solvability_slice,
     summary_slice,
@@ -36,13 +37,17 @@ def model_of(wildcards):
     return experiment_of(wildcards)["model"]
 
 
-def task_content_of(wildcards):
+def task_content(task):
     """Content of the task's files, so that an edit reruns what it defines and a `touch`
     reruns nothing (an installed task: its name)."""
-    reference = experiment_of(wildcards)["task"]
+    reference = BENCHMARK_TASKS[task].config["task"]
     if not reference.endswith(".py"):
         return reference
     return ",".join(file_sha256(p) for p in task_files(Path(reference)))
+
+
+def task_content_of(wildcards):
+    return task_content(wildcards.task)
 
 
 rule benchmark_states:
@@ -147,9 +152,34 @@ rule benchmark_summary:
         run_script("benchmark", input, output, params, wildcards, threads, log, rule)
 
 
+# Each task's successes of smallest margin and episodes of largest, re-simulated to be watched.
+rule closest_calls:
+    input:
+        states=[LAYOUT.task(t).states for t in TASKS],
+        models=[BENCHMARK_TASKS[t].config["model"] for t in TASKS],
+        evaluations=[LAYOUT.evaluation(t, m, s) for t, m, s in RUNS],
+        parameters=[LAYOUT.parameters(t, m, s) for t, m, s in RUNS],
+    output:
+        rrd=LAYOUT.closest_calls,
+        table=LAYOUT.closest_calls_table,
+    log:
+        LAYOUT.log("closest_calls"),
+    params:
+        runs=[f"{t}:{m}:{s}" for t, m, s in RUNS],
+        tasks=TASKS,
+        slice=closest_calls_slice(config, BENCHMARK_TASKS),
+        task_sha256=[task_content(t) for t in TASKS],
+        code=stage_code_hash("closest_calls"),
+    run:
+        run_script(
+            "closest_calls", input, output, params, wildcards, threads, log, rule
+        )
+
+
 rule benchmark_report:
     input:
         summary=LAYOUT.summary,
+        closest_calls=LAYOUT.closest_calls_table,
     output:
         report=LAYOUT.report,
     log:

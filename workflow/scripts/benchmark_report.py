@@ -12,6 +12,7 @@ run_job(
     write_report,
     rule="benchmark_report",
     summary=Path(snakemake.input.summary),
+    closest_calls=Path(snakemake.input.closest_calls),
     output=Path(snakemake.output.report),
     repo_root=Path.cwd(),
 )

@@ -229,6 +229,9 @@ def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+# Episodes of each kind (closest successes, highest scores) per task in replay/closest_calls.rrd
+CLOSEST_CALLS_DEFAULT = 10
+
 # The solvability check when the config says nothing (`benchmark.solvability`).
 SOLVABILITY_DEFAULTS = {"max_corner_parameters": 6, "states": 64, "seed": 0}
 
@@ -247,4 +250,21 @@ def solvability_slice(
         "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
         **SOLVABILITY_DEFAULTS,
         **config["benchmark"].get("solvability", {}),
+    }
+
+
+def closest_calls_slice(
+    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask]
+) -> dict[str, Any]:
+    """What the closest calls depend on besides the evaluations: how many of each kind, and
+    each task's evaluation settings and logging rate (its experiment's `recording.rate_hz`)."""
+    return {
+        "k": config["benchmark"].get("closest_calls", CLOSEST_CALLS_DEFAULT),
+        "tasks": {
+            task: {
+                "evaluate_slice": evaluate_slice(tasks, task),
+                "rate_hz": tasks[task].config["recording"]["rate_hz"],
+            }
+            for task in tasks
+        },
     }

@@ -4,7 +4,7 @@ seeds, the paired differences, the budgets (an asymmetry flagged) and the tuned 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 RATE_NAMES = {
@@ -43,8 +43,10 @@ def _overall_table(summary: Mapping[str, Any], rate: str) -> list[str]:
     return lines + [""]
 
 
-def benchmark_report(summary: Mapping[str, Any]) -> str:
-    """The report's markdown."""
+def benchmark_report(
+    summary: Mapping[str, Any], closest_calls: Sequence[Mapping[str, Any]] = ()
+) -> str:
+    """The report's markdown; `closest_calls`: the rows of `replay/closest_calls.parquet`."""
     seeds, tasks, methods = summary["seeds"], summary["tasks"], summary["methods"]
     confidence = summary["intervals"]["confidence"]
     level = f"{100 * confidence:g} %"
@@ -146,4 +148,33 @@ def benchmark_report(summary: Mapping[str, Any]) -> str:
         task, method, seed = key.split(":")
         shown = ", ".join(f"{k} {v:.4g}" for k, v in params.items())
         out.append(f"| {task} | {method} | {seed} | {shown} |")
+    out += _closest_calls(closest_calls)
     return "\n".join(out) + "\n"
+
+
+def _closest_calls(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The section listing the episodes of `replay/closest_calls.rrd`, to be watched."""
+    out = [
+        "",
+        "## Closest calls",
+        "",
+        "Watch these before trusting a rate (`rerun replay/closest_calls.rrd`): per task, the "
+        "successes that passed by the smallest margin and the episodes of largest margin, the "
+        "task's highest scores, where a success test passed the wrong way shows. Each was "
+        "re-simulated and reproduced its evaluation row; a method that tunes nothing ran the "
+        "same episodes under every seed, so its first seed stands for all.",
+        "",
+    ]
+    if not rows:
+        return out + ["No task declares a margin, or no episode has one."]
+    out += [
+        "| task | kind | method | seed | state | success | margin |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        out.append(
+            f"| {r['task']} | {r['kind']} {r['rank']} | {r['method']} | {r['seed']} "
+            f"| {r['state_id']} | {'yes' if r['success'] else 'no'} "
+            f"| {r['margin']:.4g} ({r['margin_measure']}) |"
+        )
+    return out

@@ -5,8 +5,9 @@ Checked from the files alone (any machine the folder is copied to): each task's 
 and evaluation states were drawn as such (their stamps' rules) and share no state; each
 training's stamp names the task's development states, with their sha256 of now; each
 evaluation's stamp names the task's evaluation states and the parameter file, with their
-sha256 of now; the summary's stamp names every evaluation and parameter file as they are; the
-report's names the summary. A training that read anything but its development states fails.
+sha256 of now; the stamps of the summary and of the closest calls (table and replay file) name
+every evaluation and parameter file as they are; the report's names the summary and the
+closest calls' table. A training that read anything but its development states fails.
 """
 
 from __future__ import annotations
@@ -101,27 +102,24 @@ def verify_benchmark(
                 if stamp is not None:
                     expect_input(stamp, "states", evaluation, outcome)
                     expect_input(stamp, "parameters", parameters, outcome)
-    stamp = stamp_of(layout.summary)
-    if stamp is not None:
+    # what reads every run: the summary, and the closest calls (their table and replay file)
+    for owner in (layout.summary, layout.closest_calls_table, layout.closest_calls):
+        stamp = stamp_of(owner)
+        if stamp is None:
+            continue
         for task in tasks:
             for method in bench["methods"]:
                 for seed in bench["seeds"]:
                     key = f"{task}:{method}:{seed}"
-                    expect_input(
-                        stamp,
-                        f"evaluation:{key}",
-                        layout.evaluation(task, method, seed),
-                        layout.summary,
-                    )
-                    expect_input(
-                        stamp,
-                        f"parameters:{key}",
-                        layout.parameters(task, method, seed),
-                        layout.summary,
-                    )
+                    for name, path in (
+                        ("evaluation", layout.evaluation(task, method, seed)),
+                        ("parameters", layout.parameters(task, method, seed)),
+                    ):
+                        expect_input(stamp, f"{name}:{key}", path, owner)
     stamp = stamp_of(layout.report)
     if stamp is not None:
         expect_input(stamp, "summary", layout.summary, layout.report)
+        expect_input(stamp, "closest_calls", layout.closest_calls_table, layout.report)
     return verdict
 
 

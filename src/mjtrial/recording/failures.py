@@ -1,4 +1,6 @@
-"""``failures.rrd``: the failed episodes of every condition, gathered in one file."""
+"""Chosen episodes gathered in one file: ``failures.rrd`` (the failed episodes of every
+condition) and ``closest_calls.rrd`` (episodes re-simulated to be watched, see
+`mjtrial.closest_calls`)."""
 
 from __future__ import annotations
 
@@ -26,8 +28,8 @@ from mjtrial.recording.names import (
     default_blueprint,
 )
 from mjtrial.recording.read import open_rrd, properties, recorded_signals, recording_files
-from mjtrial.recording.route import rrd_output, write_recording
-from mjtrial.recording.write import stamp_json
+from mjtrial.recording.route import rrd_output, write_recording, write_store
+from mjtrial.recording.write import EpisodeRecord, EpisodeStores, stamp_json
 
 
 def _static_chunk(entity: str, archetypes: list[Any]) -> Chunk:
@@ -114,6 +116,52 @@ def write_failures_rrd(
             rid = FAILURE_PREFIX + entry.recording_id
             write_recording(out, copied, application_id=application_id, recording_id=rid)
     return len(failures)
+
+
+def write_episodes_rrd(
+    path: str | os.PathLike[str],
+    groups: Sequence[tuple[EpisodeStores, Sequence[EpisodeRecord]]],
+    *,
+    summary_id: str,
+    prefix: str,
+    title: str,
+    table: str,
+    stamp: Mapping[str, Any],
+    application_id: str = APPLICATION_ID,
+) -> int:
+    """Atomically write episodes of several conditions (each group: the `EpisodeStores` of its
+    condition, model and stamp, and its episodes) into one file, after a summary recording (id
+    `summary_id`: `title`, the `stamp`, and `table`, markdown); each episode's recording id is
+    `prefix` and its id in its condition (the prefix sorts them after the summary, whose stamp
+    is the file's). The viewer's layout holds every group's plots. Returns the number of
+    episodes written."""
+    plots: dict[str, list[str]] = {}
+    for builder, _ in groups:
+        for name, entities in builder.plots:
+            plots.setdefault(name, [])
+            plots[name] += [e for e in entities if e not in plots[name]]
+    count = 0
+    with (
+        atomic_path(Path(path)) as tmp,
+        rrd_output(tmp, application_id, default_blueprint(list(plots.items()))) as out,
+    ):
+        summary = [
+            _static_chunk(PROPERTIES, [rr.archetypes.RecordingInfo(name=title)]),
+            _property_chunk(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_json(stamp)}),
+            _static_chunk(summary_id, [rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN)]),
+        ]
+        write_recording(out, summary, application_id=application_id, recording_id=summary_id)
+        for builder, episodes in groups:
+            for group in builder.groups(episodes):
+                for recording_id, store in builder.build(group):
+                    write_store(
+                        out,
+                        store,
+                        application_id=application_id,
+                        recording_id=prefix + recording_id,
+                    )
+                    count += 1
+    return count
 
 
 def _plots(

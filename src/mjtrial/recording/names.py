@@ -27,6 +27,8 @@ JSON_FIELD = "json"  # the component of a property held as JSON text
 
 FAILURES_SUMMARY = "failures"  # recording id and entity of failures.rrd's summary
 FAILURE_PREFIX = "failures-"  # recording ids of episodes copied into failures.rrd
+CLOSEST_CALLS_SUMMARY = "closest_calls"  # recording id and entity of closest_calls.rrd's table
+CLOSEST_CALLS_PREFIX = "closest_calls-"  # recording ids of its episodes (after the summary)
 
 
 def body_entity(model: mujoco.MjModel, body_id: int) -> str:

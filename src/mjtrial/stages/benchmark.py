@@ -106,12 +106,18 @@ def write_summary(
 
 
 def write_report(
-    *, summary: Path, output: Path, rule: str = "benchmark_report", repo_root: Path = REPO_ROOT
+    *,
+    summary: Path,
+    closest_calls: Path,
+    output: Path,
+    rule: str = "benchmark_report",
+    repo_root: Path = REPO_ROOT,
 ) -> str:
-    """The benchmark's report from its summary."""
+    """The benchmark's report from its summary and its closest calls' table."""
     data = json.loads(Path(summary).read_text(encoding="utf-8"))
-    text = benchmark_report(data)
-    stamp = make_stage_stamp(rule, {}, {"summary": Path(summary)}, repo_root=repo_root)
+    text = benchmark_report(data, pq.read_table(closest_calls).to_pylist())
+    inputs = {"summary": Path(summary), "closest_calls": Path(closest_calls)}
+    stamp = make_stage_stamp(rule, {}, inputs, repo_root=repo_root)
     provenance.write_markdown(text, Path(output), stamp)
     log.info("benchmark report -> %s", output)
     return text

@@ -22,6 +22,20 @@ from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.states import check_drawn_as
 
 
+def evaluation_condition(
+    record: Mapping[str, Any], evaluate_slice: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The condition a parameter file (`record`, its JSON) runs on a task's evaluation states;
+    named `<method>/seed-<seed>`, nothing recorded."""
+    return {
+        "condition": f"{record['method']}/seed-{record['seed']}",
+        "task": evaluate_slice["task"],
+        **record["parameters"],
+        "failure_taxonomy": dict(evaluate_slice.get("failure_taxonomy", {})),
+        "recording": {"rate_hz": 0, "episodes": "none"},
+    }
+
+
 def evaluate_method(
     *,
     states: Path,
@@ -40,15 +54,8 @@ def evaluate_method(
     check_drawn_as(Path(states), development=False, reader="an evaluation job")
     record = json.loads(Path(parameters).read_text(encoding="utf-8"))
     n = pq.read_metadata(states).num_rows
-    condition_slice = {
-        "condition": f"{record['method']}/seed-{record['seed']}",
-        "task": evaluate_slice["task"],
-        **record["parameters"],
-        "failure_taxonomy": dict(evaluate_slice.get("failure_taxonomy", {})),
-        "recording": {"rate_hz": 0, "episodes": "none"},
-    }
     return run_shard(
-        condition_slice=condition_slice,
+        condition_slice=evaluation_condition(record, evaluate_slice),
         states_path=Path(states),
         model_file=Path(model_file),
         first=0,
