@@ -110,3 +110,29 @@ def test_a_margin_naming_no_measure_is_refused_at_load(tmp_path):
         load_task(source)
     assert str(err.value).startswith(f"{source}: margin: expected the name of one of")
     assert "got 'peak_fraction'" in str(err.value)
+
+
+def test_the_scaffolds_margin_agrees_with_its_success_test(tmp_path):
+    """`mjtrial new-task`'s task declares a margin; on episodes that both pass and fail, every
+    sign is its success test's (`margins` raises otherwise)."""
+    from mjtrial.scaffold import new_task
+
+    new_task("slide", repo_root=tmp_path)
+    task = load_task(tmp_path / "tasks" / "slide" / "task.py")
+    rng = np.random.default_rng(0)
+    values = {p.name: rng.uniform(p.low, p.high, 40) for p in task.state_parameters}
+    condition = {"push_force": 4.0, "push_time": 0.25}
+    outcomes = {"success": [], "distance_from_line": []}
+    for force in (1.0, 4.0, 8.0):
+        condition["push_force"] = force
+        [batch] = iter_batches(
+            BoundTask.of(task), values, condition, thresholds={"short_by": 0.1}, batch_size=40
+        )
+        for key in outcomes:
+            outcomes[key].append(batch.outcome[key])
+    table = pa.table({k: np.concatenate(v) for k, v in outcomes.items()})
+    table = table.append_column("state_id", pa.array(np.arange(table.num_rows)))
+    got = margins(task, table, task.parameters(condition), where="a test")
+    success = table.column("success").to_numpy(zero_copy_only=False)
+    assert 0 < success.mean() < 1
+    np.testing.assert_array_equal(got, 0.05 - table.column("distance_from_line").to_numpy())

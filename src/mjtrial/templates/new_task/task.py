@@ -19,6 +19,7 @@ from mjtrial.task import (
     Episodes,
     FailureCategory,
     JointPosition,
+    Margin,
     Measure,
     OpenLoop,
     ProtocolParameter,
@@ -63,7 +64,11 @@ def measure(episodes: Episodes) -> dict[str, np.ndarray]:
     """CHANGE: every `Measure` by name (a column of the rollout table), plus anything the
     failure categories read."""
     x = _position(episodes)
-    return {"final_position": x[:, -1], "peak_position": x.max(axis=1)}
+    return {
+        "final_position": x[:, -1],
+        "peak_position": x.max(axis=1),
+        "distance_from_line": np.abs(x[:, -1] - TARGET),
+    }
 
 
 TASK = Task(
@@ -96,7 +101,12 @@ TASK = Task(
     measures=(
         Measure("final_position", "m", "where the block ends", recorded=True),
         Measure("peak_position", "m", "the block's furthest point"),
+        Measure("distance_from_line", "m", "how far from the line the block ends"),
     ),
+    # CHANGE: how far an episode was from failing its success test (positive: a success), from
+    # one of the measures: here the tolerance less the distance from the line. A benchmark
+    # replays the successes of smallest margin and the episodes of largest.
+    margin=Margin("distance_from_line", boundary=TOLERANCE, above=False),
     # CHANGE: failure categories, first match wins; each test reads the measures and thresholds.
     failure_categories=(
         FailureCategory(
