@@ -23,6 +23,8 @@ from mjtrial.layout import BenchmarkLayout
 CONFIG = "config/benchmark.yaml"
 LAYOUT = BenchmarkLayout.of("benchmark")
 N_STATES = 16
+CARTPOLE = "config/cartpole_latency.yaml"
+CARTPOLE_SHARD = 6
 CLOSEST_K = 3
 
 
@@ -50,6 +52,8 @@ def bench(tmp_path_factory) -> Path:
         (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
     for experiment in ("config/config.yaml", "config/cartpole_latency.yaml"):
         edit_yaml(workdir / experiment, lambda c: c["states"].update(n=N_STATES))
+    # the cart-pole's evaluations in shards of 6 states (6, 6, 4), the gantry's in one
+    edit_yaml(workdir / CARTPOLE, lambda c: c["rollout"].update(shard_size=CARTPOLE_SHARD))
     edit_yaml(workdir / CONFIG, small)
     run_snakemake(workdir, "--configfile", CONFIG)
     return workdir
@@ -78,10 +82,12 @@ def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_ever
         jobs = planned(bench)
     finally:
         edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].remove(4))
-    # 2 tasks x 2 methods for seed 4, then the summary and the report
+    # 2 tasks x 2 methods for seed 4 (the gantry's evaluations in 1 shard, the cart-pole's in
+    # 3), then what reads every seed
     assert jobs == {
         "train": 4,
-        "evaluate": 4,
+        "evaluate": 2 * 1 + 2 * 3,
+        "evaluate_gather": 4,
         "benchmark_summary": 1,
         "closest_calls": 1,
         "benchmark_report": 1,
@@ -108,6 +114,32 @@ def test_the_fixed_method_equals_the_plain_reference_on_the_evaluation_states(be
         table = pq.read_table(bench / LAYOUT.evaluation("gantry_lift", "as_designed", seed))
         assert table.column("state_id").to_pylist() == [s.state_id for s in states]
         assert table.column("success").to_pylist() == expected
+
+
+def test_an_evaluation_in_shards_equals_one_over_every_state(bench, tmp_path):
+    from mjtrial.stages.evaluate import evaluate_method
+
+    task = LAYOUT.task("cartpole_latency")
+    shards = sorted(
+        (bench / LAYOUT.evaluation("cartpole_latency", "tuned", 2))
+        .with_suffix("")
+        .glob("*.parquet")
+    )
+    assert len(shards) == 3
+    whole = evaluate_method(
+        states=bench / task.states,
+        parameters=bench / LAYOUT.parameters("cartpole_latency", "tuned", 2),
+        model_file=bench / "tasks" / "cartpole_latency" / "cartpole.xml",
+        evaluate_slice={
+            "task": "tasks/cartpole_latency/task.py",
+            "failure_taxonomy": {"fall_angle": 0.5},
+        },
+        output=tmp_path / "whole.parquet",
+        repo_root=bench,
+    )
+    gathered = pq.read_table(bench / LAYOUT.evaluation("cartpole_latency", "tuned", 2))
+    assert gathered.replace_schema_metadata(None).equals(whole.replace_schema_metadata(None))
+    assert gathered.num_rows == N_STATES
 
 
 def test_both_overall_rates_equal_sums_over_the_evaluation_tables(bench):

@@ -86,7 +86,8 @@ STAGES: dict[str, Stage] = {
         Stage("dose_response", "study"),
         Stage("crate", "crate"),
         Stage("train", "train"),  # a benchmark's tuning of one method, task and seed
-        Stage("evaluate", "evaluate"),  # its parameters on the task's evaluation states
+        Stage("evaluate", "evaluate"),  # its parameters on a shard of the evaluation states
+        Stage("evaluate_gather", "evaluate_gather"),  # the shards' rows in one table
         Stage("solvability", "solvability"),  # a benchmark's tasks under their reference
         Stage("benchmark", "benchmark"),  # the benchmark's summary
         Stage("closest_calls", "closest_calls"),  # a benchmark's episodes to watch
@@ -99,6 +100,7 @@ STAGES: dict[str, Stage] = {
 BENCHMARK_STAGES = (
     "train",
     "evaluate",
+    "evaluate_gather",
     "solvability",
     "benchmark",
     "closest_calls",
@@ -296,8 +298,14 @@ class BenchmarkLayout(Layout):
         return self.root / "solvability" / f"{task}.parquet"
 
     def evaluation(self, task: str, method: str, seed: int | str) -> Path:
-        """Those parameters' outcomes on the task's evaluation states (one row per state)."""
+        """Those parameters' outcomes on the task's evaluation states (one row per state),
+        gathered from its shards."""
         return self.root / "evaluation" / task / method / f"seed-{seed}.parquet"
+
+    def evaluation_shard(self, task: str, method: str, seed: int | str, shard: str) -> Path:
+        """One shard's rows of an evaluation (`shard` from `shard_ids`, the task's
+        `rollout.shard_size`)."""
+        return self.root / "evaluation" / task / method / f"seed-{seed}" / f"shard-{shard}.parquet"
 
     @property
     def closest_calls(self) -> Path:

@@ -12,12 +12,17 @@
 # where a slurm.conf it did not write exists (a real SLURM installation). Every daemon it
 # starts is stopped on exit, failure or interrupt included. Ends with one line: PASS or FAIL.
 #
-# Environment: MJTRIAL_SLURM_N (states, default 12), MJTRIAL_SLURM_TIMEOUT (seconds allowed
-# to each Snakemake run, default 600), MJTRIAL_SLURM_KEEP=1 keeps the temporary folder.
+# Then the same for a small benchmark (config/benchmark.yaml: 8 states per task, 3 seeds).
+#
+# Environment: MJTRIAL_SLURM_N (states, default 12), MJTRIAL_SLURM_BENCHMARK=0 skips the
+# benchmark, MJTRIAL_SLURM_BENCHMARK_N (its states per task, default 8),
+# MJTRIAL_SLURM_TIMEOUT (seconds allowed to each Snakemake run, default 600),
+# MJTRIAL_SLURM_KEEP=1 keeps the temporary folder.
 set -euo pipefail
 
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 n_states=${MJTRIAL_SLURM_N:-12}
+bench_n=${MJTRIAL_SLURM_BENCHMARK_N:-8}
 run_timeout=${MJTRIAL_SLURM_TIMEOUT:-600}
 partition=mjtrial
 # Not SLURM's default ports (6817, 6818).
@@ -251,4 +256,59 @@ results=$(python -c 'import sys; from mjtrial.layout import Layout; print(Layout
         "$work/local/config/config.yaml")")
 python "$repo/tests/cluster/compare_results.py" "$work/slurm/$results" "$work/local/$results" ||
     fail "the SLURM run's results differ from the local run's"
+
+# --- a small benchmark (config/benchmark.yaml) the same way: states, training, evaluation,
+# solvability, closest calls and report as SLURM jobs, compared with a local run's
+if [[ ${MJTRIAL_SLURM_BENCHMARK:-1} == 1 ]]; then
+    for copy in slurm local; do  # the benchmark's tasks take N from their experiment configs
+        python - "$work/$copy/config" "$bench_n" <<'PY'
+import sys
+from pathlib import Path
+
+import yaml
+
+folder, n = Path(sys.argv[1]), int(sys.argv[2])
+for name in ("config.yaml", "cartpole_latency.yaml"):
+    config = yaml.safe_load((folder / name).read_text())
+    config["states"]["n"] = n
+    (folder / name).write_text(yaml.safe_dump(config, sort_keys=False))
+PY
+    done
+    cat >"$work/small_benchmark.yaml" <<EOF
+benchmark:
+  seeds: [1, 2, 3]
+  result: development
+  methods:
+    tuned: {budget: 48, episodes_per_candidate: 4}
+  analysis: {n_resamples: 200}
+  closest_calls: 2
+EOF
+    say "running a benchmark ($bench_n states per task, 3 seeds) on SLURM and locally"
+    t0=$SECONDS
+    (cd "$work/local" && exec timeout "$run_timeout" snakemake -c2 --configfile \
+        config/benchmark.yaml "$work/small_benchmark.yaml" </dev/null \
+        >"$work/snakemake-benchmark-local.log" 2>&1) &
+    local_pid=$!
+    (cd "$work/slurm" && exec timeout "$run_timeout" snakemake --workflow-profile \
+        profiles/slurm --configfile config/benchmark.yaml "$work/small_benchmark.yaml" \
+        </dev/null >"$work/snakemake-benchmark-slurm.log" 2>&1) &
+    slurm_pid=$!
+    slurm_status=0
+    wait "$slurm_pid" || slurm_status=$?
+    slurm_pid=""
+    slurm_seconds=$((SECONDS - t0))
+    local_status=0
+    wait "$local_pid" || local_status=$?
+    local_pid=""
+    ((slurm_status == 0)) ||
+        fail "the benchmark on SLURM failed, status $slurm_status (snakemake-benchmark-slurm.log)"
+    ((local_status == 0)) ||
+        fail "the local benchmark failed, status $local_status (snakemake-benchmark-local.log)"
+    jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-benchmark-slurm.log" ||
+        true)
+    say "benchmark on SLURM: ${slurm_seconds} s, $jobs SLURM job(s); both: $((SECONDS - t0)) s"
+    python "$repo/tests/cluster/compare_results.py" "$work/slurm/results/benchmark" \
+        "$work/local/results/benchmark" ||
+        fail "the benchmark's results on SLURM differ from the local run's"
+fi
 passed=true

@@ -5,6 +5,8 @@
 from mjtrial.benchmark.config import (
     closest_calls_slice,
     evaluate_slice,
+    evaluation_shard_range,
+    evaluation_shards,
     solvability_slice,
     summary_slice,
     train_slice,
@@ -104,17 +106,40 @@ rule evaluate:
         parameters=LAYOUT.parameters("{task}", "{method}", "{seed}"),
         model=model_of,
     output:
-        LAYOUT.evaluation("{task}", "{method}", "{seed}"),
+        LAYOUT.evaluation_shard("{task}", "{method}", "{seed}", "{shard}"),
     log:
-        LAYOUT.log("evaluate_{task}_{method}_{seed}"),
+        LAYOUT.log("evaluate_{task}_{method}_{seed}_{shard}"),
+    wildcard_constraints:
+        shard=r"\d+",
     threads: 1
     params:
         slice=lambda w: evaluate_slice(BENCHMARK_TASKS, w.task),
+        shard=lambda w: evaluation_shard_range(BENCHMARK_TASKS, w.task, w.shard),
         model_sha256=lambda w: model_sha256(model_of(w)),
         task_sha256=task_content_of,
         code=stage_code_hash("evaluate"),
     script:
         "../scripts/evaluate.py"
+
+
+rule evaluate_gather:
+    input:
+        shards=lambda w: [
+            LAYOUT.evaluation_shard(w.task, w.method, w.seed, shard)
+            for shard in evaluation_shards(BENCHMARK_TASKS, w.task)
+        ],
+        states=LAYOUT.task("{task}").states,
+        parameters=LAYOUT.parameters("{task}", "{method}", "{seed}"),
+    output:
+        LAYOUT.evaluation("{task}", "{method}", "{seed}"),
+    log:
+        LAYOUT.log("evaluate_gather_{task}_{method}_{seed}"),
+    params:
+        code=stage_code_hash("evaluate_gather"),
+    run:
+        run_script(
+            "evaluate_gather", input, output, params, wildcards, threads, log, rule
+        )
 
 
 rule solvability:

@@ -27,6 +27,7 @@ from mjtrial.config import (
     check_config,
     read_config_file,
 )
+from mjtrial.layout import shard_ids, shard_range
 from mjtrial.task import Task, TaskError, load_task
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "benchmark.schema.yaml"
@@ -200,6 +201,20 @@ def train_slice(
         },
         "seed": seed,
     }
+
+
+def evaluation_shards(tasks: Mapping[str, BenchmarkTask], task: str) -> list[str]:
+    """The shards of a task's evaluation states: its experiment's `rollout.shard_size`."""
+    experiment = tasks[task].config
+    return shard_ids(experiment["states"]["n"], experiment["rollout"]["shard_size"])
+
+
+def evaluation_shard_range(
+    tasks: Mapping[str, BenchmarkTask], task: str, shard: str
+) -> tuple[int, int]:
+    """The state ids [first, stop) of one shard of a task's evaluation states."""
+    experiment = tasks[task].config
+    return shard_range(shard, experiment["rollout"]["shard_size"], experiment["states"]["n"])
 
 
 def evaluate_slice(tasks: Mapping[str, BenchmarkTask], task: str) -> dict[str, Any]:
