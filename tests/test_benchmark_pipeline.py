@@ -73,6 +73,9 @@ def test_the_benchmark_builds_its_report_and_a_second_run_does_nothing(bench):
     report = (bench / LAYOUT.report).read_text()
     assert "Development decision" in report and "## Overall success rates" in report
     assert "**The budgets differ.**" in report
+    assert "![Performance profiles](figures/performance_profile.png)" in report
+    for figure in LAYOUT.benchmark_figure_files():
+        assert provenance.read_stamp(bench / figure)["rule"] == "benchmark_report"
     assert planned(bench) == {}
 
 

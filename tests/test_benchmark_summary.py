@@ -109,3 +109,37 @@ def test_fewer_than_three_seeds_is_refused():
             unequal_budgets=None,
             analysis=ANALYSIS,
         )
+
+
+def test_the_performance_profile_figure_draws_each_methods_profile_and_band():
+    """The course's example plus a second method: the figure's steps are the fractions of
+    (seed, task) rates above each threshold, counted here, and each band is drawn."""
+    from matplotlib.collections import PolyCollection
+
+    from mjtrial.report.figures import figure_performance_profile
+
+    table = {
+        "easy": {
+            "m": {s: [1] * 8 for s in range(3)},
+            "n": {s: [1] * 4 + [0] * 4 for s in range(3)},
+        },
+        "hard": {"m": {s: [0] * 2 for s in range(3)}, "n": {s: [1, 0] for s in range(3)}},
+    }
+    summary = summarize_benchmark(
+        outcomes_of(table),
+        budgets={"m": 0, "n": 0},
+        episodes_used={t: {m: dict.fromkeys(range(3), 0) for m in ("m", "n")} for t in table},
+        headline="task_mean",
+        unequal_budgets=None,
+        analysis=ANALYSIS,
+    )
+    fig = figure_performance_profile(summary=summary)
+    [ax] = fig.axes
+    taus = np.linspace(0, 1, 21)
+    # m: rates 1.0 (easy) and 0.0 (hard) in every seed; n: 0.5 and 0.5
+    expected = {"m": [0.5] * 20 + [0.0], "n": [1.0 if t < 0.5 else 0.0 for t in taus]}
+    for line, method in zip(ax.get_lines(), ("m", "n"), strict=True):
+        assert line.get_label() == method
+        np.testing.assert_allclose(line.get_xdata(), taus)
+        np.testing.assert_allclose(line.get_ydata(), expected[method], atol=1e-12)
+    assert len([c for c in ax.collections if isinstance(c, PolyCollection)]) == 2

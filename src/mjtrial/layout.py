@@ -31,6 +31,8 @@ FIGURES = (
     "sample_traces",
 )
 FIGURE_FORMATS = ("png", "svg")
+# A benchmark report's figures, the same way.
+BENCHMARK_FIGURES = ("performance_profile",)
 
 # What the crate stage copies into `source/` of a results folder, relative to the working
 # folder: the workflow's files as they ran (the package itself comes from where it is imported,
@@ -306,6 +308,9 @@ class BenchmarkLayout(Layout):
         """One shard's rows of an evaluation (`shard` from `shard_ids`, the task's
         `rollout.shard_size`)."""
         return self.root / "evaluation" / task / method / f"seed-{seed}" / f"shard-{shard}.parquet"
+
+    def benchmark_figure_files(self) -> list[Path]:
+        return [self.figure(name, fmt) for name in BENCHMARK_FIGURES for fmt in FIGURE_FORMATS]
 
     @property
     def closest_calls(self) -> Path:

@@ -207,6 +207,7 @@ rule benchmark_report:
         closest_calls=LAYOUT.closest_calls_table,
     output:
         report=LAYOUT.report,
+        figures=LAYOUT.benchmark_figure_files(),
     log:
         LAYOUT.log("benchmark_report"),
     params:

@@ -14,5 +14,6 @@ run_job(
     summary=Path(snakemake.input.summary),
     closest_calls=Path(snakemake.input.closest_calls),
     output=Path(snakemake.output.report),
+    figures_dir=Path(snakemake.output.figures[0]).parent,
     repo_root=Path.cwd(),
 )

@@ -92,7 +92,10 @@ def benchmark_report(
         "",
         f"The IQM of every (seed, task) success rate, with a {level} "
         f"{summary['intervals']['iqm']} ({summary['intervals']['n_resamples']} resamples); "
-        "`analysis/summary.json` holds each method's performance profile with its band.",
+        "`analysis/summary.json` holds each method's performance profile with its band, drawn "
+        "below: the fraction of (seed, task) success rates above each threshold.",
+        "",
+        "![Performance profiles](figures/performance_profile.png)",
         "",
         "| method | IQM |",
         "| --- | --- |",

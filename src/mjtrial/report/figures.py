@@ -18,7 +18,7 @@ from matplotlib.colors import LinearSegmentedColormap
 from matplotlib.figure import Figure
 
 from mjtrial import provenance
-from mjtrial.layout import FIGURES
+from mjtrial.layout import BENCHMARK_FIGURES, FIGURES
 from mjtrial.report.labels import band_parameter, failure_categories, pct, setting
 from mjtrial.report.traces import SampleTraces, sample_traces
 from mjtrial.task import BoundTask, Task
@@ -352,6 +352,58 @@ def figure_sample_traces(
         fontsize=9,
     )
     return fig
+
+
+@_styled
+def figure_performance_profile(*, summary: Mapping[str, Any]) -> Figure:
+    """A benchmark's performance profiles (rliable's score distributions): for each method, the
+    fraction of its (training seed, task) success rates above each threshold, with the
+    stratified bootstrap band; a method that fails outright on one task shows as a step."""
+    methods = list(summary["overall"])
+    colors, markers = condition_colors(methods), _markers(methods)
+    fig = _figure(SINGLE_COLUMN, 2.6)
+    ax = fig.add_subplot()
+    for method in methods:
+        profile = summary["overall"][method]["performance_profile"]
+        taus = np.asarray(profile["taus"])
+        ax.fill_between(
+            taus, profile["low"], profile["high"], step="post", color=colors[method], alpha=0.2
+        )
+        ax.step(
+            taus,
+            profile["fraction"],
+            where="post",
+            color=colors[method],
+            marker=markers[method],
+            markersize=3,
+            label=method,
+        )
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("Success rate threshold \N{GREEK SMALL LETTER TAU}")
+    ax.set_ylabel("Fraction of runs above \N{GREEK SMALL LETTER TAU}")
+    confidence = pct(summary["intervals"]["confidence"])
+    ax.set_title(
+        f"Performance profiles ({len(summary['seeds'])} seeds x {len(summary['tasks'])} tasks, "
+        f"{confidence} bands)"
+    )
+    ax.grid(color=_SHADE, linewidth=0.6, zorder=0)
+    ax.legend(loc="lower left")
+    return fig
+
+
+def write_benchmark_figures(
+    *, summary: Mapping[str, Any], out_dir: Path, stamp: Mapping[str, Any]
+) -> list[Path]:
+    """A benchmark's figures (`mjtrial.layout.BENCHMARK_FIGURES`), PNG then SVG for each."""
+    builders = {"performance_profile": figure_performance_profile}
+    return [
+        path
+        for name in BENCHMARK_FIGURES
+        for path in _save(
+            builders[name](summary=summary), out_dir=Path(out_dir), name=name, stamp=stamp
+        )
+    ]
 
 
 def _save(fig: Figure, *, out_dir: Path, name: str, stamp: Mapping[str, Any]) -> list[Path]:

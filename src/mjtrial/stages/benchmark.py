@@ -17,6 +17,7 @@ from mjtrial import REPO_ROOT, engine, provenance
 from mjtrial.benchmark.report import benchmark_report
 from mjtrial.benchmark.solvability import probe_states
 from mjtrial.benchmark.summary import summarize_benchmark
+from mjtrial.report.figures import write_benchmark_figures
 from mjtrial.stages.rollout import condition_task, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 
@@ -110,14 +111,16 @@ def write_report(
     summary: Path,
     closest_calls: Path,
     output: Path,
+    figures_dir: Path,
     rule: str = "benchmark_report",
     repo_root: Path = REPO_ROOT,
 ) -> str:
-    """The benchmark's report from its summary and its closest calls' table."""
+    """The benchmark's report and figures from its summary and its closest calls' table."""
     data = json.loads(Path(summary).read_text(encoding="utf-8"))
     text = benchmark_report(data, pq.read_table(closest_calls).to_pylist())
     inputs = {"summary": Path(summary), "closest_calls": Path(closest_calls)}
     stamp = make_stage_stamp(rule, {}, inputs, repo_root=repo_root)
+    write_benchmark_figures(summary=data, out_dir=Path(figures_dir), stamp=stamp)
     provenance.write_markdown(text, Path(output), stamp)
     log.info("benchmark report -> %s", output)
     return text
