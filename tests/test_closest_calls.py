@@ -74,7 +74,13 @@ def test_the_cartpole_margin_equals_a_step_by_step_reading_of_its_episodes(cartp
     )
     table = pa.table({c: batch.outcome[c] for c in ("success", "peak_limit_fraction")})
     table = table.append_column("state_id", pa.array(np.arange(24)))
-    got = margins(cartpole, table, cartpole.parameters({"latency": 0.02}), where="a test")
+    got = margins(
+        cartpole.margin,
+        table,
+        cartpole.parameters({"latency": 0.02}),
+        source=str(cartpole.source),
+        where="a test",
+    )
     for i in range(24):
         x, angle = batch.episodes.physics[i, -500:, 1], batch.episodes.physics[i, -500:, 2]
         peak = max(max(abs(a) / 0.25, abs(c) / 1.0) for a, c in zip(angle, x, strict=True))
@@ -92,7 +98,13 @@ def test_a_margin_that_disagrees_with_success_is_one_line_naming_the_task(cartpo
         }
     )
     with pytest.raises(ValueError) as err:
-        margins(cartpole, table, {}, where="seed-1.parquet of cartpole/tuned")
+        margins(
+            cartpole.margin,
+            table,
+            {},
+            source=str(cartpole.source),
+            where="seed-1.parquet of cartpole/tuned",
+        )
     message = str(err.value)
     assert "\n" not in message
     assert message.startswith(f"{cartpole.source}: margin: state 1 of seed-1.parquet")
@@ -132,7 +144,9 @@ def test_the_scaffolds_margin_agrees_with_its_success_test(tmp_path):
             outcomes[key].append(batch.outcome[key])
     table = pa.table({k: np.concatenate(v) for k, v in outcomes.items()})
     table = table.append_column("state_id", pa.array(np.arange(table.num_rows)))
-    got = margins(task, table, task.parameters(condition), where="a test")
+    got = margins(
+        task.margin, table, task.parameters(condition), source="the scaffold", where="a test"
+    )
     success = table.column("success").to_numpy(zero_copy_only=False)
     assert 0 < success.mean() < 1
     np.testing.assert_array_equal(got, 0.05 - table.column("distance_from_line").to_numpy())

@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
+from mjtrial.closest_calls import Margin
 from mjtrial.physics import FULLPHYSICS, STATE_QPOS
 
 ENTRY_POINT_GROUP = "mjtrial.tasks"
@@ -330,29 +331,6 @@ NONFINITE = Measure("nonfinite", "", "the state went NaN or infinite")
 WARNING = Measure("warning", "", "the MuJoCo warnings that stopped the episode, by name")
 FAILURE_CATEGORY = Measure("failure_category", "", "the first failure category that applies")
 ENGINE_MEASURES = (STEPS_SIMULATED, NONFINITE, WARNING, FAILURE_CATEGORY)
-
-
-@dataclass(frozen=True)
-class Margin:
-    """How far an episode was from the success test's boundary, from one of the table's
-    measures: `measure - boundary` (`above`: success is the measure above the boundary) or
-    `boundary - measure`; positive for a success, zero or below for a failure.
-
-    The closest calls (`mjtrial.closest_calls`) are the successes of smallest margin, which a
-    small change would have failed, and the episodes of largest margin, the task's highest
-    scores, where a success test that can be gamed (a cube thrown above the line) shows.
-    `boundary` is a number, or a function of the condition's protocol parameters.
-    """
-
-    measure: str
-    boundary: float | Callable[[Mapping[str, float]], float]
-    above: bool = True
-
-    def of(self, values: np.ndarray, params: Mapping[str, float]) -> np.ndarray:
-        """The margins of the measure's `values` under a condition's parameters."""
-        boundary = self.boundary(params) if callable(self.boundary) else self.boundary
-        values = np.asarray(values, dtype=np.float64)
-        return values - float(boundary) if self.above else float(boundary) - values
 
 
 @dataclass(frozen=True)

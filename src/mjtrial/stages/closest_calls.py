@@ -2,10 +2,10 @@
 episodes of largest margin over every method and training seed, re-simulated with their
 trajectories into `replay/closest_calls.rrd`, listed in `replay/closest_calls.parquet`.
 
-Runs whose parameters are equal (a method that tunes nothing, under every seed) ran the same
-episodes: only the first seed's are candidates. Each chosen episode is re-simulated alone and
-must reproduce its evaluation row's success and margin exactly, else the stage fails: the file
-shows the episodes the tables scored.
+A task that declares no margin has none. Runs whose parameters are equal (a method that tunes
+nothing, under every seed) ran the same episodes: only the first seed's are candidates. Each
+chosen episode is re-simulated alone and must reproduce its evaluation row's success and margin
+exactly, else the stage fails: the file shows the episodes the tables scored.
 """
 
 from __future__ import annotations
@@ -106,6 +106,9 @@ def write_closest_calls(
         par = {run: Path(parameters[by_run[run]]) for run in runs}
         bound = condition_task(spec["evaluate_slice"], Path(models[task_name]), repo_root=repo_root)
         task = bound.task
+        if task.margin is None:
+            log.info("%s: %s declares no margin: no closest calls", rule, task_name)
+            continue
         candidates, columns = [], []
         for run in _candidates(runs, ev, par):
             record = json.loads(par[run].read_text(encoding="utf-8"))
@@ -113,7 +116,8 @@ def write_closest_calls(
             params = task.parameters(condition_parameters(bound, condition))
             table = pq.read_table(ev[run])
             where = f"{ev[run].name} of {task_name}/{run[0]}"
-            columns.append((table, margins(task, table, params, where=where)))
+            source = str(task.source or task.name)
+            columns.append((table, margins(task.margin, table, params, source=source, where=where)))
             candidates += [(run, condition, params)] * table.num_rows
         if not candidates:
             continue
