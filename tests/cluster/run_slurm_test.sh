@@ -271,6 +271,7 @@ folder, n = Path(sys.argv[1]), int(sys.argv[2])
 for name in ("config.yaml", "cartpole_latency.yaml"):
     config = yaml.safe_load((folder / name).read_text())
     config["states"]["n"] = n
+    config["analysis"]["first_k"] = min(config["analysis"]["first_k"], n)
     (folder / name).write_text(yaml.safe_dump(config, sort_keys=False))
 PY
     done

@@ -122,6 +122,13 @@ rule evaluate:
         "../scripts/evaluate.py"
 
 
+# On a cluster the gathers run where Snakemake runs: each concatenates a few small tables in
+# well under a second, less than a cluster job's submission and start-up, and a group of them
+# would ask for a core per gather at once.
+localrules:
+    evaluate_gather,
+
+
 rule evaluate_gather:
     input:
         shards=lambda w: [
