@@ -381,12 +381,9 @@ def figure_performance_profile(*, summary: Mapping[str, Any]) -> Figure:
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("Success rate threshold \N{GREEK SMALL LETTER TAU}")
-    ax.set_ylabel("Fraction of runs above \N{GREEK SMALL LETTER TAU}")
-    confidence = pct(summary["intervals"]["confidence"])
-    ax.set_title(
-        f"Performance profiles ({len(summary['seeds'])} seeds x {len(summary['tasks'])} tasks, "
-        f"{confidence} bands)"
-    )
+    n_runs = len(summary["seeds"]) * len(summary["tasks"])
+    ax.set_ylabel(f"Fraction of {n_runs} runs above \N{GREEK SMALL LETTER TAU}")
+    ax.set_title(f"Performance profiles ({pct(summary['intervals']['confidence'])} bands)")
     ax.grid(color=_SHADE, linewidth=0.6, zorder=0)
     ax.legend(loc="lower left")
     return fig
