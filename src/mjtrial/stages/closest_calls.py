@@ -62,9 +62,7 @@ def _condition_name(task: str, method: str, seed: int) -> str:
 
 
 def _candidates(
-    runs: Sequence[tuple[str, int]],
-    evaluations: Mapping[tuple[str, int], Path],
-    parameters: Mapping[tuple[str, int], Path],
+    runs: Sequence[tuple[str, int]], parameters: Mapping[tuple[str, int], Path]
 ) -> list[tuple[str, int]]:
     """The runs whose episodes are candidates: the first of each set of equal parameters."""
     seen, kept = set(), []
@@ -77,6 +75,97 @@ def _candidates(
             seen.add(key)
             kept.append(run)
     return kept
+
+
+def _task_calls(
+    task_name: str,
+    spec: Mapping[str, Any],
+    *,
+    k: int,
+    states: Path,
+    model: Path,
+    evaluations: Mapping[tuple[str, int], Path],
+    parameters: Mapping[tuple[str, int], Path],
+    rule: str,
+    repo_root: Path,
+) -> tuple[list[dict[str, Any]], list[tuple[EpisodeStores, list[Any]]]]:
+    """One task's closest calls: their table rows, and per run the recordings' builder and the
+    re-simulated episodes (`evaluations`, `parameters`: (method, seed) -> file)."""
+    bound = condition_task(spec["evaluate_slice"], model, repo_root=repo_root)
+    task = bound.task
+    if task.margin is None:
+        log.info("%s: %s declares no margin: no closest calls", rule, task_name)
+        return [], []
+    candidates, tables, margin_parts = [], [], []
+    for run in _candidates(list(evaluations), parameters):
+        record = json.loads(parameters[run].read_text(encoding="utf-8"))
+        condition = evaluation_condition(record, spec["evaluate_slice"])
+        params = task.parameters(condition_parameters(bound, condition))
+        table = pq.read_table(evaluations[run])
+        where = f"{evaluations[run].name} of {task_name}/{run[0]}"
+        source = str(task.source or task.name)
+        margin_parts.append(margins(task.margin, table, params, source=source, where=where))
+        tables.append(table)
+        candidates += [(run, condition, params)] * table.num_rows
+    if not candidates:
+        return [], []
+    table = pa.concat_tables([t.replace_schema_metadata(None) for t in tables])
+    success = table.column("success").to_numpy(zero_copy_only=False)
+    state_ids = table.column("state_id").to_numpy()
+    categories = table.column("failure_category").to_pylist()
+    margin = np.concatenate(margin_parts)
+
+    rows, wanted = [], {}
+    for kind, picks in choose(success, margin, k).items():
+        for rank, i in enumerate(picks, start=1):
+            run = candidates[i][0]
+            name = _condition_name(task_name, *run)
+            rows.append(
+                {
+                    "task": task_name,
+                    "kind": kind,
+                    "rank": rank,
+                    "method": run[0],
+                    "seed": run[1],
+                    "state_id": int(state_ids[i]),
+                    "success": bool(success[i]),
+                    "margin": float(margin[i]),
+                    "margin_measure": task.margin.measure,
+                    "failure_category": categories[i],
+                    "recording_id": CLOSEST_CALLS_PREFIX
+                    + episode_recording_id(name, int(state_ids[i])),
+                }
+            )
+            wanted.setdefault(run, []).append(i)
+
+    values = read_state_values(states, task)
+    position = {int(s): i for i, s in enumerate(values["state_id"])}
+    groups = []
+    for run, picks in wanted.items():
+        _, condition, params = candidates[picks[0]]
+        by_state = {int(state_ids[i]): i for i in picks}
+        rows_of = [position[s] for s in sorted(by_state)]
+        subset = {c: v[rows_of] for c, v in values.items()}
+        episodes = []
+        for batch in condition_batches(bound, condition, subset, nthread=1):
+            again = task.margin.of(batch.outcome[task.margin.measure], params)
+            for j, episode in enumerate(episode_records(task, batch)):
+                i = by_state[episode.state_id]
+                if bool(success[i]) != episode.success or margin[i] != again[j]:
+                    raise ValueError(
+                        f"{evaluations[run]}: state {episode.state_id} re-simulated gave "
+                        f"success {episode.success} and margin {again[j]!r}, the table "
+                        f"{bool(success[i])} and {margin[i]!r}"
+                    )
+                episodes.append(episode)
+        stamp_inputs = {"evaluation": evaluations[run], "parameters": parameters[run]}
+        builder = EpisodeStores(
+            recording_spec(bound, engine.episode_steps(bound, params), spec["rate_hz"]),
+            condition=_condition_name(task_name, *run),
+            stamp=make_stage_stamp(rule, dict(condition), stamp_inputs, repo_root=repo_root),
+        )
+        groups.append((builder, episodes))
+    return rows, groups
 
 
 def write_closest_calls(
@@ -95,93 +184,28 @@ def write_closest_calls(
     `evaluate_slice` (as its evaluation jobs') and `rate_hz` (the recordings' logging rate);
     `states` and `models`: task -> its evaluation states and model file; `evaluations` and
     `parameters`: `<task>:<method>:<seed>` -> file."""
-    k, tasks = closest_slice["k"], closest_slice["tasks"]
+    tasks = closest_slice["tasks"]
     rows: list[dict[str, Any]] = []
     groups = []
     for task_name, spec in tasks.items():
-        keys = [key for key in evaluations if key.split(":")[0] == task_name]
-        runs = [(key.split(":")[1], int(key.split(":")[2])) for key in keys]
-        by_run = {run: key for run, key in zip(runs, keys, strict=True)}
-        ev = {run: Path(evaluations[by_run[run]]) for run in runs}
-        par = {run: Path(parameters[by_run[run]]) for run in runs}
-        bound = condition_task(spec["evaluate_slice"], Path(models[task_name]), repo_root=repo_root)
-        task = bound.task
-        if task.margin is None:
-            log.info("%s: %s declares no margin: no closest calls", rule, task_name)
-            continue
-        candidates, columns = [], []
-        for run in _candidates(runs, ev, par):
-            record = json.loads(par[run].read_text(encoding="utf-8"))
-            condition = evaluation_condition(record, spec["evaluate_slice"])
-            params = task.parameters(condition_parameters(bound, condition))
-            table = pq.read_table(ev[run])
-            where = f"{ev[run].name} of {task_name}/{run[0]}"
-            source = str(task.source or task.name)
-            columns.append((table, margins(task.margin, table, params, source=source, where=where)))
-            candidates += [(run, condition, params)] * table.num_rows
-        if not candidates:
-            continue
-        success = np.concatenate(
-            [t.column("success").to_numpy(zero_copy_only=False) for t, _ in columns]
+        runs = {
+            (key.split(":")[1], int(key.split(":")[2])): key
+            for key in evaluations
+            if key.split(":")[0] == task_name
+        }
+        task_rows, task_groups = _task_calls(
+            task_name,
+            spec,
+            k=closest_slice["k"],
+            states=Path(states[task_name]),
+            model=Path(models[task_name]),
+            evaluations={run: Path(evaluations[key]) for run, key in runs.items()},
+            parameters={run: Path(parameters[key]) for run, key in runs.items()},
+            rule=rule,
+            repo_root=repo_root,
         )
-        margin = np.concatenate([m for _, m in columns])
-        state_ids = np.concatenate([t.column("state_id").to_numpy() for t, _ in columns])
-        categories = [c for t, _ in columns for c in t.column("failure_category").to_pylist()]
-        chosen = choose(success, margin, k)
-        values = read_state_values(Path(states[task_name]), task)
-        position = {int(s): i for i, s in enumerate(values["state_id"])}
-        wanted: dict[tuple[str, int], list[int]] = {}
-        for kind, picks in chosen.items():
-            for rank, i in enumerate(picks, start=1):
-                run, _, _ = candidates[i]
-                name = _condition_name(task_name, *run)
-                rows.append(
-                    {
-                        "task": task_name,
-                        "kind": kind,
-                        "rank": rank,
-                        "method": run[0],
-                        "seed": run[1],
-                        "state_id": int(state_ids[i]),
-                        "success": bool(success[i]),
-                        "margin": float(margin[i]),
-                        "margin_measure": task.margin.measure,
-                        "failure_category": categories[i],
-                        "recording_id": CLOSEST_CALLS_PREFIX
-                        + episode_recording_id(name, int(state_ids[i])),
-                    }
-                )
-                wanted.setdefault(run, []).append(i)
-        for run, picks in wanted.items():
-            _, condition, params = candidates[picks[0]]
-            ids = sorted({int(state_ids[i]) for i in picks})
-            rows_of = [position[s] for s in ids]
-            subset = {c: v[rows_of] for c, v in values.items()}
-            episodes = []
-            for batch in condition_batches(bound, condition, subset, nthread=1):
-                again = task.margin.of(batch.outcome[task.margin.measure], params)
-                for j, episode in enumerate(episode_records(task, batch)):
-                    i = next(i for i in picks if int(state_ids[i]) == episode.state_id)
-                    if bool(success[i]) != episode.success or margin[i] != again[j]:
-                        raise ValueError(
-                            f"{ev[run]}: state {episode.state_id} re-simulated gave success "
-                            f"{episode.success} and margin {again[j]!r}, the table "
-                            f"{bool(success[i])} and {margin[i]!r}"
-                        )
-                    episodes.append(episode)
-            stamp_inputs = {"evaluation": ev[run], "parameters": par[run]}
-            groups.append(
-                (
-                    EpisodeStores(
-                        recording_spec(bound, engine.episode_steps(bound, params), spec["rate_hz"]),
-                        condition=_condition_name(task_name, *run),
-                        stamp=make_stage_stamp(
-                            rule, dict(condition), stamp_inputs, repo_root=repo_root
-                        ),
-                    ),
-                    episodes,
-                )
-            )
+        rows += task_rows
+        groups += task_groups
     table = pa.Table.from_pylist(rows, schema=_schema()) if rows else _schema().empty_table()
     inputs: dict[str, Any] = {}
     for task_name, spec in tasks.items():
@@ -190,8 +214,8 @@ def write_closest_calls(
         inputs |= {f"{task_name}:{key}": v for key, v in model.items()}
         task_files = task_inputs(spec["evaluate_slice"]["task"], repo_root=repo_root)
         inputs |= {f"{task_name}:{key}": v for key, v in task_files.items()}
-    inputs |= {f"evaluation:{k}": Path(v) for k, v in evaluations.items()}
-    inputs |= {f"parameters:{k}": Path(v) for k, v in parameters.items()}
+    inputs |= {f"evaluation:{key}": Path(v) for key, v in evaluations.items()}
+    inputs |= {f"parameters:{key}": Path(v) for key, v in parameters.items()}
     stamp = make_stage_stamp(rule, dict(closest_slice), inputs, repo_root=repo_root)
     n = write_episodes_rrd(
         output_rrd,
