@@ -228,28 +228,36 @@ for copy in slurm local; do
     cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles} "$work/$copy/"
 done
 
+# run_both NAME CONFIGFILE...: the workflow on SLURM (--workflow-profile profiles/slurm) and
+# locally (-c2), in the two copies, logs snakemake-NAME-slurm.log and snakemake-NAME-local.log.
 # The local run goes alongside: the SLURM run spends most of its time waiting for jobs to be
 # scheduled and polled, and the results do not depend on how busy the machine is.
-say "running the workflow on SLURM (--workflow-profile profiles/slurm) and locally (-c2)"
-t0=$SECONDS
-(cd "$work/local" && exec timeout "$run_timeout" snakemake -c2 --configfile "$work/small.yaml" \
-    </dev/null >"$work/snakemake-local.log" 2>&1) &
-local_pid=$!
-(cd "$work/slurm" && exec timeout "$run_timeout" snakemake --workflow-profile profiles/slurm \
-    --configfile "$work/small.yaml" </dev/null >"$work/snakemake-slurm.log" 2>&1) &
-slurm_pid=$!
-# `wait`, unlike a command in the foreground, lets an interrupt reach the trap at once.
-slurm_status=0
-wait "$slurm_pid" || slurm_status=$?
-slurm_pid=""
-slurm_seconds=$((SECONDS - t0))
-local_status=0
-wait "$local_pid" || local_status=$?
-local_pid=""
-((slurm_status == 0)) || fail "the SLURM run failed, status $slurm_status (snakemake-slurm.log)"
-((local_status == 0)) || fail "the local run failed, status $local_status (snakemake-local.log)"
-jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-slurm.log" || true)
-say "SLURM run: ${slurm_seconds} s, $jobs SLURM job(s); both runs: $((SECONDS - t0)) s"
+run_both() {
+    local name=$1 t0=$SECONDS slurm_status=0 local_status=0 slurm_seconds jobs
+    shift
+    (cd "$work/local" && exec timeout "$run_timeout" snakemake -c2 --configfile "$@" \
+        </dev/null >"$work/snakemake-$name-local.log" 2>&1) &
+    local_pid=$!
+    (cd "$work/slurm" && exec timeout "$run_timeout" snakemake --workflow-profile \
+        profiles/slurm --configfile "$@" </dev/null >"$work/snakemake-$name-slurm.log" 2>&1) &
+    slurm_pid=$!
+    # `wait`, unlike a command in the foreground, lets an interrupt reach the trap at once.
+    wait "$slurm_pid" || slurm_status=$?
+    slurm_pid=""
+    slurm_seconds=$((SECONDS - t0))
+    wait "$local_pid" || local_status=$?
+    local_pid=""
+    ((slurm_status == 0)) ||
+        fail "the $name run on SLURM failed, status $slurm_status (snakemake-$name-slurm.log)"
+    ((local_status == 0)) ||
+        fail "the local $name run failed, status $local_status (snakemake-$name-local.log)"
+    jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-$name-slurm.log" ||
+        true)
+    say "$name on SLURM: ${slurm_seconds} s, $jobs SLURM job(s); both: $((SECONDS - t0)) s"
+}
+
+say "running the experiment on SLURM (--workflow-profile profiles/slurm) and locally (-c2)"
+run_both experiment "$work/small.yaml"
 
 results=$(python -c 'import sys; from mjtrial.layout import Layout; print(Layout.of(sys.argv[1]).root)' \
     "$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["experiment"])' \
@@ -285,29 +293,7 @@ benchmark:
   closest_calls: 2
 EOF
     say "running a benchmark ($bench_n states per task, 3 seeds) on SLURM and locally"
-    t0=$SECONDS
-    (cd "$work/local" && exec timeout "$run_timeout" snakemake -c2 --configfile \
-        config/benchmark.yaml "$work/small_benchmark.yaml" </dev/null \
-        >"$work/snakemake-benchmark-local.log" 2>&1) &
-    local_pid=$!
-    (cd "$work/slurm" && exec timeout "$run_timeout" snakemake --workflow-profile \
-        profiles/slurm --configfile config/benchmark.yaml "$work/small_benchmark.yaml" \
-        </dev/null >"$work/snakemake-benchmark-slurm.log" 2>&1) &
-    slurm_pid=$!
-    slurm_status=0
-    wait "$slurm_pid" || slurm_status=$?
-    slurm_pid=""
-    slurm_seconds=$((SECONDS - t0))
-    local_status=0
-    wait "$local_pid" || local_status=$?
-    local_pid=""
-    ((slurm_status == 0)) ||
-        fail "the benchmark on SLURM failed, status $slurm_status (snakemake-benchmark-slurm.log)"
-    ((local_status == 0)) ||
-        fail "the local benchmark failed, status $local_status (snakemake-benchmark-local.log)"
-    jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-benchmark-slurm.log" ||
-        true)
-    say "benchmark on SLURM: ${slurm_seconds} s, $jobs SLURM job(s); both: $((SECONDS - t0)) s"
+    run_both benchmark config/benchmark.yaml "$work/small_benchmark.yaml"
     python "$repo/tests/cluster/compare_results.py" "$work/slurm/results/benchmark" \
         "$work/local/results/benchmark" ||
         fail "the benchmark's results on SLURM differ from the local run's"
