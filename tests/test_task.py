@@ -5,6 +5,7 @@ privileged observations."""
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import replace
 
 import mujoco
@@ -68,6 +69,28 @@ def test_load_by_module_name(tmp_path, monkeypatch):
     task = load_task("mytasks.balance")
     assert task.name == "cartpole_latency" and task.model.is_file()
     sys.modules.pop("mytasks.balance", None)
+
+
+def test_a_task_package_loads_in_many_threads_at_once():
+    """Snakemake runs local jobs in threads of one process (gather, summary): each loads the
+    task; before the import lock, one thread's fresh import pulled the other's modules out of
+    `sys.modules` mid-import (CI: "'NoneType' object has no attribute '__dict__'")."""
+    failures = []
+
+    def load_some():
+        for _ in range(15):
+            try:
+                task = load_task("tasks/gantry_lift/task.py", repo_root=REPO_ROOT)
+                assert task.name == "gantry_lift"
+            except TaskError as err:
+                failures.append(str(err))
+
+    threads = [threading.Thread(target=load_some) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert failures == []
 
 
 @pytest.mark.parametrize(

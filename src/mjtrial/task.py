@@ -29,6 +29,7 @@ import importlib.metadata
 import importlib.util
 import os
 import sys
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,6 +43,10 @@ from mjtrial.closest_calls import Margin
 from mjtrial.physics import FULLPHYSICS, STATE_QPOS
 
 ENTRY_POINT_GROUP = "mjtrial.tasks"
+
+# Task files are imported under names in `sys.modules`; Snakemake runs local jobs in threads of
+# one process, and two imports of one task at once would pull each other's modules out.
+_IMPORT_LOCK = threading.RLock()
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 
 
@@ -527,6 +532,12 @@ def _from_file(path: Path) -> Task:
     siblings it imports relatively: `from .protocol import ...`), the folder is imported as a
     package of a name unique to its path, so two copies of one task never share modules and an
     edit is always seen; else the file alone is imported."""
+    with _IMPORT_LOCK:
+        module = _import_file(path)
+    return _task_of(module, str(path), path.parent)
+
+
+def _import_file(path: Path) -> Any:
     name = f"mjtrial_task_{abs(hash(path.resolve()))}"
     try:
         if (path.parent / "__init__.py").is_file():
@@ -550,7 +561,7 @@ def _from_file(path: Path) -> Task:
     except Exception as err:  # noqa: BLE001 - any error in the user's file is one line
         sys.modules.pop(name, None)
         raise TaskError(f"{path}: the task file raised {type(err).__name__}: {err}") from None
-    return _task_of(module, str(path), path.parent)
+    return module
 
 
 def task_files(task_file: Path) -> list[Path]:
