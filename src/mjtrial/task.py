@@ -44,8 +44,7 @@ from mjtrial.physics import FULLPHYSICS, STATE_QPOS
 
 ENTRY_POINT_GROUP = "mjtrial.tasks"
 
-# Task files are imported under names in `sys.modules`; Snakemake runs local jobs in threads of
-# one process, and two imports of one task at once would pull each other's modules out.
+# One task import at a time: Snakemake's in-process jobs are threads sharing `sys.modules`.
 _IMPORT_LOCK = threading.RLock()
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 
@@ -532,36 +531,31 @@ def _from_file(path: Path) -> Task:
     siblings it imports relatively: `from .protocol import ...`), the folder is imported as a
     package of a name unique to its path, so two copies of one task never share modules and an
     edit is always seen; else the file alone is imported."""
-    with _IMPORT_LOCK:
-        module = _import_file(path)
-    return _task_of(module, str(path), path.parent)
-
-
-def _import_file(path: Path) -> Any:
     name = f"mjtrial_task_{abs(hash(path.resolve()))}"
-    try:
-        if (path.parent / "__init__.py").is_file():
-            for cached in [m for m in sys.modules if m == name or m.startswith(f"{name}.")]:
-                del sys.modules[cached]
-            package_spec = importlib.util.spec_from_file_location(
-                name, path.parent / "__init__.py", submodule_search_locations=[str(path.parent)]
-            )
-            package = importlib.util.module_from_spec(package_spec)
-            sys.modules[name] = package
-            package_spec.loader.exec_module(package)
-            name = f"{name}.{path.stem}"
-        spec = importlib.util.spec_from_file_location(name, path)
-        if spec is None or spec.loader is None:
-            raise TaskError(f"{path}: not a Python file")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    except TaskError:
-        raise
-    except Exception as err:  # noqa: BLE001 - any error in the user's file is one line
-        sys.modules.pop(name, None)
-        raise TaskError(f"{path}: the task file raised {type(err).__name__}: {err}") from None
-    return module
+    with _IMPORT_LOCK:
+        try:
+            if (path.parent / "__init__.py").is_file():
+                for cached in [m for m in sys.modules if m == name or m.startswith(f"{name}.")]:
+                    del sys.modules[cached]
+                package_spec = importlib.util.spec_from_file_location(
+                    name, path.parent / "__init__.py", submodule_search_locations=[str(path.parent)]
+                )
+                package = importlib.util.module_from_spec(package_spec)
+                sys.modules[name] = package
+                package_spec.loader.exec_module(package)
+                name = f"{name}.{path.stem}"
+            spec = importlib.util.spec_from_file_location(name, path)
+            if spec is None or spec.loader is None:
+                raise TaskError(f"{path}: not a Python file")
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+        except TaskError:
+            raise
+        except Exception as err:  # noqa: BLE001 - any error in the user's file is one line
+            sys.modules.pop(name, None)
+            raise TaskError(f"{path}: the task file raised {type(err).__name__}: {err}") from None
+    return _task_of(module, str(path), path.parent)
 
 
 def task_files(task_file: Path) -> list[Path]:
