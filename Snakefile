@@ -38,6 +38,10 @@ try:
     # A benchmark's config (config/benchmark.yaml) names tasks by their experiment configs
     # and methods to tune and compare on them (mjtrial.benchmark).
     BENCHMARK = is_benchmark(config)
+    RERUN_COMMAND = rerun_command(
+        [os.path.relpath(f) for f in workflow.configfiles],
+        workflow.config_settings.config_args or [],
+    )
     if BENCHMARK:
         BENCHMARK_TASKS = check_benchmark_config(
             config, source=CONFIG_SOURCE, repo_root=Path.cwd()
@@ -52,10 +56,6 @@ try:
             ),
             repo_root=Path.cwd(),
             overrides=COMMAND_LINE_CONFIG,
-        )
-        RERUN_COMMAND = rerun_command(
-            [os.path.relpath(f) for f in workflow.configfiles],
-            workflow.config_settings.config_args or [],
         )
         for warning in preflight(config, repo_root=Path.cwd()):
             print(warning, file=sys.stderr)

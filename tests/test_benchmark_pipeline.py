@@ -86,7 +86,7 @@ def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_ever
     finally:
         edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].remove(4))
     # 2 tasks x 2 methods for seed 4 (the gantry's evaluations in 1 shard, the cart-pole's in
-    # 3), then what reads every seed
+    # 3), then what reads every seed, and the seal and crate
     assert jobs == {
         "train": 4,
         "evaluate": 2 * 1 + 2 * 3,
@@ -94,6 +94,8 @@ def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_ever
         "benchmark_summary": 1,
         "closest_calls": 1,
         "benchmark_report": 1,
+        "benchmark_seal": 1,
+        "benchmark_crate": 1,
         "all": 1,
     }
 
@@ -193,6 +195,100 @@ def test_verify_passes_the_benchmark_as_built(bench):
     done = verify(bench)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "verified: results/benchmark:" in done.stdout and " 0 problems" in done.stdout
+
+
+def test_the_seal_lists_every_output_and_the_crate_validates_offline(bench, tmp_path, monkeypatch):
+    """The seal lists every file of the results folder (but the logs, itself, the crate and
+    its copy of the sources) with its sha256 of now; the crate describes a benchmark, each
+    task's states as a job of its own, and the validator finds no REQUIRED issue offline."""
+    import socket
+
+    from mjtrial.crate import validation
+
+    results = bench / LAYOUT.root
+    expected = {
+        file.relative_to(bench).as_posix(): provenance.file_sha256(file)
+        for file in results.rglob("*")
+        if file.is_file()
+        and file.relative_to(results).parts[0] not in ("logs", "source")
+        and file.name not in ("seal.json", "ro-crate-metadata.json")
+    }
+    assert json.loads((bench / LAYOUT.seal).read_text())["outputs"] == expected
+    graph = json.loads((bench / LAYOUT.crate).read_text())["@graph"]
+    entities = {e["@id"]: e for e in graph}
+    assert entities["#run"]["name"] == "Run of the mjtrial workflow: benchmark benchmark"
+    assert "--configfile config/benchmark.yaml" in entities["#run"]["description"]
+    assert entities["./"]["description"].startswith("Does tuning a task's protocol parameters")
+    for task in ("gantry_lift", "cartpole_latency"):
+        for kind, states in (
+            ("evaluation", LAYOUT.task(task).states),
+            ("development", LAYOUT.task(task).development_states),
+        ):
+            job = entities[f"#job/states:{kind}:{task}"]
+            assert job["result"] == {"@id": states.relative_to(LAYOUT.root).as_posix()}
+    # every output in the crate with the sha256 the seal lists
+    for path, sha in expected.items():
+        assert entities[Path(path).relative_to(LAYOUT.root).as_posix()]["sha256"] == sha
+
+    def no_network(*args, **kwargs):
+        raise AssertionError("the validator opened a connection")
+
+    monkeypatch.setattr(socket.socket, "connect", no_network)
+    findings = validation.validate(results, cache_path=tmp_path / "cache" / "http")
+    assert findings == [], "\n".join(f.line() for f in findings)
+
+
+def test_verify_names_an_edited_report_an_edited_crate_and_a_missing_seal(bench, tmp_path):
+    """Nothing after the report records its sha256 but the seal, and nothing after the seal
+    but the crate."""
+    workdir = tmp_path / "copy"
+    shutil.copytree(bench, workdir, symlinks=True)
+    report = workdir / LAYOUT.report
+    text = report.read_text()
+    report.write_text(text.replace("Development decision", "Development Decision", 1))
+    done = verify(workdir)
+    assert done.returncode == 1
+    assert f"{LAYOUT.report.as_posix()}: changed since it was sealed" in done.stdout
+    report.write_text(text)
+    crate = workdir / LAYOUT.crate
+    document = crate.read_text()
+    crate.write_text(document.replace("Run of the mjtrial workflow", "Run of another workflow"))
+    done = verify(workdir)
+    assert done.returncode == 1
+    assert f"{LAYOUT.crate.as_posix()}: #run: name (file -> recomputed)" in done.stdout
+    crate.write_text(document)
+    assert verify(workdir).returncode == 0
+    (workdir / LAYOUT.seal).unlink()
+    done = verify(workdir)
+    assert done.returncode == 1 and f"{LAYOUT.seal.as_posix()}: missing" in done.stdout
+
+
+def test_the_benchmarks_archive_unpacked_elsewhere_verifies_and_has_nothing_to_do(bench, tmp_path):
+    import os
+    import subprocess
+    import sys
+    import zipfile
+
+    from mjtrial import cli
+
+    archive = tmp_path / "benchmark.zip"
+    args = ["crate", str(bench / LAYOUT.root), "--zip", str(archive), "--repo-root", str(bench)]
+    assert cli.main([*args, "--config", str(bench / CONFIG)]) == 0
+    there = tmp_path / "elsewhere"
+    with zipfile.ZipFile(archive) as z:
+        z.extractall(there)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["PYTHONPATH"] = str(there / "src")  # the unpacked package, not this one
+
+    def run(*command: str) -> str:
+        done = subprocess.run(
+            [sys.executable, "-m", *command], cwd=there, env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stdout + done.stderr
+        return done.stdout + done.stderr
+
+    assert "verified: results/benchmark:" in run("mjtrial.cli", "verify", "--config", CONFIG)
+    assert "Nothing to be done" in run("snakemake", "-c2", "-n", "--configfile", CONFIG)
 
 
 def test_verify_fails_a_training_that_read_the_evaluation_states(bench, tmp_path):

@@ -118,3 +118,46 @@ def test_evaluating_on_development_states_is_refused_and_writes_nothing(setup):
             output=out,
         )
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("rule", "kind"),
+    [
+        ("states", "evaluation"),
+        ("states:development", "development"),
+        ("states:evaluation:gantry_lift", "evaluation"),
+        ("states:development:gantry_lift", "development"),
+        # a task named "development": its evaluation states are still evaluation states
+        ("states:evaluation:development", "evaluation"),
+        ("rollout:fast#00000", None),
+        ("states:other", None),
+        (None, None),
+    ],
+)
+def test_the_kind_of_states_is_read_from_the_stamps_rule(rule, kind):
+    from mjtrial.stages.states import drawn_as
+
+    assert drawn_as(rule) == kind
+
+
+def test_a_benchmark_tasks_states_are_refused_by_kind_whatever_the_task_is_called(setup):
+    """A benchmark stamps each task's states with the task's name (one crate job per task);
+    a task called "development" does not make its evaluation states trainable."""
+    from mjtrial.stages.states import states_rule
+
+    folder, config, tasks, model = setup
+    experiment = dict(tasks["gantry_lift"].config)
+    experiment["states"] = {**experiment["states"], "n": 30}
+    states = folder / "evaluation-of-a-task-called-development.parquet"
+    rule = states_rule(development=False, task="development")
+    build_states(states_slice=config_slice("states", experiment), output=states, rule=rule)
+    assert provenance.read_stamp(states)["rule"] == "states:evaluation:development"
+    out = folder / "cheat-by-name.json"
+    with pytest.raises(ValueError, match="not development states"):
+        train_method(
+            development_states=states,
+            model_file=model,
+            train_slice=train_slice(config, tasks, "gantry_lift", "tuned", 1),
+            output=out,
+        )
+    assert not out.exists()

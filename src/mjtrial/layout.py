@@ -11,6 +11,7 @@ condition and its files sit directly under `rollouts/`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -321,3 +322,22 @@ class BenchmarkLayout(Layout):
     def closest_calls_table(self) -> Path:
         """The episodes of `closest_calls`: task, kind, rank, method, seed, state, margin."""
         return self.root / "replay" / "closest_calls.parquet"
+
+    def benchmark_outputs(
+        self, runs: Sequence[tuple[str, str, str]], shards: Mapping[str, Sequence[str]]
+    ) -> list[Path]:
+        """Every output of a benchmark, in pipeline order: what its seal covers. `runs` are its
+        (task, method, seed) triples, `shards` each task's evaluation shards."""
+        tasks = list(dict.fromkeys(task for task, _, _ in runs))
+        return [
+            *(p for t in tasks for p in (self.task(t).development_states, self.task(t).states)),
+            *(self.solvability(t) for t in tasks),
+            *(self.parameters(t, m, s) for t, m, s in runs),
+            *(self.evaluation_shard(t, m, s, x) for t, m, s in runs for x in shards[t]),
+            *(self.evaluation(t, m, s) for t, m, s in runs),
+            self.summary,
+            self.closest_calls,
+            self.closest_calls_table,
+            self.report,
+            *self.benchmark_figure_files(),
+        ]

@@ -12,10 +12,11 @@
 # where a slurm.conf it did not write exists (a real SLURM installation). Every daemon it
 # starts is stopped on exit, failure or interrupt included. Ends with one line: PASS or FAIL.
 #
-# Then the same for a small benchmark (config/benchmark.yaml: 8 states per task, 3 seeds).
+# Then the same, alongside, for a small benchmark (config/benchmark.yaml, its cart-pole task
+# alone: 8 states, 3 seeds).
 #
 # Environment: MJTRIAL_SLURM_N (states, default 12), MJTRIAL_SLURM_BENCHMARK=0 skips the
-# benchmark, MJTRIAL_SLURM_BENCHMARK_N (its states per task, default 8),
+# benchmark, MJTRIAL_SLURM_BENCHMARK_N (its states, default 8),
 # MJTRIAL_SLURM_TIMEOUT (seconds allowed to each Snakemake run, default 600),
 # MJTRIAL_SLURM_KEEP=1 keeps the temporary folder.
 set -euo pipefail
@@ -36,8 +37,7 @@ wrote_conf=false
 start_time=$SECONDS
 passed=false
 work=""
-slurm_pid=""  # the Snakemake runs, while they run
-local_pid=""
+declare -A run_pid=()  # the Snakemake runs while they run: "experiment-slurm" -> pid, ...
 stop_pidfiles=()  # daemons this script started, in start order
 
 say() { echo "slurm-test: $*"; }
@@ -56,7 +56,8 @@ stop_daemon() {  # pid file: SIGTERM, up to 15 s to exit, then SIGKILL
 
 show_logs() {  # the tails that say why a run failed
     local log
-    for log in "$work"/*.log "$work"/slurm/.snakemake/slurm_logs/*/*.log "$work"/slurm/.snakemake/slurm_logs/*/*/*.log; do
+    for log in "$work"/*.log "$work"/*-slurm/.snakemake/slurm_logs/*/*.log \
+        "$work"/*-slurm/.snakemake/slurm_logs/*/*/*.log; do
         [[ -s $log ]] || continue
         echo "----- ${log#"$work"/} (last 40 lines)"
         tail -n 40 "$log"
@@ -68,7 +69,7 @@ cleanup() {
     set +e
     trap - EXIT INT TERM
     local pid
-    for pid in $slurm_pid $local_pid; do  # timeout passes the signal on to Snakemake
+    for pid in "${run_pid[@]}"; do  # timeout passes the signal on to Snakemake
         kill "$pid" 2>/dev/null
         wait "$pid" 2>/dev/null
     done
@@ -223,67 +224,71 @@ analysis:
   n_resamples: 500
   first_k: $((n_states < 10 ? n_states : 10))
 EOF
-for copy in slurm local; do
+# Each run in a copy of the workflow of its own: NAME-slurm and NAME-local.
+for copy in {experiment,benchmark}-{slurm,local}; do
     mkdir -p "$work/$copy"
     cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles} "$work/$copy/"
 done
 
-# run_both NAME CONFIGFILE...: the workflow on SLURM (--workflow-profile profiles/slurm) and
-# locally (-c2), in the two copies, logs snakemake-NAME-slurm.log and snakemake-NAME-local.log.
-# The local run goes alongside: the SLURM run spends most of its time waiting for jobs to be
-# scheduled and polled, and the results do not depend on how busy the machine is.
-run_both() {
-    local name=$1 t0=$SECONDS slurm_status=0 local_status=0 slurm_seconds jobs
+# start_runs NAME CONFIGFILE...: the workflow on SLURM (--workflow-profile profiles/slurm) in
+# NAME-slurm and locally (-c2) in NAME-local, in the background, logs snakemake-NAME-slurm.log
+# and snakemake-NAME-local.log. The experiment's and the benchmark's runs go side by side: a
+# SLURM run spends much of its time waiting for its jobs to be scheduled and polled, and the
+# results do not depend on how busy the machine is.
+declare -A run_start=()
+start_runs() {
+    local name=$1
     shift
-    (cd "$work/local" && exec timeout "$run_timeout" snakemake -c2 --configfile "$@" \
+    (cd "$work/$name-local" && exec timeout "$run_timeout" snakemake -c2 --configfile "$@" \
         </dev/null >"$work/snakemake-$name-local.log" 2>&1) &
-    local_pid=$!
-    (cd "$work/slurm" && exec timeout "$run_timeout" snakemake --workflow-profile \
+    run_pid[$name-local]=$!
+    (cd "$work/$name-slurm" && exec timeout "$run_timeout" snakemake --workflow-profile \
         profiles/slurm --configfile "$@" </dev/null >"$work/snakemake-$name-slurm.log" 2>&1) &
-    slurm_pid=$!
-    # `wait`, unlike a command in the foreground, lets an interrupt reach the trap at once.
-    wait "$slurm_pid" || slurm_status=$?
-    slurm_pid=""
-    slurm_seconds=$((SECONDS - t0))
-    wait "$local_pid" || local_status=$?
-    local_pid=""
-    ((slurm_status == 0)) ||
-        fail "the $name run on SLURM failed, status $slurm_status (snakemake-$name-slurm.log)"
-    ((local_status == 0)) ||
-        fail "the local $name run failed, status $local_status (snakemake-$name-local.log)"
-    jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-$name-slurm.log" ||
-        true)
-    say "$name on SLURM: ${slurm_seconds} s, $jobs SLURM job(s); both: $((SECONDS - t0)) s"
+    run_pid[$name-slurm]=$!
+    run_start[$name]=$SECONDS
 }
 
-say "running the experiment on SLURM (--workflow-profile profiles/slurm) and locally (-c2)"
-run_both experiment "$work/small.yaml"
+# finish_runs NAME: wait for NAME's two runs (`wait`, unlike a command in the foreground, lets
+# an interrupt reach the trap at once); fail if either failed.
+finish_runs() {
+    local name=$1 where status jobs
+    for where in slurm local; do
+        status=0
+        wait "${run_pid[$name-$where]}" || status=$?
+        unset "run_pid[$name-$where]"
+        ((status == 0)) ||
+            fail "the $name run ($where) failed, status $status (snakemake-$name-$where.log)"
+    done
+    jobs=$(grep -c 'has been submitted with SLURM jobid' "$work/snakemake-$name-slurm.log" ||
+        true)
+    say "$name: both runs done after $((SECONDS - run_start[$name])) s, $jobs SLURM job(s)"
+}
 
-results=$(python -c 'import sys; from mjtrial.layout import Layout; print(Layout.of(sys.argv[1]).root)' \
-    "$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["experiment"])' \
-        "$work/local/config/config.yaml")")
-python "$repo/tests/cluster/compare_results.py" "$work/slurm/$results" "$work/local/$results" ||
-    fail "the SLURM run's results differ from the local run's"
-
-# --- a small benchmark (config/benchmark.yaml) the same way: states, training, evaluation,
-# solvability, closest calls and report as SLURM jobs, compared with a local run's
-if [[ ${MJTRIAL_SLURM_BENCHMARK:-1} == 1 ]]; then
-    for copy in slurm local; do  # the benchmark's tasks take N from their experiment configs
-        python - "$work/$copy/config" "$bench_n" <<'PY'
+# --- a small benchmark in its copies: the closed-loop cart-pole alone (the gantry's open-loop
+# rollouts run on SLURM in the experiment; each task adds 15 SLURM jobs, 2 minutes here), its N
+# from its experiment config
+benchmark=${MJTRIAL_SLURM_BENCHMARK:-1}
+if [[ $benchmark == 1 ]]; then
+    for copy in benchmark-slurm benchmark-local; do
+        python - "$work/$copy/config" "$bench_n" <<'SMALL'
 import sys
 from pathlib import Path
 
 import yaml
 
 folder, n = Path(sys.argv[1]), int(sys.argv[2])
-for name in ("config.yaml", "cartpole_latency.yaml"):
-    config = yaml.safe_load((folder / name).read_text())
-    config["states"]["n"] = n
-    config["analysis"]["first_k"] = min(config["analysis"]["first_k"], n)
-    (folder / name).write_text(yaml.safe_dump(config, sort_keys=False))
-PY
+config = yaml.safe_load((folder / "cartpole_latency.yaml").read_text())
+config["states"]["n"] = n
+config["analysis"]["first_k"] = min(config["analysis"]["first_k"], n)
+(folder / "cartpole_latency.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+bench = yaml.safe_load((folder / "benchmark.yaml").read_text())
+del bench["benchmark"]["tasks"]["gantry_lift"]
+for method in bench["benchmark"]["methods"].values():
+    del method["tasks"]["gantry_lift"]
+(folder / "benchmark.yaml").write_text(yaml.safe_dump(bench, sort_keys=False))
+SMALL
     done
-    cat >"$work/small_benchmark.yaml" <<EOF
+    cat >"$work/small_benchmark.yaml" <<YAML
 benchmark:
   seeds: [1, 2, 3]
   result: development
@@ -291,11 +296,29 @@ benchmark:
     tuned: {budget: 48, episodes_per_candidate: 4}
   analysis: {n_resamples: 200}
   closest_calls: 2
-EOF
-    say "running a benchmark ($bench_n states per task, 3 seeds) on SLURM and locally"
-    run_both benchmark config/benchmark.yaml "$work/small_benchmark.yaml"
-    python "$repo/tests/cluster/compare_results.py" "$work/slurm/results/benchmark" \
-        "$work/local/results/benchmark" ||
+YAML
+fi
+
+say "running the experiment on SLURM (--workflow-profile profiles/slurm) and locally (-c2)"
+start_runs experiment "$work/small.yaml"
+if [[ $benchmark == 1 ]]; then
+    # states, training, evaluation, solvability, closest calls and report as SLURM jobs
+    say "running a benchmark (the cart-pole, $bench_n states, 3 seeds) on SLURM and locally, alongside"
+    start_runs benchmark config/benchmark.yaml "$work/small_benchmark.yaml"
+fi
+
+finish_runs experiment
+results=$(python -c 'import sys; from mjtrial.layout import Layout; print(Layout.of(sys.argv[1]).root)' \
+    "$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["experiment"])' \
+        "$work/experiment-local/config/config.yaml")")
+python "$repo/tests/cluster/compare_results.py" "$work/experiment-slurm/$results" \
+    "$work/experiment-local/$results" ||
+    fail "the SLURM run's results differ from the local run's"
+
+if [[ $benchmark == 1 ]]; then
+    finish_runs benchmark
+    python "$repo/tests/cluster/compare_results.py" "$work/benchmark-slurm/results/benchmark" \
+        "$work/benchmark-local/results/benchmark" ||
         fail "the benchmark's results on SLURM differ from the local run's"
 fi
 passed=true

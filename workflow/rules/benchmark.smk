@@ -4,6 +4,7 @@
 # and the report. Adding a seed adds only its jobs, and what reads every seed.
 from mjtrial.benchmark.config import (
     closest_calls_slice,
+    crate_slice,
     evaluate_slice,
     evaluation_shard_range,
     evaluation_shards,
@@ -60,6 +61,7 @@ rule benchmark_states:
     params:
         slice=lambda w: config_slice("states", experiment_of(w)),
         task_sha256=task_content_of,
+        task=lambda w: w.task,
         development=False,
         code=stage_code_hash("states"),
     run:
@@ -74,6 +76,7 @@ rule benchmark_development_states:
     params:
         slice=lambda w: config_slice("states", experiment_of(w)),
         task_sha256=task_content_of,
+        task=lambda w: w.task,
         development=True,
         code=stage_code_hash("states"),
     run:
@@ -225,5 +228,42 @@ rule benchmark_report:
         )
 
 
+# The last rules, as an experiment's: the seal (the sha256 of every output, the report and its
+# figures included, so that verify sees an edit to any of them) and the results folder as a
+# Provenance Run Crate, with a copy of the sources.
+BENCHMARK_OUTPUTS = LAYOUT.benchmark_outputs(
+    RUNS, {t: evaluation_shards(BENCHMARK_TASKS, t) for t in TASKS}
+)
+
+
+rule benchmark_seal:
+    input:
+        BENCHMARK_OUTPUTS,
+    output:
+        seal=LAYOUT.seal,
+    log:
+        LAYOUT.log("seal"),
+    params:
+        folders=[],
+        code=stage_code_hash("seal"),
+    run:
+        run_script("seal", input, output, params, wildcards, threads, log, rule)
+
+
+rule benchmark_crate:
+    input:
+        seals=[LAYOUT.seal],
+    output:
+        crate=LAYOUT.crate,
+        source=directory(LAYOUT.source),
+    log:
+        LAYOUT.log("crate"),
+    params:
+        slice=crate_slice(config, command=RERUN_COMMAND, config_file=CONFIG_SOURCE),
+        code=stage_code_hash("crate"),
+    run:
+        run_script("crate", input, output, params, wildcards, threads, log, rule)
+
+
 # What `snakemake -c2 --configfile config/benchmark.yaml` builds (the Snakefile's `all`).
-ALL_TARGETS = {"report": LAYOUT.report}
+ALL_TARGETS = {"report": LAYOUT.report, "seal": LAYOUT.seal, "crate": LAYOUT.crate}

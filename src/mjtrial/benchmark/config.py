@@ -226,6 +226,16 @@ def evaluate_slice(tasks: Mapping[str, BenchmarkTask], task: str) -> dict[str, A
     }
 
 
+def crate_slice(config: Mapping[str, Any], *, command: str, config_file: str) -> dict[str, Any]:
+    """What a benchmark's crate says of the run beyond its files (an experiment's crate reads
+    it from the manifest): the question, the config file and the command that rebuilds it."""
+    return {
+        "license": None,
+        "design": {"question": config["benchmark"]["question"]},
+        "rerun": {"command": command, "config_file": config_file},
+    }
+
+
 def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
     """What the summary depends on: the tasks, methods (budgets, descriptions), seeds, the
     headline, the reason for unequal budgets and the analysis settings."""

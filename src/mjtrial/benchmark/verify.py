@@ -8,10 +8,15 @@ evaluation's stamp names the task's evaluation states and the parameter file, wi
 sha256 of now; the stamps of the summary and of the closest calls (table and replay file) name
 every evaluation and parameter file as they are; the report's names the summary and the
 closest calls' table. A training that read anything but its development states fails.
+
+Then, as for an experiment, the seal lists every output with its sha256 of now (the report and
+its figures, which nothing after them records, included), and the crate is what the folder
+gives (`mjtrial.crate.check`).
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,9 +26,12 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from mjtrial import provenance
-from mjtrial.benchmark.config import BenchmarkTask
+from mjtrial.benchmark.config import BenchmarkTask, evaluation_shards
+from mjtrial.crate.check import covered_seals, crate_differences
+from mjtrial.crate.record import input_records
+from mjtrial.crate.stamp import read_crate_stamp
 from mjtrial.layout import BenchmarkLayout
-from mjtrial.stages.states import DEVELOPMENT_RULE, EVALUATION_RULE
+from mjtrial.stages.states import states_rule
 
 
 @dataclass
@@ -80,7 +88,10 @@ def verify_benchmark(
 
     for task in tasks:
         development, evaluation = layout.task(task).development_states, layout.task(task).states
-        for path, rule in ((development, DEVELOPMENT_RULE), (evaluation, EVALUATION_RULE)):
+        for path, rule in (
+            (development, states_rule(development=True, task=task)),
+            (evaluation, states_rule(development=False, task=task)),
+        ):
             stamp = stamp_of(path)
             if stamp is not None and stamp.get("rule") != rule:
                 verdict.problems.append(
@@ -120,7 +131,53 @@ def verify_benchmark(
     if stamp is not None:
         expect_input(stamp, "summary", layout.summary, layout.report)
         expect_input(stamp, "closest_calls", layout.closest_calls_table, layout.report)
+    runs = [(t, m, str(s)) for t in tasks for m in bench["methods"] for s in bench["seeds"]]
+    outputs = layout.benchmark_outputs(runs, {t: evaluation_shards(tasks, t) for t in tasks})
+    verdict.problems += _seal_problems(layout, outputs, repo_root)
+    verdict.checked += 1
+    if not verdict.problems:  # the crate is rebuilt from a folder whose chain holds
+        verdict.problems += _crate_problems(layout, repo_root)
+        verdict.checked += 1
     return verdict
+
+
+def _seal_problems(layout: BenchmarkLayout, outputs: list[Path], repo_root: Path) -> list[str]:
+    """Every output listed in the seal with its sha256 of now, and the seal as stamped."""
+    seal = layout.seal.as_posix()
+    try:
+        listed = json.loads((repo_root / seal).read_text(encoding="utf-8"))["outputs"]
+        stamped = {
+            r["path"]: r["sha256"]
+            for r in input_records(provenance.read_stamp(repo_root / seal)["inputs"])
+        }
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        return [f"{seal}: missing or unreadable ({err})"]
+    if listed != stamped:
+        return [f"{seal}: its list of outputs is not the one its stamp records"]
+    problems = []
+    for output in (p.as_posix() for p in outputs):
+        if output not in listed:
+            problems.append(f"{seal}: does not list {output}")
+        elif not (repo_root / output).exists():
+            problems.append(f"{output}: missing (sealed in {seal})")
+        elif provenance.file_sha256(repo_root / output) != listed[output]:
+            problems.append(f"{output}: changed since it was sealed ({seal})")
+    return problems
+
+
+def _crate_problems(layout: BenchmarkLayout, repo_root: Path) -> list[str]:
+    """The crate covers the seal as it is, and is what the folder gives."""
+    crate = layout.crate.as_posix()
+    if not (repo_root / crate).is_file():
+        return [f"{crate}: missing"]
+    stamp = read_crate_stamp(repo_root / crate)
+    if stamp is None or covered_seals(stamp) != [layout.seal.as_posix()]:
+        return [f"{crate}: its stamp does not record {layout.seal.as_posix()} as its one seal"]
+    recorded = next(iter(input_records(stamp["inputs"])))["sha256"]
+    if recorded != provenance.file_sha256(repo_root / layout.seal):
+        return [f"{crate}: written from another {layout.seal.as_posix()} than the one there"]
+    differs = crate_differences(layout, repo_root=repo_root, stamps={})
+    return [f"{path}: {reason}" for path, reason in differs.items()]
 
 
 def _shared_states(development: Path, evaluation: Path, task: BenchmarkTask) -> int:

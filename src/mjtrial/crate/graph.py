@@ -97,8 +97,8 @@ def _one_or_many(refs: list[dict[str, str]]) -> Any:
 
 
 _UNLICENSED = (
-    "No license chosen: the experiment's config sets no provenance.license, so the results "
-    "may not be reused without asking their authors."
+    "No license chosen: the run's config sets no license, so the results may not be reused "
+    "without asking their authors."
 )
 
 
@@ -125,9 +125,10 @@ def _job_id(rule: str) -> str:
 
 def _flatten(value: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
     """A config slice as (dotted key, value) pairs: nested mappings flattened, lists and
-    null as JSON text (a JSON-LD list would be a set, and null no value at all)."""
+    null as JSON text (a JSON-LD list would be a set, and null no value at all); keys in
+    sorted order, as a stamp stores them, so the crate job and verify list them alike."""
     if isinstance(value, Mapping):
-        for key, inner in value.items():
+        for key, inner in sorted(value.items()):
             yield from _flatten(inner, f"{prefix}.{key}" if prefix else str(key))
     elif isinstance(value, (bool, int, float, str)):
         yield prefix, value
@@ -278,7 +279,8 @@ class _Builder:
                 "name": "mjtrial workflow (Snakefile)",
                 "description": (
                     "The mjtrial pipeline: seeded paired states, rollouts in shards, failures, "
-                    "analysis, manifest, report and seal, and the studies; its rules are in "
+                    "analysis, manifest, report and seal, and the studies; or a benchmark's "
+                    "training, evaluation, solvability and closest calls; its rules are in "
                     "workflow/rules/, their scripts in workflow/scripts/, the code they call in "
                     "src/mjtrial/."
                 ),
@@ -434,6 +436,7 @@ class _Builder:
         run_inputs += [self.parameter(f"config.{k}", v) for k, v in _flatten(command_line)]
         results = [self.input_ref(p) for p in rec.outputs]
         experiment = rec.results.rstrip("/").rsplit("/", 1)[-1]
+        kind = "benchmark" if self.is_benchmark() else "experiment"
         self.crate.add_action(
             self.workflow,
             identifier="#run",
@@ -441,7 +444,7 @@ class _Builder:
             result=results,
             properties={
                 "@type": "CreateAction",
-                "name": f"Run of the mjtrial workflow: experiment {experiment}",
+                "name": f"Run of the mjtrial workflow: {kind} {experiment}",
                 "description": (
                     "Every job behind the sealed outputs of the results folder, whichever "
                     "Snakemake call ran it: "
@@ -474,6 +477,10 @@ class _Builder:
             self.ref(a.id) for a in self.actions
         ]
 
+    def is_benchmark(self) -> bool:
+        """A benchmark's results (its summary's job is the stage `benchmark`)."""
+        return any(rule.split(":")[0] == "benchmark" for rule in self.jobs)
+
     def source_inputs(self) -> list[str]:
         """The source files the jobs read (model, task), in the order they first appear."""
         seen: dict[str, None] = {}
@@ -494,11 +501,16 @@ class _Builder:
         root["name"] = f"mjtrial results: {experiment}"
         question = design.get("question") or "an mjtrial experiment"
         hypothesis = design.get("hypothesis")
+        parts = (
+            "a benchmark's: each task's development and evaluation states, solvability, "
+            "training, evaluation, summary, closest calls, report, figures, seal"
+            if self.is_benchmark()
+            else "states, rollouts, analysis, manifest, report, figures, seal"
+        )
         root["description"] = (
             f"{question}"
             + (f" Hypothesis: {hypothesis}" if hypothesis else "")
-            + " The results of a run of the mjtrial workflow (states, rollouts, analysis, "
-            "manifest, report, figures, seal)"
+            + f" The results of a run of the mjtrial workflow ({parts})"
             + (f" and its studies ({', '.join(studies)})" if studies else "")
             + ", with the sources that made them."
         )
@@ -515,7 +527,7 @@ class _Builder:
                 {
                     "@type": "CreativeWork",
                     "name": license_,
-                    "description": "The license the experiment's config gives its results.",
+                    "description": "The license the run's config gives its results.",
                 },
             )
             root["license"] = self.ref(identifier)

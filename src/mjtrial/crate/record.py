@@ -150,7 +150,10 @@ def read_record(
         sha = recorded.get(rel) or provenance.file_sha256(repo_root / rel)
         outputs[rel] = Output(rel, sha, False, (repo_root / rel).stat().st_size)
         output_stamps[rel] = seal_stamps[rel]
-    manifest: dict[str, Any] = {}
+    # What the run says of itself (its question, the command that rebuilds it): an
+    # experiment's manifest; a benchmark has none, and its crate's config slice says it.
+    crate_slice = crate_stamp.get("config_slice") or {}
+    manifest: dict[str, Any] = {k: crate_slice[k] for k in ("design", "rerun") if k in crate_slice}
     try:
         loaded = json.loads(layout.manifest.read_text(encoding="utf-8"))
         manifest = loaded if isinstance(loaded, dict) else {}

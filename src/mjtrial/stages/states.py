@@ -22,19 +22,37 @@ EVALUATION_RULE = "states"
 DEVELOPMENT_RULE = "states:development"
 
 
+def states_rule(*, development: bool, task: str | None = None) -> str:
+    """The stamp's rule of a set of states: an experiment's `states` or `states:development`;
+    a benchmark task's `states:evaluation:<task>` or `states:development:<task>`, so that each
+    task's states job is a job of its own in the crate and verify can tell whose they are."""
+    if task is None:
+        return DEVELOPMENT_RULE if development else EVALUATION_RULE
+    return f"states:{'development' if development else 'evaluation'}:{task}"
+
+
+def drawn_as(rule: object) -> str | None:
+    """The kind of states a stamp's rule (`states_rule`) drew: "development" or "evaluation";
+    None for a rule that draws no states."""
+    parts = rule.split(":") if isinstance(rule, str) else []
+    if not parts or parts[0] != "states":
+        return None
+    if len(parts) == 1:
+        return "evaluation"
+    return parts[1] if parts[1] in ("development", "evaluation") else None
+
+
 def check_drawn_as(path: Path, *, development: bool, reader: str) -> dict[str, Any]:
     """The stamp of the states file `path`, which must be development (or evaluation) states;
     a one-line ValueError naming the file and `reader` (the job that may read only those)."""
-    rule, what = (
-        (DEVELOPMENT_RULE, "development") if development else (EVALUATION_RULE, "evaluation")
-    )
+    what = "development" if development else "evaluation"
     try:
         stamp = provenance.read_stamp(path)
     except (OSError, ValueError) as err:
         raise ValueError(f"{path}: no readable stamp ({err}); expected {what} states") from None
-    if stamp.get("rule") != rule:
+    if drawn_as(stamp.get("rule")) != what:
         raise ValueError(
-            f"{path}: states drawn by {stamp.get('rule')!r}, not {what} states ({rule!r}); "
+            f"{path}: states drawn by {stamp.get('rule')!r}, not {what} states; "
             f"{reader} reads {what} states only"
         )
     return stamp
@@ -45,6 +63,7 @@ def build_states(
     states_slice: Mapping[str, Any],
     output: Path,
     development: bool = False,
+    rule: str | None = None,
     repo_root: Path = REPO_ROOT,
 ) -> pa.Table:
     """Draw the evaluation states (or, with `development`, the tuning states) and write them.
@@ -54,7 +73,7 @@ def build_states(
     """
     table, tuning = draw_states(states_slice, repo_root=repo_root)
     stamp = make_stage_stamp(
-        DEVELOPMENT_RULE if development else EVALUATION_RULE,
+        rule or states_rule(development=development),
         dict(states_slice),
         task_inputs(states_slice["task"], repo_root=repo_root),
         seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
