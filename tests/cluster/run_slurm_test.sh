@@ -232,9 +232,9 @@ done
 
 # start_runs NAME CONFIGFILE...: the workflow on SLURM (--workflow-profile profiles/slurm) in
 # NAME-slurm and locally (-c2) in NAME-local, in the background, logs snakemake-NAME-slurm.log
-# and snakemake-NAME-local.log. The experiment's and the benchmark's runs go side by side: a
-# SLURM run spends much of its time waiting for its jobs to be scheduled and polled, and the
-# results do not depend on how busy the machine is.
+# and snakemake-NAME-local.log. The experiment's and the benchmark's runs go side by side
+# (the results do not depend on how busy the machine is): the node's CPUs are its slots, and
+# each run alone leaves one idle at times (225 s together, 343 s one after the other).
 declare -A run_start=()
 start_runs() {
     local name=$1
