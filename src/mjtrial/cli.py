@@ -9,7 +9,7 @@ import tempfile
 from pathlib import Path
 
 from mjtrial import foreign_package, provenance, stats
-from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
+from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
 from mjtrial.scaffold import ScaffoldError, new_task
 
 PROFILE_NAME = "Provenance Run Crate 0.5 on RO-Crate 1.1"
@@ -62,29 +62,36 @@ def _plan(args: argparse.Namespace) -> int:
 
 def _replay(args: argparse.Namespace) -> int:
     # Imported here (mujoco, rerun-sdk): a second or so that the other commands need not pay.
+    from mjtrial.config import ConfigError
     from mjtrial.replay import ReplayMismatch, open_viewer, replay_episode
 
+    results_dir = Path(args.results_dir) if args.results_dir else None
+    config_path = Path(args.config) if args.config else None
+    if results_dir is not None and config_path is None:  # the config file the run recorded
+        recorded = _recorded_config_file(results_dir, default=None)
+        if recorded is None:
+            print(
+                f"mjtrial replay: {results_dir / 'manifest.json'}: no config file recorded "
+                "(rerun.config_file); give the experiment's --config",
+                file=sys.stderr,
+            )
+            return 2
+        config_path = Path(recorded)
     try:
         result = replay_episode(
             condition=args.condition,
             state_id=args.state,
+            variant=args.variant,
+            results_dir=results_dir,
             output=Path(args.output) if args.output else None,
-            config_path=Path(args.config) if args.config else None,
+            config_path=config_path,
             force=args.force,
         )
-    except (KeyError, OSError, ValueError, ReplayMismatch) as err:
+    except (ConfigError, KeyError, OSError, ValueError, ReplayMismatch) as err:
         message = err.args[0] if isinstance(err, KeyError) and err.args else err
         print(f"mjtrial replay: {message}", file=sys.stderr)
         return 1
-    outcome = (
-        "success"
-        if result.outcome["success"]
-        else (f"failure ({result.outcome['failure_category']})")
-    )
-    print(
-        f"{result.condition} state {result.state_id}: {outcome}, final height "
-        f"{result.outcome['final_height']:.4f} m, as recorded -> {result.recording}"
-    )
+    print(f"{result.describe()}, as recorded -> {result.recording}")
     if not args.no_viewer and open_viewer(result.recording) is None:
         print("mjtrial replay: no `rerun` viewer found; open the file yourself", file=sys.stderr)
     return 0
@@ -101,13 +108,13 @@ def _count(text: str) -> int:
     return value
 
 
-def _recorded_config_file(results_dir: Path) -> str:
-    """The run's config file as its manifest records it (config/config.yaml if it does not)."""
+def _recorded_config_file(results_dir: Path, default: str | None = CONFIG_FILE) -> str | None:
+    """The run's config file as its manifest records it (`default` if it does not)."""
     try:
         recorded = json.loads((results_dir / "manifest.json").read_text())["rerun"]["config_file"]
     except (OSError, ValueError, KeyError, TypeError):
-        return CONFIG_FILE
-    return recorded if isinstance(recorded, str) else CONFIG_FILE
+        return default
+    return recorded if isinstance(recorded, str) else default
 
 
 def _verify(args: argparse.Namespace) -> int:
@@ -262,10 +269,25 @@ def main(argv: list[str] | None = None) -> int:
         "replay",
         help="re-simulate one episode, write its .rrd at full rate, check it matches the record",
     )
+    p.add_argument(
+        "results_dir",
+        nargs="?",
+        help="results folder; its manifest names the config (default: results/<experiment>)",
+    )
     p.add_argument("--condition", required=True)
     p.add_argument("--state", type=int, required=True, help="state_id")
+    p.add_argument(
+        "--variant",
+        default=NOMINAL,
+        help=f"a simulator variant of the config's variants (default: {NOMINAL}, the model as "
+        "committed)",
+    )
     p.add_argument("--output", help="the .rrd to write (default: results/<exp>/replay/...)")
-    p.add_argument("--config", help="config file (default: config/config.yaml)")
+    p.add_argument(
+        "--config",
+        help="config file (default: the one the results folder's manifest records, else "
+        "config/config.yaml)",
+    )
     p.add_argument("--no-viewer", action="store_true", help="do not open the Rerun viewer")
     p.add_argument(
         "--force",

@@ -185,9 +185,10 @@ class Layout:
         """Every failed episode's recording, gathered for the viewer."""
         return self.root / "replay" / "failures.rrd"
 
-    def replay(self, condition: str, state_id: int) -> Path:
+    def replay(self, condition: str, state_id: int, variant: str = NOMINAL) -> Path:
         """Where `mjtrial replay` writes one re-simulated episode by default."""
-        return self.root / "replay" / f"{condition}_state{state_id}.rrd"
+        of = condition if variant == NOMINAL else f"{variant}_{condition}"
+        return self.root / "replay" / f"{of}_state{state_id}.rrd"
 
     @property
     def summary(self) -> Path:

@@ -18,6 +18,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from mjtrial import engine, provenance, recording
+from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import load_config
 from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
 from mjtrial.recording import write_episode_recording
@@ -31,6 +32,7 @@ from mjtrial.stages.rollout import (
     rollout_columns,
 )
 from mjtrial.stages.stamping import config_slice, model_inputs, task_inputs
+from mjtrial.task import Measure
 
 __all__ = ["ReplayMismatch", "Replay", "read_episode", "replay_episode"]
 
@@ -46,10 +48,23 @@ class ReplayMismatch(RuntimeError):
 class Replay:
     """What a replay produced: the episode's outcome and where its recording went."""
 
-    condition: str
+    condition: str  # "<condition>", or "<variant>/<condition>" on a simulator variant
     state_id: int
-    outcome: dict[str, Any]
+    outcome: dict[str, Any]  # the rollout table's row, by column
     recording: Path
+    measures: tuple[Measure, ...] = ()  # the task's own measures, for the outcome's words
+
+    def describe(self) -> str:
+        """The outcome in one line: success or failure (category), and each task measure."""
+        if self.outcome["success"]:
+            words = ["success"]
+        else:
+            words = [f"failure ({self.outcome['failure_category']})"]
+        for m in self.measures:
+            value = self.outcome[m.name]
+            shown = f"{value:.4g}" if isinstance(value, float) else str(value)
+            words.append(f"{m.name} {shown}{' ' + m.unit if m.unit else ''}")
+        return f"{self.condition} state {self.state_id}: " + ", ".join(words)
 
 
 def _recorded_row(table_path: Path, state_id: int) -> dict[str, Any]:
@@ -123,12 +138,18 @@ def replay_episode(
     *,
     condition: str,
     state_id: int,
+    variant: str = NOMINAL,
+    results_dir: Path | None = None,
     output: Path | None = None,
     config_path: Path | None = None,
     repo_root: Path | None = None,
     force: bool = False,
 ) -> Replay:
     """Re-simulate one episode, write its `.rrd` at full rate, and check it against the record.
+
+    `variant` is a simulator variant of the config's `variants` (the sensitivity study's
+    rollouts), or the model as committed. `results_dir` is the experiment's folder (default:
+    `results/<experiment>` of the config).
 
     `output` is guarded (`check_output`) before any work: inside the results folder only a new
     `.rrd`, and never over a file that an earlier replay did not write, unless `force`.
@@ -137,23 +158,38 @@ def replay_episode(
       ReplayMismatch: the outcome or final state differs from `rollouts/<condition>.parquet`;
         the message says what differs and, when they differ, the MuJoCo version and CPU of
         both runs.
-      KeyError: unknown condition or state.
+      KeyError: unknown condition, variant or state.
     """
     repo_root = Path.cwd() if repo_root is None else repo_root
-    config = load_config(config_path or repo_root / CONFIG_FILE)
-    if condition not in config["conditions"]:
-        raise KeyError(f"condition {condition!r}: expected one of {sorted(config['conditions'])}")
-    layout = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR)
-    output = output or layout.replay(condition, state_id)
+    config_path = config_path or repo_root / CONFIG_FILE
+    config = load_config(config_path)
+    conditions = all_conditions(config)
+    if condition not in conditions:
+        raise KeyError(
+            f"condition {condition!r}: expected one of {sorted(conditions)}, the conditions of "
+            f"experiment {config['experiment']!r} in {config_path}; for another experiment give "
+            "its results folder or --config"
+        )
+    variants = variant_names(config)
+    if variant != NOMINAL and variant not in variants:
+        raise KeyError(
+            f"variant {variant!r}: expected one of {[NOMINAL, *variants]} ({config_path})"
+        )
+    if results_dir is None:
+        layout = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR)
+    else:
+        layout = Layout(results_dir)
+    output = output or layout.replay(condition, state_id, variant)
     check_output(output, results=layout.root, force=force)
-    table_path = layout.rollout_table(condition)
+    table_path = layout.rollout_table(condition, variant)
     recorded = _recorded_row(table_path, state_id)
     recorded_stamp = provenance.read_stamp(table_path)
-    slice_ = config_slice("rollout", config, condition=condition)
+    qualified = condition if variant == NOMINAL else f"{variant}/{condition}"
+    slice_ = config_slice("rollout", config, condition=qualified)
     if provenance.config_hash(slice_) != recorded_stamp["config_slice_sha256"]:
         raise ReplayMismatch(
-            f"{table_path}: recorded with a different config for {condition!r} than "
-            f"config/config.yaml has now; rerun `snakemake -c2` first"
+            f"{table_path}: recorded with a different config for {qualified!r} than "
+            f"{config_path} has now; rerun `snakemake -c2` first"
         )
 
     model_file = repo_root / config["model"]
@@ -176,7 +212,7 @@ def replay_episode(
             **task_inputs(config["task"], repo_root=repo_root),
         },
         repo_dir=repo_root,
-        extra={"replay_of": {"condition": condition, "state_id": state_id}},
+        extra={"replay_of": {"condition": qualified, "state_id": state_id}},
     )
     [episode] = episode_records(bound.task, batch)
     write_episode_recording(
@@ -212,9 +248,15 @@ def replay_episode(
                 f"replayed with MuJoCo {now[0]} on {now[1]})"
             )
         raise ReplayMismatch(
-            f"{condition} state {state_id} does not reproduce: " + "; ".join(differences) + where
+            f"{qualified} state {state_id} does not reproduce: " + "; ".join(differences) + where
         )
-    return Replay(condition=condition, state_id=state_id, outcome=replayed, recording=output)
+    return Replay(
+        condition=qualified,
+        state_id=state_id,
+        outcome=replayed,
+        recording=output,
+        measures=bound.task.own_measures,
+    )
 
 
 def open_viewer(path: Path) -> subprocess.Popen | None:

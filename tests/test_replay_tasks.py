@@ -1,0 +1,112 @@
+"""`mjtrial replay` for any task: the cart-pole (closed loop) on the committed model and on a
+simulator variant, its experiment found from its results folder."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
+
+from mjtrial.cli import main
+from mjtrial.replay import replay_episode
+
+CONFIG = "config/cartpole_small.yaml"
+RESULTS = "results/cartpole_small"
+
+
+@pytest.fixture(scope="module")
+def cartpole_run(tmp_path_factory) -> Path:
+    """The cart-pole experiment at 16 states with no recordings, and one variant's rollouts."""
+    workdir = tmp_path_factory.mktemp("cartpole")
+    for name in WORKFLOW_FILES:
+        src = REPO_ROOT / name
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
+    config["experiment"] = "cartpole_small"
+    config["states"]["n"] = 16
+    config["rollout"]["shard_size"] = 16
+    config["recording"]["episodes"] = "none"
+    config["analysis"]["n_resamples"] = 200
+    config["variants"] = {"rk4": config["variants"]["rk4"]}
+    (workdir / CONFIG).write_text(yaml.safe_dump(config, sort_keys=False))
+    run_snakemake(
+        workdir,
+        f"{RESULTS}/manifest.json",
+        f"{RESULTS}/variants/rk4/rollouts/latency_20ms.parquet",
+        "--configfile",
+        CONFIG,
+    )
+    return workdir
+
+
+def _row(path: Path, state_id: int) -> dict:
+    [row] = [r for r in pq.read_table(path).to_pylist() if r["state_id"] == state_id]
+    return row
+
+
+@pytest.mark.parametrize(
+    ("variant", "table"),
+    [
+        ("nominal", "rollouts/latency_20ms.parquet"),
+        ("rk4", "variants/rk4/rollouts/latency_20ms.parquet"),
+    ],
+)
+def test_replay_prints_the_tasks_own_outcome(cartpole_run, monkeypatch, capsys, variant, table):
+    monkeypatch.chdir(cartpole_run)
+    rows = pq.read_table(cartpole_run / RESULTS / table).to_pylist()
+    # A failure and a success where both exist: each is worded from its own row.
+    picks = {r["success"]: r for r in rows}
+    for row in picks.values():
+        state = row["state_id"]
+        code = main(
+            ["replay", RESULTS, "--condition", "latency_20ms", "--state", str(state)]
+            + ["--variant", variant, "--no-viewer"]
+        )
+        out = capsys.readouterr()
+        assert code == 0, out.err
+        expected = "success" if row["success"] else f"failure ({row['failure_category']})"
+        assert f"state {state}: {expected}, " in out.out
+        assert f"peak_angle {row['peak_angle']:.4g} rad" in out.out
+        assert f"final_angle {row['final_angle']:.4g} rad" in out.out
+        assert "final_height" not in out.out
+
+
+def test_replayed_variant_episode_is_its_row(cartpole_run, tmp_path):
+    replay = replay_episode(
+        condition="latency_20ms",
+        state_id=5,
+        variant="rk4",
+        output=tmp_path / "rk4.rrd",
+        config_path=cartpole_run / CONFIG,
+        results_dir=cartpole_run / RESULTS,
+        repo_root=cartpole_run,
+    )
+    row = _row(cartpole_run / RESULTS / "variants/rk4/rollouts/latency_20ms.parquet", 5)
+    assert replay.condition == "rk4/latency_20ms"
+    assert {k: replay.outcome[k] for k in row} == row
+    # The variant's episode is not the committed model's: the replay ran the variant.
+    assert replay.outcome != _row(cartpole_run / RESULTS / "rollouts/latency_20ms.parquet", 5)
+
+
+def test_replay_says_when_a_config_is_needed(cartpole_run, monkeypatch, capsys):
+    monkeypatch.chdir(cartpole_run)
+    # No results folder and no --config: config/config.yaml, the gantry's experiment.
+    code = main(["replay", "--condition", "latency_20ms", "--state", "0", "--no-viewer"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "condition 'latency_20ms'" in err and "--config" in err
+    code = main(
+        ["replay", RESULTS, "--condition", "latency_20ms", "--state", "0", "--variant", "euler"]
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and "variant 'euler': expected one of ['nominal', 'rk4']" in err
+    # A results folder with no manifest: say that --config is needed.
+    bare = cartpole_run / "results" / "bare"
+    bare.mkdir()
+    code = main(["replay", str(bare), "--condition", "latency_20ms", "--state", "0"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "--config" in err
