@@ -111,7 +111,8 @@ def _count(text: str) -> int:
 def _recorded_config_file(results_dir: Path, default: str | None = CONFIG_FILE) -> str | None:
     """The run's config file as its manifest records it (`default` if it does not)."""
     try:
-        recorded = json.loads((results_dir / "manifest.json").read_text())["rerun"]["config_file"]
+        manifest = json.loads(provenance.read_output_text(results_dir / "manifest.json"))
+        recorded = manifest["rerun"]["config_file"]
     except (OSError, ValueError, KeyError, TypeError):
         return default
     return recorded if isinstance(recorded, str) else default

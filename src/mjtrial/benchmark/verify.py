@@ -145,7 +145,7 @@ def _seal_problems(layout: BenchmarkLayout, outputs: list[Path], repo_root: Path
     """Every output listed in the seal with its sha256 of now, and the seal as stamped."""
     seal = layout.seal.as_posix()
     try:
-        listed = json.loads((repo_root / seal).read_text(encoding="utf-8"))["outputs"]
+        listed = json.loads(provenance.read_output_text(repo_root / seal))["outputs"]
         stamped = {
             r["path"]: r["sha256"]
             for r in input_records(provenance.read_stamp(repo_root / seal)["inputs"])

@@ -142,7 +142,7 @@ def crate_differences(
         listed_digest = _listed_digest(entities, record)
         record = dataclasses.replace(record, sources=listed, source_sha256=listed_digest)
     want = crate_metadata(record, scripts=stage_scripts(source))
-    have = json.loads(crate.read_text(encoding="utf-8"))
+    have = json.loads(provenance.read_output_text(crate))
     reasons = []
     if have.get("@context") != want["@context"]:
         reasons.append("its @context differs")

@@ -81,7 +81,7 @@ def snakemake_times(workdir: Path, outputs: Mapping[str, Iterable[str]]) -> dict
         starts, ends = [], []
         for path in paths:
             try:
-                record = json.loads(record_path(metadata, path).read_text(encoding="utf-8"))
+                record = json.loads(provenance.read_output_text(record_path(metadata, path)))
             except (OSError, ValueError):
                 continue
             if isinstance(record.get("starttime"), (int, float)):
@@ -129,7 +129,7 @@ def read_record(
     for seal in seals:
         rel = _repo_path(seal, repo_root)
         try:
-            sealed = json.loads((repo_root / rel).read_text(encoding="utf-8"))
+            sealed = json.loads(provenance.read_output_text(repo_root / rel))
             seal_stamps[rel] = dict(known.get(rel) or provenance.read_stamp(repo_root / rel))
             listed = sealed["outputs"]
         except (OSError, ValueError, KeyError, TypeError) as err:
@@ -155,7 +155,7 @@ def read_record(
     crate_slice = crate_stamp.get("config_slice") or {}
     manifest: dict[str, Any] = {k: crate_slice[k] for k in ("design", "rerun") if k in crate_slice}
     try:
-        loaded = json.loads(layout.manifest.read_text(encoding="utf-8"))
+        loaded = json.loads(provenance.read_output_text(layout.manifest))
         manifest = loaded if isinstance(loaded, dict) else {}
     except (OSError, ValueError):
         pass
@@ -180,7 +180,7 @@ def sealed_stamps(seals: Iterable[Path], *, repo_root: Path) -> dict[str, dict[s
     for seal in seals:
         rel = _repo_path(seal, repo_root)
         try:
-            listed = json.loads((repo_root / rel).read_text(encoding="utf-8"))["outputs"]
+            listed = json.loads(provenance.read_output_text(repo_root / rel))["outputs"]
             stamps[rel] = dict(provenance.read_stamp(repo_root / rel))
         except (OSError, ValueError, KeyError, TypeError):
             continue

@@ -40,7 +40,7 @@ def stamp_entity(stamp: dict[str, Any]) -> dict[str, Any]:
 def graph_entities(crate: Path) -> dict[str, dict[str, Any]]:
     """The crate's entities by @id; ValueError when the file is not an RO-Crate's metadata."""
     try:
-        document = json.loads(Path(crate).read_text(encoding="utf-8"))
+        document = json.loads(provenance.read_output_text(crate))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise ValueError(f"{crate}: not readable JSON ({err})") from err
     graph = document.get("@graph") if isinstance(document, dict) else None

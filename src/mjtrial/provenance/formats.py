@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import escape as xml_escape
 
 from mjtrial.atomic import atomic_path, write_json_atomic, write_text_atomic
-from mjtrial.provenance.stamp import is_recording_folder, is_stamp
+from mjtrial.provenance.stamp import check_regular, is_recording_folder, is_stamp
 
 if TYPE_CHECKING:  # pragma: no cover
     import pyarrow
@@ -348,6 +348,13 @@ def is_folder_output(path: str | os.PathLike[str]) -> bool:
     return is_recording_folder(path) or any(is_folder(path) for is_folder, _ in _FOLDER_READERS)
 
 
+def read_output_text(path: str | os.PathLike[str]) -> str:
+    """An output's text (a manifest, a seal, a crate), refused in one line if it is a FIFO,
+    socket or device (`check_regular`), which would block or never end."""
+    check_regular(path, folder=False)
+    return Path(path).read_text(encoding="utf-8")
+
+
 def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read the stamp embedded in an output file, with the reader registered for its name or
     suffix.
@@ -356,9 +363,12 @@ def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
     :func:`register_folder_reader`. A file with no stamp of its own (no reader for it, or none
     in it) inside such a folder answers with the folder's stamp. Raises
     :class:`MissingStampError` when the file has no stamp, ``ValueError`` for a suffix with no
-    reader or a corrupt file/stamp, ``FileNotFoundError`` when it does not exist.
+    reader, a corrupt file/stamp or a FIFO, socket or device (`NotRegularFileError`),
+    ``FileNotFoundError`` when it does not exist.
     """
     path = Path(path)
+    if path.exists():
+        check_regular(path)  # a FIFO would block the reader for ever
     if path.is_dir():
         reader = _folder_reader(path)
         suffix = ".rrd"

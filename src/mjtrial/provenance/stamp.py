@@ -14,6 +14,7 @@ import importlib.metadata
 import json
 import os
 import platform
+import stat
 from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -24,6 +25,8 @@ from mjtrial.provenance.model_closure import model_closure
 __all__ = [
     "RECORDING_FOLDER_BLUEPRINT",
     "STAMP_VERSION",
+    "NotRegularFileError",
+    "check_regular",
     "config_hash",
     "file_sha256",
     "git_state",
@@ -126,18 +129,48 @@ def _folder_signature(folder: Path, files: list[Path]) -> str:
     return h.hexdigest()
 
 
+class NotRegularFileError(ValueError):
+    """A path that is neither a regular file nor a folder: a FIFO, a socket or a device."""
+
+
+_KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket", stat.S_IFCHR: "a character device"}
+_KINDS[stat.S_IFBLK] = "a block device"
+
+
+def check_regular(path: str | os.PathLike[str], *, folder: bool = True) -> None:
+    """Refuse, before it is opened, what mjtrial must never read as an output or an input: a
+    FIFO blocks until something writes to it, a device never ends. `folder`: a folder is
+    accepted too. Symlinks are followed; FileNotFoundError when `path` does not exist."""
+    mode = os.stat(path).st_mode
+    if stat.S_ISREG(mode) or (folder and stat.S_ISDIR(mode)):
+        return
+    kind = "a folder" if stat.S_ISDIR(mode) else _KINDS.get(stat.S_IFMT(mode), "a special file")
+    expected = "a regular file or a folder" if folder else "a regular file"
+    raise NotRegularFileError(f"{path}: {kind}; expected {expected}")
+
+
+def _is_content_file(path: Path) -> bool:
+    """Whether a folder's entry is one of its files (a broken symlink is not); a FIFO, socket or
+    device is refused (`check_regular`)."""
+    if path.is_dir() or not path.exists():
+        return False
+    check_regular(path, folder=False)
+    return True
+
+
 def file_sha256(path: str | os.PathLike[str]) -> str:
     """sha256 of a file's bytes, read in 1 MiB blocks; of a folder, of its files' names and bytes.
 
     A folder hashes like the model (`model_sha256`): each file, in name order, as its path
     relative to the folder and its sha256, so a renamed, added or removed file changes it too.
     Hidden files are not its content (Snakemake keeps a ``.snakemake_timestamp`` in folders).
+    NotRegularFileError for a FIFO, socket or device, at `path` or in its folder.
     """
+    check_regular(path)
     if Path(path).is_dir():
         folder = Path(path)
-        files = (q for q in folder.rglob("*") if q.is_file())
         hidden = lambda q: any(part.startswith(".") for part in q.relative_to(folder).parts)  # noqa: E731
-        listed = sorted(q for q in files if not hidden(q))
+        listed = sorted(q for q in folder.rglob("*") if not hidden(q) and _is_content_file(q))
         key = (str(folder.resolve()), _folder_signature(folder, listed))
         if key not in _FOLDER_DIGESTS:
             digest = hashlib.sha256()
@@ -180,7 +213,7 @@ def _untracked_hash_entry(root: Path, rel: str) -> bytes:
             digest = "symlink:" + hashlib.sha256(os.readlink(p).encode()).hexdigest()
         else:
             digest = file_sha256(p)
-    except OSError as exc:
+    except (OSError, NotRegularFileError) as exc:
         digest = f"unreadable:{type(exc).__name__}"
     return b"untracked\0" + rel.encode("utf-8", "surrogateescape") + b"\0" + digest.encode()
 

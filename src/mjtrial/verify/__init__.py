@@ -103,7 +103,8 @@ def _stamped_files(results_dir: Path) -> list[Path]:
         for p in visible
         if p in folders
         or (
-            p.is_file()
+            not p.is_dir()  # a FIFO too: read_stamp refuses it, and verify says so
+            and p.exists()
             and p.suffix.lower() in STAMPED_SUFFIXES
             and not any(parent in folders for parent in p.parents)
         )
@@ -252,7 +253,7 @@ def verify_results(
     manifest_file = layout.manifest
     manifest: dict[str, Any] | None = None
     try:
-        loaded = json.loads(manifest_file.read_text(encoding="utf-8"))
+        loaded = json.loads(provenance.read_output_text(manifest_file))
         manifest = loaded if isinstance(loaded, dict) else None
     except (OSError, ValueError):
         manifest = None

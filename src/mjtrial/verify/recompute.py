@@ -77,7 +77,7 @@ class Recomputation:
 
 
 def _json_payload(path: Path) -> dict[str, Any]:
-    obj = json.loads(path.read_text(encoding="utf-8"))
+    obj = json.loads(provenance.read_output_text(path))
     return {k: v for k, v in obj.items() if k != "provenance"}
 
 
@@ -98,7 +98,7 @@ def json_difference(path: Path, expected: Mapping[str, Any]) -> str | None:
 
 def markdown_difference(path: Path, expected: str) -> str | None:
     """Why a Markdown output's text is not `expected` (its front matter aside), or None."""
-    _, body = provenance.formats._split_front_matter(path.read_text(encoding="utf-8"))
+    _, body = provenance.formats._split_front_matter(provenance.read_output_text(path))
     if body == expected:
         return None
     have, want = body.splitlines(), expected.splitlines()
