@@ -100,6 +100,14 @@ CASES = {
         # 6 candidates x 16 states, then 3 finalists x 200 development states
         "benchmark.methods.tuned.budget: expected at least 696 episodes to tune on gantry_lift",
     ),
+    "a budget beyond any run's cost": (
+        _set(("methods", "tuned", "budget"), 10**20),
+        "benchmark.methods.tuned.budget: expected <= 1000000, got 100000000000000000000",
+    ),
+    "more episodes per candidate than any budget": (
+        _set(("methods", "tuned", "episodes_per_candidate"), 10**20),
+        "benchmark.methods.tuned.episodes_per_candidate: expected <= 1000000",
+    ),
     "a fixed method with a budget": (
         _set(("methods", "as_designed", "budget"), 400),
         "benchmark.methods.as_designed.budget: expected 0 for a method that tunes nothing",
