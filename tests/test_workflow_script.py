@@ -22,6 +22,8 @@ from mjtrial.workflow_script import JobFailed, job_log, run_in_process
 
 SCRIPT = """
 import logging
+import sys
+import warnings
 from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
@@ -31,6 +33,11 @@ log = logging.getLogger("mjtrial")
 def stage(*, what, output):
     if what == "fail":
         raise ValueError("the states table has\\n no rows")
+    if what == "print":  # a task that prints and warns
+        print("the task prints")
+        print("the task prints to stderr", file=sys.stderr)
+        warnings.warn("the task warns")
+        snakemake.params.get("during", lambda: None)()
     log.info("%s wrote %s", what, output)
     with open(output, "w") as f:
         f.write(snakemake.rule)
@@ -123,6 +130,59 @@ def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
     proc = subprocess.run([sys.executable, str(runner)], capture_output=True, text=True)
     assert proc.returncode == 1, proc.stderr
     assert proc.stderr == "error: states: the states table has no rows\n"
+
+
+def test_an_in_process_jobs_prints_go_to_its_log_and_the_console_stays(script, tmp_path, capsys):
+    """The job's thread prints into its log; Snakemake's threads still print to the console."""
+    job_running, console_printed = threading.Event(), threading.Event()
+
+    def during():  # the job is running: another thread (Snakemake's) prints meanwhile
+        job_running.set()
+        assert console_printed.wait(10)
+
+    def snakemake_console():
+        assert job_running.wait(10)
+        print("snakemake prints")
+        print("snakemake warns", file=sys.stderr)
+        console_printed.set()
+
+    other = threading.Thread(target=snakemake_console)
+    other.start()
+    args = job_args(tmp_path, "print")
+    args["params"] = Named(what="print", slice={}, during=during)
+    run_in_process(script, **args)
+    other.join()
+    console = capsys.readouterr()
+    assert "snakemake prints" in console.out and "snakemake warns" in console.err
+    assert "the task" not in console.out + console.err
+    log_text = (tmp_path / "logs/job.log").read_text()
+    assert "\nthe task prints\nthe task prints to stderr\n" in log_text
+    assert "snakemake prints" not in log_text and "snakemake warns" not in log_text
+    print("after the job")  # the thread's redirection ended with the job
+    assert "after the job" in capsys.readouterr().out
+
+
+def test_a_process_jobs_prints_and_warnings_go_to_its_log(script, tmp_path):
+    """As Snakemake's `script:` runs it: what the task prints or warns is in the job's log."""
+    args = job_args(tmp_path, "print")
+    runner = tmp_path / "runner.py"
+    runner.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from test_workflow_script import Named\n"
+        "from types import SimpleNamespace\n"
+        f"snakemake = SimpleNamespace(input=Named(), output=Named({args['output'][0]!r}),\n"
+        "    params=Named(what='print', slice={}), log=Named(" + repr(args["logs"][0]) + "),\n"
+        "    rule='states')\n"
+        f"exec(open({str(script)!r}).read(), {{'snakemake': snakemake}})\n"
+    )
+    proc = subprocess.run([sys.executable, str(runner)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == ""
+    assert "the task" not in proc.stderr
+    log_text = Path(args["logs"][0]).read_text()
+    assert "\nthe task prints\nthe task prints to stderr\n" in log_text
+    assert "UserWarning: the task warns" in log_text
 
 
 def test_job_log_keeps_each_threads_messages_apart(tmp_path):

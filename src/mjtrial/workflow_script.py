@@ -16,6 +16,7 @@ import inspect
 import logging
 import os
 import resource
+import signal
 import sys
 import threading
 import time
@@ -52,6 +53,8 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     job's wall time, CPU time and peak memory (`resources_line`).
     """
     in_process = getattr(snakemake, "in_process", False)
+    if not in_process:
+        die_with_workflow()
     log_path = Path(snakemake.log[0])
     log_path.parent.mkdir(parents=True, exist_ok=True)
     started = time.monotonic(), time.thread_time()
@@ -61,7 +64,7 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     log_path.write_text(provenance.log_stamp_line(stamp) + "\n", encoding="utf-8")
     if "rule" in inspect.signature(stage).parameters:  # stages that stamp per job take it too
         kwargs["rule"] = rule
-    with job_log(log_path):
+    with job_log(log_path), job_output(log_path, whole_process=not in_process):
         try:
             stage(**kwargs)
         except Exception as err:  # noqa: BLE001 - every failure is reported the same way
@@ -80,6 +83,104 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
             log.info("%s", thread_resources_line(*started))
         else:
             log.info("%s", resources_line())
+
+
+# The Snakemake process that starts the jobs, by its pid, for a job in a process of its own.
+WORKFLOW_PID = "MJTRIAL_WORKFLOW_PID"
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def mark_workflow_process() -> None:
+    """Record this process (a Snakemake process that starts jobs: run.smk calls this) as the
+    one its jobs' processes live with (`die_with_workflow`)."""
+    os.environ[WORKFLOW_PID] = str(os.getpid())
+
+
+def die_with_workflow() -> None:
+    """Make a job in a process of its own end with the Snakemake process that started it.
+
+    A killed Snakemake leaves its `script:` jobs running (their parent is Snakemake itself), and
+    an orphaned job would write its output after the run died. On Linux the kernel kills the
+    job when its parent dies (`PR_SET_PDEATHSIG`); a job whose Snakemake died before it got
+    here (while it imported) exits at once, having done nothing.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+        except (OSError, AttributeError):
+            pass
+    workflow = os.environ.get(WORKFLOW_PID, "")
+    if workflow.isdigit() and os.getppid() != int(workflow) and not _alive(int(workflow)):
+        print(
+            f"error: the Snakemake process {workflow} that started this job is gone",
+            file=sys.stderr,
+        )
+        os._exit(1)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class _ThreadStream:
+    """`sys.stdout` or `sys.stderr` written per thread: an in-process job's thread writes to its
+    log, every other thread (Snakemake's own console) to the stream this one replaced."""
+
+    def __init__(self, stream: Any) -> None:
+        self.console = stream
+
+    def _target(self) -> Any:
+        return getattr(_JOB_OUTPUT, "file", None) or self.console
+
+    def write(self, text: str) -> int:
+        return self._target().write(text)
+
+    def flush(self) -> None:
+        self._target().flush()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._target(), name)
+
+
+_JOB_OUTPUT = threading.local()
+_INSTALL = threading.Lock()
+
+
+def _console(stream: Any) -> Any:
+    """The console behind `stream`, which may be a `_ThreadStream`."""
+    return stream.console if isinstance(stream, _ThreadStream) else stream
+
+
+@contextmanager
+def job_output(log_path: Path, *, whole_process: bool) -> Iterator[None]:
+    """Send what a job prints (a task's `print()`, Python's warnings) to its log, not to the
+    console. A job in a process of its own redirects the process's `sys.stdout` and
+    `sys.stderr`; a job in Snakemake's process only its own thread's (`_ThreadStream`), so that
+    Snakemake's console and the other jobs' logs are untouched."""
+    with open(log_path, "a", encoding="utf-8", buffering=1) as out:
+        if whole_process:
+            saved = sys.stdout, sys.stderr
+            sys.stdout = sys.stderr = out
+            try:
+                yield
+            finally:
+                sys.stdout, sys.stderr = saved
+            return
+        with _INSTALL:
+            for name in ("stdout", "stderr"):
+                if not isinstance(getattr(sys, name), _ThreadStream):
+                    setattr(sys, name, _ThreadStream(getattr(sys, name)))
+        _JOB_OUTPUT.file = out
+        try:
+            yield
+        finally:
+            _JOB_OUTPUT.file = None
 
 
 def release_memory() -> None:
@@ -105,7 +206,8 @@ def job_log(log_path: Path) -> Iterator[None]:
     keep their own log.
     """
     thread = threading.get_ident()
-    handlers = [logging.FileHandler(log_path, mode="a"), logging.StreamHandler(sys.stderr)]
+    console = logging.StreamHandler(_console(sys.stderr))
+    handlers = [logging.FileHandler(log_path, mode="a"), console]
     for handler in handlers:
         handler.setFormatter(logging.Formatter("%(message)s"))
         handler.addFilter(lambda record: record.thread == thread)

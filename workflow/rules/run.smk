@@ -5,7 +5,14 @@ from pathlib import Path
 
 from mjtrial.layout import script_path
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
-from mjtrial.workflow_script import import_in_background, run_in_process
+from mjtrial.workflow_script import (
+    import_in_background,
+    mark_workflow_process,
+    run_in_process,
+)
+
+# A job in a process of its own ends with the Snakemake process that started it.
+mark_workflow_process()
 
 
 def run_script(script, input, output, params, wildcards, threads, log, rule_name):
