@@ -1,5 +1,6 @@
 """`mjtrial replay` for any task: the cart-pole (closed loop) on the committed model and on a
-simulator variant, its experiment found from its results folder."""
+simulator variant, its experiment found from its results folder. And what a task prints goes to
+its job's log, in a rollout's process and in a job run inside Snakemake's."""
 
 from __future__ import annotations
 
@@ -16,15 +17,21 @@ from mjtrial.replay import replay_episode
 
 CONFIG = "config/cartpole_small.yaml"
 RESULTS = "results/cartpole_small"
+PRINTED = "the cart-pole task judges its episodes"
 
 
 @pytest.fixture(scope="module")
 def cartpole_run(tmp_path_factory) -> Path:
-    """The cart-pole experiment at 16 states with no recordings, and one variant's rollouts."""
+    """The cart-pole experiment at 16 states with no recordings, and one variant's rollouts;
+    its task prints a line each time it judges episodes. What Snakemake printed is kept in
+    `console.txt` (the run) and `dry_console.txt` (a dry run: the preflight's prints only)."""
     workdir = tmp_path_factory.mktemp("cartpole")
     for name in WORKFLOW_FILES:
         src = REPO_ROOT / name
         (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    task = workdir / "tasks" / "cartpole_latency" / "task.py"
+    judge = "def success(episodes: Episodes) -> np.ndarray:\n"
+    task.write_text(task.read_text().replace(judge, f"{judge}    print({PRINTED!r})\n"))
     config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
     config["experiment"] = "cartpole_small"
     config["states"]["n"] = 16
@@ -33,13 +40,10 @@ def cartpole_run(tmp_path_factory) -> Path:
     config["analysis"]["n_resamples"] = 200
     config["variants"] = {"rk4": config["variants"]["rk4"]}
     (workdir / CONFIG).write_text(yaml.safe_dump(config, sort_keys=False))
-    run_snakemake(
-        workdir,
-        f"{RESULTS}/manifest.json",
-        f"{RESULTS}/variants/rk4/rollouts/latency_20ms.parquet",
-        "--configfile",
-        CONFIG,
-    )
+    targets = [f"{RESULTS}/manifest.json", f"{RESULTS}/variants/rk4/rollouts/latency_20ms.parquet"]
+    for name, dry in (("dry_console.txt", ["-n"]), ("console.txt", [])):
+        proc = run_snakemake(workdir, *dry, *targets, "--configfile", CONFIG)
+        (workdir / name).write_text(proc.stdout + proc.stderr)
     return workdir
 
 
@@ -110,3 +114,18 @@ def test_replay_says_when_a_config_is_needed(cartpole_run, monkeypatch, capsys):
     code = main(["replay", str(bare), "--condition", "latency_20ms", "--state", "0"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "--config" in err
+
+
+def test_what_a_task_prints_is_in_its_jobs_log(cartpole_run):
+    logs = cartpole_run / RESULTS / "logs"
+    # A rollout (a process of its own) and a gather (a thread of Snakemake's process, which
+    # judges the nominal episode) print into their own logs.
+    for job in (
+        "rollout_latency_20ms_00000",
+        "gather_no_latency",
+        "rollout_rk4_latency_20ms_00000",
+    ):
+        assert PRINTED in (logs / f"{job}.log").read_text(), job
+    # On the console only what Snakemake printed before any job: the preflight's episodes.
+    console = (cartpole_run / "console.txt").read_text()
+    assert console.count(PRINTED) == (cartpole_run / "dry_console.txt").read_text().count(PRINTED)
