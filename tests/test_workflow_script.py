@@ -132,6 +132,7 @@ def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
     assert proc.stderr == "error: states: the states table has no rows\n"
 
 
+@pytest.mark.filterwarnings("ignore:the task warns")
 def test_an_in_process_jobs_prints_go_to_its_log_and_the_console_stays(script, tmp_path, capsys):
     """The job's thread prints into its log; Snakemake's threads still print to the console."""
     job_running, console_printed = threading.Event(), threading.Event()
