@@ -40,7 +40,7 @@ import numpy as np
 
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.closest_calls import Margin
-from mjtrial.physics import FULLPHYSICS, STATE_QPOS
+from mjtrial.physics import FULLPHYSICS, STATE_QPOS, ModelError, load_model
 
 ENTRY_POINT_GROUP = "mjtrial.tasks"
 
@@ -633,12 +633,9 @@ class BoundTask:
         where = task.source or task.name
         if model is None:
             try:
-                model = mujoco.MjModel.from_xml_path(str(task.model))
-            except ValueError as err:
-                message = " ".join(str(err).split())
-                raise TaskError(
-                    f"{task.model}: MuJoCo could not compile the model: {message}"
-                ) from None
+                model = load_model(task.model)
+            except ModelError as err:
+                raise TaskError(str(err)) from None
         if task.check_model is not None:
             try:
                 task.check_model(model)

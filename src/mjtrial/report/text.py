@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.physics import load_model
 from mjtrial.report.labels import band_parameter, failure_categories, pct, rate_cell, setting
 from mjtrial.task import Task, load_task
 
@@ -105,7 +106,7 @@ def _load_reported_model(manifest: Mapping[str, Any], repo_root: Path) -> mujoco
             f"{path}: sha256 {sha} differs from the manifest's {manifest['model']['sha256']}; "
             "the report would describe a model other than the one that ran"
         )
-    return mujoco.MjModel.from_xml_path(str(path))
+    return load_model(path)
 
 
 def _code_state(manifest: Mapping[str, Any]) -> str:

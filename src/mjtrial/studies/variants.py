@@ -7,14 +7,14 @@ A variant is a mapping of overrides, each naming an attribute by its MJCF name:
      "actuator": {"motor": {"forcerange": [-15, 15]}},
      "body": {"arm": {"gravcomp": 0.5}}}
 
-MuJoCo's own editing API applies them (no XML text is edited), and the edited model is recorded
-as the sha256 of `MjSpec.to_xml()`: one flattened XML (included files inlined) that compiles to
-the very model that runs, so "what was held fixed" is exact for each variant.
+MuJoCo's own editing API applies them (no XML text is edited), the edited spec is compiled as
+it is, and the edited model is recorded as the sha256 of that compiled model
+(`physics.compiled_sha256`, its MJB bytes): the very model that runs, so "what was held fixed" is
+exact for each variant, and a function of the model's files and the edits alone.
 """
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Mapping
 from numbers import Integral, Real
 from pathlib import Path
@@ -23,7 +23,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.physics import ModelError
+from mjtrial.physics import ModelError, compiled_sha256, load_spec
 
 OVERRIDE_KINDS = ("option", "geom", "actuator", "body")
 
@@ -129,26 +129,20 @@ def apply_overrides(
 
 
 def _spec(model_file: Path | str) -> mujoco.MjSpec:
-    path = Path(model_file)
-    if not path.is_file():
-        raise ModelError(f"{path}: model file not found")
-    return mujoco.MjSpec.from_file(str(path))
+    return load_spec(model_file)
 
 
 def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]:
-    xml = spec.to_xml()
+    # Compiled from the edited spec itself, never through `to_xml()`: the XML round trip is not
+    # exact (a quaternion from `fromto` came back 6e-17 apart) and its text depends on what the
+    # process did before (`physics.compiled_sha256`).
     try:
-        # Compiled from the recorded XML itself, so the hash names exactly what runs; in the
-        # model's own folder, so its meshes, textures and height fields resolve as they do
-        # for the committed model.
-        recorded = mujoco.MjSpec.from_string(xml)
-        recorded.modelfiledir = spec.modelfiledir
-        model = recorded.compile()
+        model = spec.compile()
     except ValueError as err:
         text = str(err).strip().replace(str(Path.cwd().resolve()) + "/", "")
         first = text.splitlines()[0] if text else "compile error"
         raise ModelError(f"{source}: MuJoCo could not compile the model: {first}") from None
-    return model, hashlib.sha256(xml.encode()).hexdigest()
+    return model, compiled_sha256(model)
 
 
 def check_overrides(
@@ -167,9 +161,9 @@ def variant_model(
 ) -> tuple[mujoco.MjModel, str]:
     """The model of `model_file` with `overrides` applied, and the sha256 of its XML.
 
-    Returns the compiled model and the hex sha256 of
-    `MjSpec.to_xml()` after the edits; with no overrides this is the nominal model, identical
-    to `mujoco.MjModel.from_xml_path(model_file)`, and its hash (`nominal_model_hash`).
+    Returns the compiled model and its hex sha256 (`physics.compiled_sha256`); with no
+    overrides this is the nominal model, identical to `physics.load_model(model_file)`, and its
+    hash (`nominal_model_hash`).
     """
     spec = _spec(model_file)
     apply_overrides(spec, overrides, key_prefix=key_prefix)
@@ -177,5 +171,5 @@ def variant_model(
 
 
 def nominal_model_hash(model_file: Path | str) -> str:
-    """The sha256 of the unedited model's `MjSpec.to_xml()`, hashed as the variants' are."""
+    """The sha256 of the unedited compiled model, hashed as the variants' are."""
     return variant_model(model_file, {})[1]
