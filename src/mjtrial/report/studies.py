@@ -131,13 +131,17 @@ def figure_dose_response(*, dose_response: Mapping[str, Any]) -> Figure:
         ax.grid(axis="y", color=_SHADE, linewidth=0.6, zorder=0)
         ax.axvline(shortest, color=_GREY, linestyle=":", linewidth=0.9)
         ax.legend(loc="lower right")
+    # On the side of the line with room: the text never runs over the axis and its labels.
+    room_right = list(x).index(shortest) < len(x) / 2 if shortest in list(x) else True
     pooled_ax.text(
         shortest,
-        0.02,
-        f"shortest within {dose_response['margin']:g} \nof {dose_response['reference']:g} {unit} ",
+        0.98,
+        f" shortest within {dose_response['margin']:g} \n"
+        f" of {dose_response['reference']:g} {unit} ",
+        transform=pooled_ax.get_xaxis_transform(),
         color=_GREY,
-        va="bottom",
-        ha="right",
+        va="top",
+        ha="left" if room_right else "right",
     )
     pooled_ax.set_ylim(0, 1.04)
     pooled_ax.set_ylabel(f"Success rate ({pct(dose_response['confidence'])} Wilson band)")
