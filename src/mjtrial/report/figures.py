@@ -314,7 +314,7 @@ def figure_sample_traces(
     axes = fig.subplots(1, len(names), sharex=True, sharey=True, squeeze=False)[0]
     end = max(float(t.time[-1]) for t in traces.values())
     panel = fig.bbox.width / len(names) * 0.95  # pixels each condition's panel may use
-    # Marks closer than a line of text share one label: "lift / lift end".
+    # Marks closer than a line of text share one label: "start / stop".
     line = matplotlib.rcParams["font.size"] * fig.dpi / 72 * 1.3
     min_gap = end * line / (0.8 * panel)
     for ax, name in zip(axes, names, strict=True):
