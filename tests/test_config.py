@@ -84,6 +84,17 @@ SCHEMA_CASES = [
 # Checks a schema cannot express.
 SEMANTIC_CASES = [
     (
+        "a sweep whose reference lies inside it, without a direction",
+        lambda c: c["sweep"].update(reference=0.6),
+        "sweep.toward: expected smaller or larger: the reference 0.6 lies inside the sweep, so "
+        "which way values cost must be said",
+    ),
+    (
+        "a sweep direction that is no direction",
+        lambda c: c["sweep"].update(toward="down"),
+        "sweep.toward: expected one of ['smaller', 'larger'], got 'down'",
+    ),
+    (
         "falsifier names an unknown condition",
         lambda c: c["design"]["falsifier"].update(baseline="medium"),
         "design.falsifier.baseline: expected one of the conditions ['fast', 'slow'], got 'medium'",
@@ -274,3 +285,4 @@ def test_a_configfile_naming_an_experiment_replaces_the_default(tmp_path):
     assert command_line == {"states": {"n": 12}}
     assert config["conditions"] == BASE["conditions"]
     assert config["states"] == {**BASE["states"], "n": 12}
+

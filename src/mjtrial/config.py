@@ -564,6 +564,13 @@ def _check_studies(
             fail(f"sweep.values[{i}]", _schema_message(error).partition(": ")[2])
     if "reference" in sweep and sweep["reference"] not in sweep["values"]:
         fail("sweep.reference", f"expected one of sweep.values, got {sweep['reference']}")
+    reference = sweep.get("reference", max(sweep["values"]))
+    if "toward" not in sweep and min(sweep["values"]) < reference < max(sweep["values"]):
+        fail(
+            "sweep.toward",
+            f"expected smaller or larger: the reference {reference:g} lies inside the sweep, "
+            "so which way values cost must be said",
+        )
 
 
 def _unstable(
