@@ -135,7 +135,8 @@ def test_no_overrides_is_the_committed_model_and_its_hash(nominal):
         ({"actuator": {"gripper": {"forcerange": "15"}}}, "v.x.actuator.gripper.forcerange:"),
         ({"actuator": {"gripper": {"kp": 1}}}, "v.x.actuator.gripper.kp: unknown or not"),
         ({"body": {"cube": {"mass": 1.0}}}, "v.x.body.cube.mass: unknown or not overridable"),
-        ({"joint": {"gantry_z": {"damping": 1}}}, "v.x.joint: unknown override kind"),
+        ({"camera": {"top": {"fovy": 30}}}, "v.x.camera: unknown override kind"),
+        ({"joint": {"gantry_z": {"damping": 1}}}, "v.x.joint.gantry_z.damping: expected 3 numbers"),
         ({"geom": {"left_pad": {"condim": 3.5}}}, "v.x.geom.left_pad.condim: expected an integer"),
     ],
 )

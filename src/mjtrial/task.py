@@ -433,7 +433,7 @@ class Task:
         out = copy.deepcopy(dict(schema))
         props = out["properties"]
         condition = props["conditions"]["additionalProperties"]
-        condition["properties"] = {p.name: p.schema() for p in self.protocol_parameters}
+        condition["properties"] |= {p.name: p.schema() for p in self.protocol_parameters}
         condition["required"] = [p.name for p in self.protocol_parameters if p.required]
         taxonomy = props["failure_taxonomy"]
         taxonomy["properties"] = {t.name: t.schema() for t in self.thresholds}

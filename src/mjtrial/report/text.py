@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.conditions import condition_record
 from mjtrial.physics import load_model
 from mjtrial.report.labels import band_parameter, failure_categories, pct, rate_cell, setting
 from mjtrial.report.model import actuator_lines, contact_lines, joint_lines, model_files_text
@@ -180,7 +181,7 @@ def _setup(
         *_table(
             ["condition", "setting"],
             [
-                [name, setting(task.condition_values(c), task)]
+                [name, setting(condition_record(task, c), task)]
                 for name, c in config["conditions"].items()
             ],
         ),

@@ -130,7 +130,7 @@ def summarize_dose_response(
       analysis: confidence, n_resamples and seed (the main result's).
       margin: the success margin of `furthest_within_margin`, in (0, 1).
       reference: the value every other is compared with; the largest if None.
-      toward: "smaller" or "larger", the direction in which values cost (a longer lift takes
+      toward: "smaller" or "larger", the direction in which values cost (a longer motion takes
         time; a longer latency is what is tolerated); if None, away from the reference, which
         must then be the smallest or the largest value.
       units: the swept parameter's and the band parameter's units, by name (recorded for the
@@ -141,7 +141,7 @@ def summarize_dose_response(
     stated confidence, to be at most `margin` below the reference's (a non-inferiority
     criterion; the reference itself always qualifies). `furthest_within_margin` is the value
     furthest from the reference toward `toward` that is within the margin together with every
-    value between it and the reference: "down to 0.45 s of lift", "up to 20 ms of latency", each
+    value between it and the reference: "down to a 0.45 s motion", "up to 20 ms of latency", each
     step of the way shown to cost less than the margin. `values_within_margin` lists every value
     that qualifies on its own.
     """
