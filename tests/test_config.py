@@ -84,6 +84,17 @@ SCHEMA_CASES = [
 # Checks a schema cannot express.
 SEMANTIC_CASES = [
     (
+        "a sweep whose reference lies inside it, without a direction",
+        lambda c: c["sweep"].update(reference=0.6),
+        "sweep.toward: expected smaller or larger: the reference 0.6 lies inside the sweep, so "
+        "which way values cost must be said",
+    ),
+    (
+        "a sweep direction that is no direction",
+        lambda c: c["sweep"].update(toward="down"),
+        "sweep.toward: expected one of ['smaller', 'larger'], got 'down'",
+    ),
+    (
         "falsifier names an unknown condition",
         lambda c: c["design"]["falsifier"].update(baseline="medium"),
         "design.falsifier.baseline: expected one of the conditions ['fast', 'slow'], got 'medium'",
@@ -172,9 +183,10 @@ def test_duplicate_key_is_named_with_its_line(tmp_path):
 # The schema of conditions, thresholds, a sweep's parameter and the bands is the task's.
 CARTPOLE_SOURCE = "config/cartpole_latency.yaml"
 CARTPOLE = yaml.safe_load((REPO_ROOT / CARTPOLE_SOURCE).read_text())
-CARTPOLE_PARAMETERS = (
+# a condition's keys: the task's protocol parameters and `model` (its edits of the model)
+CARTPOLE_KEYS = (
     "['angle_gain_scale', 'cart_gain_scale', 'cart_rate_gain_scale', 'control_period', "
-    "'duration', 'latency', 'rate_gain_scale']"
+    "'duration', 'latency', 'model', 'rate_gain_scale']"
 )
 
 
@@ -190,13 +202,14 @@ def test_the_cartpole_config_is_valid():
             SOURCE,
             lambda c: c["conditions"]["fast"].update(latency=0.02),
             "conditions.fast.latency: unknown key; expected one of ['close_time', "
-            "'gripper_closed', 'hold_time', 'lift_time', 'pre_close_time', 'settle_time']",
+            "'gripper_closed', 'hold_time', 'lift_time', 'model', 'pre_close_time', "
+            "'settle_time']",
         ),
         (
             CARTPOLE,
             CARTPOLE_SOURCE,
             lambda c: c["conditions"]["no_latency"].update(lift_time=1.5),
-            f"conditions.no_latency.lift_time: unknown key; expected one of {CARTPOLE_PARAMETERS}",
+            f"conditions.no_latency.lift_time: unknown key; expected one of {CARTPOLE_KEYS}",
         ),
         (
             CARTPOLE,
@@ -274,3 +287,4 @@ def test_a_configfile_naming_an_experiment_replaces_the_default(tmp_path):
     assert command_line == {"states": {"n": 12}}
     assert config["conditions"] == BASE["conditions"]
     assert config["states"] == {**BASE["states"], "n": 12}
+

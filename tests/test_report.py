@@ -362,3 +362,106 @@ def test_condition_colours_are_okabe_ito_and_stable():
     assert len(set(colours.values())) == 3
     assert set(CONDITION_PALETTE) <= okabe_ito
     assert "#F0E442" not in CONDITION_PALETTE  # yellow vanishes on white
+
+
+# --------------------------------------------------------------------------------------------
+# Figure text: no two texts overlap, none leaves the canvas, whatever the conditions are named
+# --------------------------------------------------------------------------------------------
+
+
+def _drawn_texts(fig) -> list[tuple[str, object]]:
+    """Every text the figure really draws (a tick outside the view is not), with its box in
+    pixels, drawn at the saved resolution under the saved style."""
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
+
+    from mjtrial.report.figures import _STYLE, FIGURE_DPI
+
+    drawn, original = [], Text.draw
+
+    def draw(text, renderer):
+        original(text, renderer)
+        if text.get_visible() and text.get_text().strip():
+            drawn.append((text.get_text(), text.get_window_extent(renderer)))
+
+    with matplotlib.rc_context(_STYLE):
+        fig.set_dpi(FIGURE_DPI)
+        Text.draw = draw
+        try:
+            FigureCanvasAgg(fig).draw()
+        finally:
+            Text.draw = original
+    return drawn
+
+
+def _text_problems(fig) -> list[str]:
+    boxes = _drawn_texts(fig)
+    canvas = fig.bbox
+    problems = [
+        f"outside the canvas: {text!r}"
+        for text, box in boxes
+        if box.x0 < canvas.x0 - 0.5
+        or box.y0 < canvas.y0 - 0.5
+        or box.x1 > canvas.x1 + 0.5
+        or box.y1 > canvas.y1 + 0.5
+    ]
+    for i, (text, box) in enumerate(boxes):
+        for other, other_box in boxes[i + 1 :]:
+            if box.overlaps(other_box):
+                problems.append(f"{text!r} overlaps {other!r}")
+    return problems
+
+
+LONG_NAMES = {"fast": "frictionloss_doubled_fast_lift", "slow": "stock_model_slow_lift"}
+
+
+def _renamed(value, names):
+    text = json.dumps(value)
+    for old, new in names.items():
+        text = text.replace(f'"{old}"', f'"{new}"').replace(f'"only_{old}"', f'"only_{new}"')
+    return json.loads(text)
+
+
+@pytest.mark.parametrize("names", [{}, LONG_NAMES], ids=["as built", "long condition names"])
+def test_no_figure_text_overlaps_or_leaves_the_canvas(experiment, names, monkeypatch, tmp_path):
+    import mjtrial.report.figures as figures
+
+    drawn = {}
+    monkeypatch.setattr(figures, "_save", lambda fig, *, name, **_: [drawn.setdefault(name, fig)])
+    args = dict(experiment["figure_args"])
+    for key in ("rollout_tables", "recordings", "conditions"):
+        args[key] = {names.get(c, c): v for c, v in args[key].items()}
+    args["summary"] = _renamed(args["summary"], names)
+    figures.write_figures(**args, out_dir=tmp_path)
+    assert sorted(drawn) == sorted(FIGURES)
+    problems = {name: _text_problems(fig) for name, fig in drawn.items()}
+    assert problems == {name: [] for name in FIGURES}
+
+
+def _dose_response(shortest_index: int) -> dict:
+    values = [0.0, 0.005, 0.01, 0.02, 0.04]
+    rec = {"rate": 0.6, "wilson_low": 0.5, "wilson_high": 0.7, "n": 100}
+    bands = [{**rec, "low": 0.05, "high": 0.2}, {**rec, "low": 0.2, "high": 0.3}]
+    return {
+        "parameter": "latency",
+        "per_value": [{"latency": v, **rec, "bands": bands} for v in values],
+        "n_states": 100,
+        "band_unit": "kg",
+        "band_parameter": "pole_mass",
+        "furthest_within_margin": values[shortest_index],
+        "toward": "larger",
+        "scale": "linear",
+        "unit": "s",
+        "margin": 0.05,
+        "reference": 0.0,
+        "confidence": 0.95,
+    }
+
+
+@pytest.mark.parametrize("shortest_index", [0, 2, 4])
+def test_the_dose_response_annotation_stays_clear_of_other_text(shortest_index):
+    from mjtrial.report.studies import figure_dose_response
+
+    fig = figure_dose_response(dose_response=_dose_response(shortest_index))
+    assert _text_problems(fig) == []

@@ -96,6 +96,7 @@ def test_a_sweep_through_zero_is_summarized_on_the_linear_scale():
     assert out["scale"] == "linear" and out["unit"] == "s" and out["band_unit"] == "kg"
     assert out["trend"]["slope_log_odds_per_unit_value"] < 0
     assert out["values_within_margin"] == [0.0]
+    assert out["toward"] == "larger" and out["furthest_within_margin"] == 0.0
 
 
 def test_trend_slope_on_a_saturated_two_value_design():
@@ -147,7 +148,7 @@ def test_each_value_against_the_slowest_with_holm_by_hand():
     # 1.0 equals the reference on every state: interval [0, 0], within any margin; 0.6 has
     # estimate -0.15, so its lower bound is below -0.05.
     assert (rows[1.0]["low"], rows[1.0]["high"]) == (0.0, 0.0)
-    assert out["shortest_within_margin"] == 1.0
+    assert out["furthest_within_margin"] == 1.0 and out["toward"] == "smaller"
 
 
 def test_rates_pooled_and_per_mass_band():
@@ -172,7 +173,7 @@ def test_a_wide_margin_admits_the_shortest_value_and_bad_sweeps_stop():
         analysis=ANALYSIS,
         margin=0.99,
     )
-    assert out["shortest_within_margin"] == 0.15
+    assert out["furthest_within_margin"] == 0.15
     two = {k: v for k, v in sweep().items() if k in (0.15, 1.5)}
     with pytest.raises(ValueError, match="expected at least 3 values, got 2"):
         summarize_dose_response(
@@ -196,3 +197,50 @@ def test_trend_is_not_estimable_when_outcomes_are_separated():
     assert result["slope_log_odds_per_log_value"] is None and result["low"] is None
     result = trend(values, np.ones(12, dtype=bool), groups, confidence=0.95)
     assert result["not_estimable"]
+
+
+def _latency_sweep(failures_by_value):
+    """Latency tables in which the first k states fail at each value, the rest succeed."""
+    return {
+        v: table(np.r_[np.zeros(k, bool), np.ones(N - k, bool)])
+        for v, k in failures_by_value.items()
+    }
+
+
+def _summarize(tables, **kwargs):
+    return summarize_dose_response(
+        tables,
+        parameter="latency",
+        states=states(),
+        band_parameter="mass",
+        band_edges=[0.05, 0.6],
+        analysis=ANALYSIS,
+        units={"latency": "s", "mass": "kg"},
+        **kwargs,
+    )
+
+
+def test_the_furthest_value_goes_the_way_values_cost_and_stops_at_the_first_gap():
+    # 0 ms the reference; 10 and 20 ms equal it on every state (interval [0, 0]); 30 ms loses
+    # 12 of the 40 states (interval far below -0.05); 40 ms equals the reference again.
+    tables = _latency_sweep({0.0: 0, 0.01: 0, 0.02: 0, 0.03: 12, 0.04: 0})
+    out = _summarize(tables, margin=0.05, reference=0.0)
+    assert out["toward"] == "larger"
+    assert out["values_within_margin"] == [0.0, 0.01, 0.02, 0.04]
+    assert out["furthest_within_margin"] == 0.02  # "up to 20 ms": 30 ms breaks the run
+    assert (
+        "largest latency such that it and every swept value between"
+        in (out["within_margin_criterion"])
+    )
+
+
+def test_an_inside_reference_needs_a_direction():
+    tables = _latency_sweep({0.0: 12, 0.01: 0, 0.02: 0, 0.03: 0})
+    with pytest.raises(ValueError, match="toward: expected smaller or larger"):
+        _summarize(tables, margin=0.05, reference=0.01)
+    out = _summarize(tables, margin=0.05, reference=0.01, toward="larger")
+    assert out["furthest_within_margin"] == 0.03
+    assert (
+        _summarize(tables, margin=0.05, reference=0.01, toward="smaller")["furthest_within_margin"]
+        == 0.01
+    )

@@ -12,6 +12,20 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+MODEL_EDITS = "model"  # a condition's edits of the model, beside its protocol parameters
+
+
+def model_edits(condition: Mapping[str, Any]) -> dict[str, Any]:
+    """A condition's edits of the model (`mjtrial.studies.variants` overrides), or {}."""
+    return dict(condition.get(MODEL_EDITS) or {})
+
+
+def condition_record(task: Any, condition: Mapping[str, Any]) -> dict[str, Any]:
+    """What a summary or a report records of a condition: its protocol parameters as numbers
+    (`Task.condition_values`), and its edits of the model where it has any."""
+    edits = model_edits(condition)
+    return {**task.condition_values(condition), **({MODEL_EDITS: edits} if edits else {})}
+
 
 def sweep_base(config: Mapping[str, Any]) -> str:
     """The condition a sweep starts from: `sweep.base`, else the falsifier's baseline."""
@@ -33,7 +47,9 @@ def sweep_conditions(config: Mapping[str, Any]) -> dict[float, str]:
 
 
 def _same(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
-    return a.keys() == b.keys() and all(float(a[k]) == float(b[k]) for k in a)
+    return a.keys() == b.keys() and all(
+        a[k] == b[k] if k == MODEL_EDITS else float(a[k]) == float(b[k]) for k in a
+    )
 
 
 def all_conditions(config: Mapping[str, Any]) -> dict[str, dict[str, Any]]:

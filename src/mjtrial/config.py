@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, budget
-from mjtrial.conditions import all_conditions, sweep_base
+from mjtrial.conditions import all_conditions, model_edits, sweep_base
 from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.physics import ModelError, load_model
@@ -469,12 +469,15 @@ def check_config(
                 "stamps record them and mjtrial verify can check them",
             )
     rate_hz = float(config["recording"]["rate_hz"])
+    groups = _conditions_by_model(all_conditions(config), bound, model_file, fail)
     try:
-        problems = list(
-            budget.episode_problems(
-                all_conditions(config), bound, timestep_key="model", rate_hz=rate_hz
+        problems = [
+            problem
+            for on_model, conditions in groups
+            for problem in budget.episode_problems(
+                conditions, on_model, timestep_key="model", rate_hz=rate_hz
             )
-        )
+        ]
     except TaskError as err:
         fail("task", str(err))
     for key, expectation in problems:
@@ -486,20 +489,52 @@ def check_config(
     printer = mujoco.get_mju_user_warning()  # an unstable model is said below, in one line
     mujoco.set_mju_user_warning(lambda _: None)
     try:
-        run_task_code(
-            bound,
-            all_conditions(config),
-            thresholds=given,
-            allowed_privileged=config.get("privileged_observations") or {},
-        )
+        for on_model, conditions in groups:
+            run_task_code(
+                on_model,
+                conditions,
+                thresholds=given,
+                allowed_privileged=config.get("privileged_observations") or {},
+            )
     except TaskError as err:
         fail("task", str(err))
     finally:
         mujoco.set_mju_user_warning(printer)
-    unstable = _unstable(bound, config["conditions"], config["failure_taxonomy"])
-    if unstable:
-        fail("model", f"{config['model']}: {unstable}")
+    for on_model, conditions in groups:
+        designed = {n: c for n, c in conditions.items() if n in config["conditions"]}
+        unstable = _unstable(on_model, designed, config["failure_taxonomy"])
+        if unstable:
+            fail("model", f"{config['model']}: {unstable}")
     _check_studies(config, schema, model_file, task, fail)
+
+
+def _conditions_by_model(
+    conditions: Mapping[str, Mapping[str, Any]],
+    bound: BoundTask,
+    model_file: Path,
+    fail: Callable[[str, str], None],
+) -> list[tuple[BoundTask, dict[str, Mapping[str, Any]]]]:
+    """The conditions with the model each runs on: those without edits on the committed model
+    (`bound`), each with `model` edits on its own edited model, the edits checked against the
+    model (one line naming the key: an unknown element or attribute, a wrong value)."""
+    plain = {n: c for n, c in conditions.items() if not model_edits(c)}
+    groups = [(bound, plain)] if plain else []
+    for name, condition in conditions.items():
+        if not model_edits(condition):
+            continue
+        key = f"conditions.{name}.model"
+        try:
+            model, _ = variant_model(
+                model_file, {}, key_prefix=key, then=[(model_edits(condition), key)]
+            )
+        except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
+            named, _, expectation = str(err).partition(": ")
+            fail(*((named, expectation) if named.startswith(key) else (key, str(err))))
+        try:
+            groups.append((BoundTask.of(bound.task, model), {name: condition}))
+        except TaskError as err:
+            fail(key, str(err))
+    return groups
 
 
 def _check_studies(
@@ -564,6 +599,13 @@ def _check_studies(
             fail(f"sweep.values[{i}]", _schema_message(error).partition(": ")[2])
     if "reference" in sweep and sweep["reference"] not in sweep["values"]:
         fail("sweep.reference", f"expected one of sweep.values, got {sweep['reference']}")
+    reference = sweep.get("reference", max(sweep["values"]))
+    if "toward" not in sweep and min(sweep["values"]) < reference < max(sweep["values"]):
+        fail(
+            "sweep.toward",
+            f"expected smaller or larger: the reference {reference:g} lies inside the sweep, "
+            "so which way values cost must be said",
+        )
 
 
 def _unstable(

@@ -40,7 +40,7 @@ import numpy as np
 
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.closest_calls import Margin
-from mjtrial.physics import FULLPHYSICS, STATE_QPOS
+from mjtrial.physics import FULLPHYSICS, STATE_QPOS, ModelError, load_model
 
 ENTRY_POINT_GROUP = "mjtrial.tasks"
 
@@ -433,7 +433,7 @@ class Task:
         out = copy.deepcopy(dict(schema))
         props = out["properties"]
         condition = props["conditions"]["additionalProperties"]
-        condition["properties"] = {p.name: p.schema() for p in self.protocol_parameters}
+        condition["properties"] |= {p.name: p.schema() for p in self.protocol_parameters}
         condition["required"] = [p.name for p in self.protocol_parameters if p.required]
         taxonomy = props["failure_taxonomy"]
         taxonomy["properties"] = {t.name: t.schema() for t in self.thresholds}
@@ -633,12 +633,9 @@ class BoundTask:
         where = task.source or task.name
         if model is None:
             try:
-                model = mujoco.MjModel.from_xml_path(str(task.model))
-            except ValueError as err:
-                message = " ".join(str(err).split())
-                raise TaskError(
-                    f"{task.model}: MuJoCo could not compile the model: {message}"
-                ) from None
+                model = load_model(task.model)
+            except ModelError as err:
+                raise TaskError(str(err)) from None
         if task.check_model is not None:
             try:
                 task.check_model(model)

@@ -57,7 +57,7 @@ def model_closure(scene: Path) -> list[Path]:
     files: list[Path] = []
     _includes(scene, scene.resolve().parent, files)
     try:
-        spec = mujoco.MjSpec.from_file(str(scene))
+        spec = mujoco.MjSpec.from_file(str(scene.resolve()))  # as physics.load_spec
     except ValueError:
         spec = None
     if spec is not None:

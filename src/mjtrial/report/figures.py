@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 
 from mjtrial import provenance
 from mjtrial.layout import BENCHMARK_FIGURES, FIGURES
+from mjtrial.report.fit import figure_legend_below, fit_text, fitted_legend, fitted_title
 from mjtrial.report.labels import band_parameter, failure_categories, pct, setting
 from mjtrial.report.traces import SampleTraces, sample_traces
 from mjtrial.task import BoundTask, Task
@@ -121,6 +122,11 @@ def figure_success_by_condition(*, summary: Mapping[str, Any], task: Task) -> Fi
         range(len(names)),
         [f"{name}\n({setting(conditions[name], task)})" for name in names],
     )
+    # tick labels are redrawn from their strings: fitted, then set again
+    width = 0.6 * fig.bbox.width / len(names)  # the axes hold about 3/4 of the width
+    ax.set_xticks(
+        range(len(names)), [fit_text(t, width=width).get_text() for t in ax.get_xticklabels()]
+    )
     ax.set_xlim(-0.6, len(names) - 0.4)
     ax.set_ylim(0, 1.25)
     ax.set_yticks(np.linspace(0, 1, 6))
@@ -167,8 +173,7 @@ def figure_success_by_band(*, summary: Mapping[str, Any], parameter: str, task: 
     ax.set_ylabel(f"Success rate ({pct(summary['confidence'])} Wilson CI)")
     ax.grid(axis="y", color=_SHADE, linewidth=0.6, zorder=0)
     ax.set_title(f"Success by {label}")
-    # Below the axes: no data point can sit under it.
-    fig.legend(loc="outside lower center", ncols=min(len(names), 3), handletextpad=0.3)
+    figure_legend_below(fig, handletextpad=0.3)
     return fig
 
 
@@ -219,8 +224,14 @@ def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
             )
     ax.set_xticks([0, 1], ["succeeds", "fails"])
     ax.set_yticks([0, 1], ["succeeds", "fails"], rotation=90, va="center")
-    ax.set_xlabel(f"{treatment} ({setting(summary['conditions'][treatment], task)})")
-    ax.set_ylabel(f"{baseline} ({setting(summary['conditions'][baseline], task)})")
+    fit_text(
+        ax.set_xlabel(f"{treatment} ({setting(summary['conditions'][treatment], task)})"),
+        width=0.8 * fig.bbox.width,
+    )
+    fit_text(
+        ax.set_ylabel(f"{baseline} ({setting(summary['conditions'][baseline], task)})"),
+        height=0.7 * fig.bbox.height,
+    )
     ax.xaxis.set_label_position("top")
     ax.xaxis.tick_top()
     ax.tick_params(length=0)
@@ -268,8 +279,21 @@ def figure_failure_categories(*, summary: Mapping[str, Any], task: Task) -> Figu
     ax.grid(axis="x", color=_SHADE, linewidth=0.6, zorder=0)
     ax.tick_params(axis="y", length=0)
     fig.suptitle("Failures by category", fontsize=9)
-    fig.legend(loc="outside lower center", ncols=min(len(names), 3), handletextpad=0.4)
+    figure_legend_below(fig, handletextpad=0.4)
     return fig
+
+
+def _close_groups(
+    marks: Sequence[tuple[float, str]], min_gap: float
+) -> list[list[tuple[float, str]]]:
+    """Time-ordered marks in runs whose neighbours are less than `min_gap` apart."""
+    groups: list[list[tuple[float, str]]] = []
+    for mark in marks:
+        if groups and mark[0] - groups[-1][-1][0] < min_gap:
+            groups[-1].append(mark)
+        else:
+            groups.append([mark])
+    return groups
 
 
 def _ids(ids: Sequence[int]) -> str:
@@ -289,35 +313,40 @@ def figure_sample_traces(
     fig = _figure(DOUBLE_COLUMN, 2.9)
     axes = fig.subplots(1, len(names), sharex=True, sharey=True, squeeze=False)[0]
     end = max(float(t.time[-1]) for t in traces.values())
+    panel = fig.bbox.width / len(names) * 0.95  # pixels each condition's panel may use
+    # Marks closer than a line of text share one label: "start / stop".
+    line = matplotlib.rcParams["font.size"] * fig.dpi / 72 * 1.3
+    min_gap = end * line / (0.8 * panel)
     for ax, name in zip(axes, names, strict=True):
         t = traces[name]
-        for label, time in t.marks.items():
+        # Episodes of different conditions may end at different times: where success is judged.
+        marks = sorted([*((time, label) for label, time in t.marks.items()), (t.time[-1], "end")])
+        ax.axvline(float(t.time[-1]), color=_GREY, linestyle=":", linewidth=0.8, zorder=1)
+        for time, _ in marks[:-1]:
             ax.axvline(time, color=_GREY, linestyle="--", linewidth=0.7, zorder=1)
+        for group in _close_groups(marks, min_gap):
             ax.text(
-                time,
+                group[0][0],
                 1.0,
-                f" {label}",
+                " / ".join(label for _, label in group) + " ",
                 transform=ax.get_xaxis_transform(),
-                ha="left",
+                ha="right",
                 va="top",
                 color=_GREY,
                 rotation=90,
             )
-        # Episodes of different conditions may end at different times: where success is judged.
-        ax.axvline(float(t.time[-1]), color=_GREY, linestyle=":", linewidth=0.8, zorder=1)
-        ax.text(
-            float(t.time[-1]),
-            1.0,
-            "end ",
-            transform=ax.get_xaxis_transform(),
-            ha="right",
-            va="top",
-            color=_GREY,
-        )
         for label, level in task.trace_levels:
             ax.axhline(level, color="black", linestyle=(0, (4, 3)), linewidth=0.9, zorder=1)
             if label:
-                ax.text(end, level, f"{label} {level:g}", ha="right", va="bottom", color="black")
+                ax.text(
+                    0.01,
+                    level,
+                    f"{label} {level:g}",
+                    transform=ax.get_yaxis_transform(),
+                    ha="left",
+                    va="bottom",
+                    color="black",
+                )
         for outcome, style, label in ((True, "-", "succeeded"), (False, (0, (1, 1.2)), "failed")):
             rows = [i for i, ok in enumerate(t.success) if ok is outcome]
             for j, row in enumerate(rows):
@@ -336,9 +365,16 @@ def figure_sample_traces(
                         else None
                     ),
                 )
-        ax.set_title(f"{name} ({setting(summary['conditions'][name], task)})")
+        fitted_title(ax, f"{name} ({setting(summary['conditions'][name], task)})", width=panel)
         ax.set_xlabel("Time (s)")
-        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), ncols=1, handlelength=2.2)
+        fitted_legend(
+            ax,
+            *ax.get_legend_handles_labels(),
+            width=panel,
+            loc="upper center",
+            bbox_to_anchor=(0.5, -0.22),
+            handlelength=2.2,
+        )
     # The plot's title ends with its unit: "block position, target (m)".
     unit = series.plot.rpartition("(")[2].rstrip(")") if series.plot.endswith(")") else ""
     label = series.name.replace("_", " ").capitalize()

@@ -7,6 +7,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from mjtrial.analysis import condition_settings
+from mjtrial.conditions import MODEL_EDITS
+from mjtrial.studies.variants import describe_edits
 from mjtrial.task import Task
 
 
@@ -18,9 +20,12 @@ def band_parameter(parameter: str, task: Task) -> tuple[str, str]:
 
 
 def setting(record: Mapping[str, Any], task: Task) -> str:
-    """A condition's protocol parameters from its summary record: `push_time 0.25 s`."""
+    """A condition's protocol parameters from its summary record, then its edits of the model:
+    `push_time 0.25 s`, `latency 0.02 s, joint hinge frictionloss 0.2`."""
+    edits = record.get(MODEL_EDITS)
     return ", ".join(
-        f"{k} {v:g} {task.unit_of(k)}".rstrip() for k, v in condition_settings(record).items()
+        [f"{k} {v:g} {task.unit_of(k)}".rstrip() for k, v in condition_settings(record).items()]
+        + ([describe_edits(edits)] if edits else [])
     )
 
 

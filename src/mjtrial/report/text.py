@@ -16,7 +16,10 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.conditions import condition_record
+from mjtrial.physics import load_model
 from mjtrial.report.labels import band_parameter, failure_categories, pct, rate_cell, setting
+from mjtrial.report.model import actuator_lines, contact_lines, joint_lines, model_files_text
 from mjtrial.task import Task, load_task
 
 
@@ -61,39 +64,14 @@ _SCOPE_LIMITS = (
 )
 
 
-def _geom_name(model: mujoco.MjModel, i: int) -> str:
-    return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, i) or f"geom {i}"
-
-
-def _contact_table(model: mujoco.MjModel) -> list[str]:
-    """One row per geom that can collide: what sets the friction budget of a contact."""
-    rows = [
-        "| geom | condim | friction (sliding, torsional, rolling) | solref | solimp |",
-        "| --- | --- | --- | --- | --- |",
-    ]
-    for i in range(model.ngeom):
-        if not (model.geom_contype[i] or model.geom_conaffinity[i]):
-            continue
-        friction = ", ".join(f"{v:g}" for v in model.geom_friction[i])
-        solref = ", ".join(f"{v:g}" for v in model.geom_solref[i])
-        solimp = ", ".join(f"{v:g}" for v in model.geom_solimp[i])
-        rows.append(
-            f"| `{_geom_name(model, i)}` | {model.geom_condim[i]} | {friction} | {solref} "
-            f"| {solimp} |"
-        )
-    return rows if len(rows) > 2 else ["No geom of the model collides."]
-
-
-def _actuator_limits(model: mujoco.MjModel) -> str:
-    """Force limits of the force-limited actuators (N: they drive slide joints or a tendon)."""
-    parts = []
-    for i in range(model.nu):
-        if not model.actuator_forcelimited[i]:
-            continue
-        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator {i}"
-        low, high = model.actuator_forcerange[i]
-        parts.append(f"`{name}` [{low:g}, {high:g}]")
-    return ", ".join(parts) if parts else "none"
+def _development_use(config: Mapping[str, Any]) -> str:
+    """What the design says the development states were for, in its own words, never assumed."""
+    said = " ".join(str(config.get("design", {}).get("development_split") or "").split())
+    return (
+        f' (the design: "{said.rstrip(".")}")'
+        if said
+        else " (the design says nothing of their use)"
+    )
 
 
 def _load_reported_model(manifest: Mapping[str, Any], repo_root: Path) -> mujoco.MjModel:
@@ -105,7 +83,7 @@ def _load_reported_model(manifest: Mapping[str, Any], repo_root: Path) -> mujoco
             f"{path}: sha256 {sha} differs from the manifest's {manifest['model']['sha256']}; "
             "the report would describe a model other than the one that ran"
         )
-    return mujoco.MjModel.from_xml_path(str(path))
+    return load_model(path)
 
 
 def _code_state(manifest: Mapping[str, Any]) -> str:
@@ -191,20 +169,19 @@ def _setup(
         "",
         f"- Simulator: MuJoCo {manifest['versions']['mujoco']}.",
         *_task_lines(manifest.get("task")),
-        f"- Model: `{m['path']}`, sha256 `{m['sha256']}`.",
+        f"- Model: `{m['path']}`, sha256 `{m['sha256']}` {model_files_text(m.get('files'))}.",
         f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
         f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
-        f"- Actuator force limits (N): {_actuator_limits(model)}.",
-        "- Contact parameters of the colliding geoms (read from the compiled model):",
-        "",
-        *_contact_table(model),
+        *actuator_lines(model),
+        *joint_lines(model),
+        *contact_lines(model),
         "",
         "Conditions (each evaluation state runs under every condition: a paired design):",
         "",
         *_table(
             ["condition", "setting"],
             [
-                [name, setting(task.condition_values(c), task)]
+                [name, setting(condition_record(task, c), task)]
                 for name, c in config["conditions"].items()
             ],
         ),
@@ -222,9 +199,10 @@ def _setup(
             ],
         ),
         "",
-        f"Development states came from a different seed, {states['development_seed']}, used only "
-        "to calibrate the model; the states stage refuses a configuration whose development and "
-        "evaluation states share a state, so no reported number comes from a tuning state.",
+        f"Development states came from a different seed, {states['development_seed']}"
+        + _development_use(config)
+        + "; the states stage refuses a configuration whose development and evaluation states "
+        "share a state, so no reported number comes from a tuning state.",
     ]
     plan = summary.get("sample_size")
     if plan:

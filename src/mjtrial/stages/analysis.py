@@ -11,6 +11,7 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, analysis, provenance
+from mjtrial.conditions import condition_record
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.task import load_task
 
@@ -78,7 +79,7 @@ def summarize_tables(
         states=states,
         outcomes=outcomes,
         nominal=nominal,
-        condition_parameters={name: task.condition_values(c) for name, c in conditions.items()},
+        condition_parameters={name: condition_record(task, c) for name, c in conditions.items()},
         nominal_text=task.nominal_description,
         categories=task.category_names(),
         falsifier=analysis_slice["falsifier"],

@@ -13,9 +13,11 @@ from typing import Any
 import mujoco
 
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd stamps
+from mjtrial.conditions import model_edits
 from mjtrial.layout import CONFIG_FILE
-from mjtrial.physics import load_model
+from mjtrial.physics import compiled_sha256, load_model
 from mjtrial.stages.stamping import make_stage_stamp
+from mjtrial.studies.variants import variant_model
 from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
@@ -53,6 +55,19 @@ def write_manifest(
     provenance.write_json(manifest, output, stamp)
     log.info("manifest -> %s", output)
     return manifest
+
+
+def condition_edits(config: Mapping[str, Any], model_file: Path) -> dict[str, Any]:
+    """Per condition that edits the model: its edits and its compiled model's sha256, which
+    differs from the committed model's (`compiled_sha256`) where the model does."""
+    out = {}
+    for name, condition in config["conditions"].items():
+        edits = model_edits(condition)
+        if edits:
+            key = f"conditions.{name}.model"
+            _, sha256 = variant_model(model_file, {}, key_prefix=key, then=[(edits, key)])
+            out[name] = {"edits": edits, "compiled_sha256": sha256}
+    return out
 
 
 def manifest_record(
@@ -97,6 +112,8 @@ def manifest_record(
             "integrator": mujoco.mjtIntegrator(model.opt.integrator).name,
             "cone": mujoco.mjtCone(model.opt.cone).name,
             "impratio": model.opt.impratio,
+            "compiled_sha256": compiled_sha256(model),
+            "condition_edits": condition_edits(config, model_file),
         },
         "seeds": {
             "states": config["states"]["seed"],

@@ -8,11 +8,13 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, engine, provenance, recording
+from mjtrial.conditions import model_edits
 from mjtrial.engine import BATCH_SIZE
 from mjtrial.physics import load_model
 from mjtrial.recording.series import Signal
@@ -111,16 +113,24 @@ def read_state_values(
 def condition_task(
     condition_slice: Mapping[str, Any], model_file: Path, *, repo_root: Path = REPO_ROOT
 ) -> BoundTask:
-    """The task a condition runs, on its model: the committed one or the slice's variant."""
+    """The task a condition runs, on its model: the committed one, edited by the slice's
+    variant, then by the condition's own model edits (`conditions.<name>.model`)."""
     task = load_task(condition_slice["task"], repo_root=repo_root)
+    return BoundTask.of(task, condition_model(condition_slice, model_file))
+
+
+def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> mujoco.MjModel:
+    """The model a condition's episodes run on (see `condition_task`)."""
     variant = condition_slice.get("variant")
-    if variant is None:
-        model = load_model(model_file)
-    else:
-        model, _ = variant_model(
-            model_file, variant["overrides"], key_prefix=f"variants.{variant['name']}"
-        )
-    return BoundTask.of(task, model)
+    edits = model_edits(condition_slice)
+    if variant is None and not edits:
+        return load_model(model_file)
+    overrides, prefix = (
+        ({}, "model") if variant is None else (variant["overrides"], f"variants.{variant['name']}")
+    )
+    condition = condition_slice.get("condition", "condition")
+    then = [(edits, f"conditions.{condition}.model")] if edits else []
+    return variant_model(model_file, overrides, key_prefix=prefix, then=then)[0]
 
 
 def condition_parameters(bound: BoundTask, condition_slice: Mapping[str, Any]) -> dict[str, float]:

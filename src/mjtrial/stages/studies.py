@@ -170,6 +170,7 @@ def dose_response_summary(
         analysis=study_slice["analysis"],
         margin=sweep["margin"],
         reference=sweep.get("reference"),
+        toward=sweep.get("toward"),
         units={p: task.unit_of(p) for p in (sweep["parameter"], band_parameter)},
     )
     return summary

@@ -59,7 +59,7 @@ def variant_record(
       tables: per condition, the columns of its rollout table (`ROLLOUT_COLUMNS`), each `(n,)`;
         must hold the falsifier's treatment and baseline.
       overrides: the variant's overrides (`mjtrial.studies.variants`), recorded as given.
-      model_sha256: the sha256 of the variant model's `MjSpec.to_xml()`.
+      model_sha256: the sha256 of the variant's compiled model (`physics.compiled_sha256`).
       falsifier: the design's falsifier (treatment, baseline, statistic, threshold).
       analysis: the analysis settings (confidence, n_resamples, seed).
       source: the variant's name, for error messages.

@@ -5,17 +5,20 @@ A variant is a mapping of overrides, each naming an attribute by its MJCF name:
     {"option": {"timestep": 0.001, "integrator": "RK4", "cone": "pyramidal"},
      "geom": {"floor": {"friction": [0.6, 0.003, 0.0001]}},
      "actuator": {"motor": {"forcerange": [-15, 15]}},
-     "body": {"arm": {"gravcomp": 0.5}}}
+     "body": {"arm": {"gravcomp": 0.5}},
+     "joint": {"hinge": {"frictionloss": 0.2}}}
 
-MuJoCo's own editing API applies them (no XML text is edited), and the edited model is recorded
-as the sha256 of `MjSpec.to_xml()`: one flattened XML (included files inlined) that compiles to
-the very model that runs, so "what was held fixed" is exact for each variant.
+(also `tendon`, `equality`, `sensor` and `site` attributes by element name).
+
+MuJoCo's own editing API applies them (no XML text is edited), the edited spec is compiled as
+it is, and the edited model is recorded as the sha256 of that compiled model
+(`physics.compiled_sha256`, its MJB bytes): the very model that runs, so "what was held fixed" is
+exact for each variant, and a function of the model's files and the edits alone.
 """
 
 from __future__ import annotations
 
-import hashlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from numbers import Integral, Real
 from pathlib import Path
 from typing import Any
@@ -23,9 +26,12 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.physics import ModelError
+from mjtrial.physics import ModelError, compiled_sha256, load_spec
 
-OVERRIDE_KINDS = ("option", "geom", "actuator", "body")
+OVERRIDE_KINDS = (
+    *("option", "geom", "actuator", "body"),
+    *("joint", "tendon", "equality", "sensor", "site"),
+)
 
 # MJCF's keywords for the enumerated <option> attributes, in the order of their mjt enums
 # (mjtIntegrator, mjtCone, mjtSolver, mjtJacobian); MjSpec stores the enum's integer.
@@ -117,7 +123,7 @@ def apply_overrides(
             for name, value in entries.items():
                 _apply_option(spec, name, value, f"{where}.{name}")
             continue
-        find = getattr(spec, kind)  # spec.geom(name), spec.actuator(name), spec.body(name)
+        find = getattr(spec, kind)  # spec.geom(name), spec.joint(name), spec.sensor(name), ...
         for element_name, attributes in entries.items():
             element = find(element_name)
             if element is None:
@@ -129,26 +135,20 @@ def apply_overrides(
 
 
 def _spec(model_file: Path | str) -> mujoco.MjSpec:
-    path = Path(model_file)
-    if not path.is_file():
-        raise ModelError(f"{path}: model file not found")
-    return mujoco.MjSpec.from_file(str(path))
+    return load_spec(model_file)
 
 
 def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]:
-    xml = spec.to_xml()
+    # Compiled from the edited spec itself, never through `to_xml()`: the XML round trip is not
+    # exact (a quaternion from `fromto` came back 6e-17 apart) and its text depends on what the
+    # process did before (`physics.compiled_sha256`).
     try:
-        # Compiled from the recorded XML itself, so the hash names exactly what runs; in the
-        # model's own folder, so its meshes, textures and height fields resolve as they do
-        # for the committed model.
-        recorded = mujoco.MjSpec.from_string(xml)
-        recorded.modelfiledir = spec.modelfiledir
-        model = recorded.compile()
+        model = spec.compile()
     except ValueError as err:
         text = str(err).strip().replace(str(Path.cwd().resolve()) + "/", "")
         first = text.splitlines()[0] if text else "compile error"
         raise ModelError(f"{source}: MuJoCo could not compile the model: {first}") from None
-    return model, hashlib.sha256(xml.encode()).hexdigest()
+    return model, compiled_sha256(model)
 
 
 def check_overrides(
@@ -163,19 +163,46 @@ def check_overrides(
 
 
 def variant_model(
-    model_file: Path | str, overrides: Mapping[str, Any], *, key_prefix: str = "overrides"
+    model_file: Path | str,
+    overrides: Mapping[str, Any],
+    *,
+    key_prefix: str = "overrides",
+    then: Sequence[tuple[Mapping[str, Any], str]] = (),
 ) -> tuple[mujoco.MjModel, str]:
-    """The model of `model_file` with `overrides` applied, and the sha256 of its XML.
+    """The model of `model_file` with `overrides` applied, and its sha256.
 
-    Returns the compiled model and the hex sha256 of
-    `MjSpec.to_xml()` after the edits; with no overrides this is the nominal model, identical
-    to `mujoco.MjModel.from_xml_path(model_file)`, and its hash (`nominal_model_hash`).
+    `then` are further edits, each with its key prefix, applied after `overrides` in order: a
+    variant's, then a condition's own (`conditions.<name>.model`). Returns the compiled model
+    and its hex sha256 (`physics.compiled_sha256`); with no edits this is the nominal model,
+    identical to `physics.load_model(model_file)`, and its hash (`nominal_model_hash`).
     """
     spec = _spec(model_file)
     apply_overrides(spec, overrides, key_prefix=key_prefix)
+    for edits, prefix in then:
+        apply_overrides(spec, edits, key_prefix=prefix)
     return _compiled(spec, source=f"{model_file} ({key_prefix})")
 
 
 def nominal_model_hash(model_file: Path | str) -> str:
-    """The sha256 of the unedited model's `MjSpec.to_xml()`, hashed as the variants' are."""
+    """The sha256 of the unedited compiled model, hashed as the variants' are."""
     return variant_model(model_file, {})[1]
+
+
+def describe_edits(edits: Mapping[str, Any]) -> str:
+    """Edits in a line of the report: `joint hinge frictionloss 0.2; option timestep 0.001`."""
+    parts = []
+    for kind, entries in edits.items():
+        if kind == "option":
+            parts += [f"option {name} {_shown(v)}" for name, v in entries.items()]
+            continue
+        for element, attributes in entries.items():
+            parts += [f"{kind} {element} {name} {_shown(v)}" for name, v in attributes.items()]
+    return "; ".join(parts)
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, Sequence):
+        return " ".join(f"{v:g}" for v in value)
+    return f"{value:g}"
