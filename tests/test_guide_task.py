@@ -1,5 +1,5 @@
-"""The README's "Bring your own experiment" section, run as written: the scaffold, the files the
-section gives (each fenced block after a `<!-- readme-task: PATH -->` marker), the config keys it
+"""The user guide's "Writing a task" example, run as written: the scaffold, the files the page
+gives (each fenced block after a `<!-- guide-task: PATH -->` marker), the config keys it
 replaces, then the pipeline, the studies and verify, on 24 states instead of 200 for time."""
 
 from __future__ import annotations
@@ -15,15 +15,16 @@ from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
 from mjtrial.cli import main
 
 CONFIG = "config/pendulum_hold.yaml"
-BLOCK = re.compile(r"<!-- readme-task: (\S+) -->\n```\w*\n(.*?)\n```", re.DOTALL)
+GUIDE = REPO_ROOT / "docs" / "guide" / "task.md"
+BLOCK = re.compile(r"<!-- guide-task: (\S+) -->\n```\w*\n(.*?)\n```", re.DOTALL)
 
 
-def readme_blocks() -> dict[str, str]:
-    return dict(BLOCK.findall((REPO_ROOT / "README.md").read_text(encoding="utf-8")))
+def guide_blocks() -> dict[str, str]:
+    return dict(BLOCK.findall(GUIDE.read_text(encoding="utf-8")))
 
 
-def test_the_readme_gives_the_model_the_task_and_the_config():
-    assert list(readme_blocks()) == [
+def test_the_guide_gives_the_model_the_task_and_the_config():
+    assert list(guide_blocks()) == [
         "tasks/pendulum_hold/model.xml",
         "tasks/pendulum_hold/task.py",
         CONFIG,
@@ -32,12 +33,12 @@ def test_the_readme_gives_the_model_the_task_and_the_config():
 
 @pytest.fixture(scope="module")
 def pendulum(tmp_path_factory) -> Path:
-    workdir = tmp_path_factory.mktemp("readme_task")
+    workdir = tmp_path_factory.mktemp("guide_task")
     for name in WORKFLOW_FILES:
         src = REPO_ROOT / name
         (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
     assert main(["new-task", "pendulum_hold", "--repo-root", str(workdir)]) == 0
-    blocks = readme_blocks()
+    blocks = guide_blocks()
     for path in ("tasks/pendulum_hold/model.xml", "tasks/pendulum_hold/task.py"):
         (workdir / path).write_text(blocks[path] + "\n")
     config = yaml.safe_load((workdir / CONFIG).read_text())
@@ -51,7 +52,7 @@ def pendulum(tmp_path_factory) -> Path:
     return workdir
 
 
-def test_the_readme_task_runs_its_studies_and_verifies(pendulum):
+def test_the_guide_task_runs_its_studies_and_verifies(pendulum):
     from mjtrial.verify import verify_results
 
     results = pendulum / "results" / "pendulum_hold"
