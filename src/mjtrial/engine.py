@@ -126,8 +126,8 @@ def iter_batches(
     else:
         assert isinstance(controller, ClosedLoop)
         timing = call(task, "timing", controller.timing, model, params)
-        observe = bound.observer(controller.observations)
         policy = call(task, "policy", controller.policy, model, params)
+    episode_values = [p.name for p in task.state_parameters]
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
     with rollout.Rollout(nthread=nthread) as runner:
         for start in range(0, n, batch_size):
@@ -148,6 +148,9 @@ def iter_batches(
                     if controller.pushes
                     else None
                 )
+                observe = bound.observer(
+                    controller.observations, {p: rows[p] for p in episode_values}
+                )
                 result = closed_loop.run_batch(
                     models,
                     initial_states,
@@ -162,7 +165,15 @@ def iter_batches(
                 applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
             stopped, broken = halted(physics), nonfinite(physics)
             ok = ~stopped & ~broken
-            episodes = Episodes(model, params, physics, sensordata, ok, applied)
+            episodes = Episodes(
+                model,
+                params,
+                physics,
+                sensordata,
+                ok,
+                applied,
+                {p: rows[p] for p in episode_values},
+            )
             measures = dict(call(task, "measure", task.measure, episodes))
             missing = [m.name for m in task.own_measures if m.name not in measures]
             if missing:
@@ -184,7 +195,10 @@ def iter_batches(
                             models[i],
                             initial_states[i],
                             policy,
-                            observe,
+                            bound.observer(
+                                controller.observations,
+                                {p: rows[p][i : i + 1] for p in episode_values},
+                            ),
                             timing,
                             pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
                         ).warnings

@@ -50,7 +50,15 @@ class BoundTask:
                 appliers.append(p.apply.bind(model))
             except TaskError as err:
                 raise TaskError(f"{where}: state parameter {p.name!r}: {err}") from None
+        parameters = [p.name for p in task.state_parameters]
         for o in task.observations:
+            if o.parameter is not None:
+                if o.parameter not in parameters:
+                    raise TaskError(
+                        f"{where}: observation {o.name!r}: expected one of the state "
+                        f"parameters {parameters}, got {o.parameter!r}"
+                    )
+                continue
             try:
                 observe[o.name] = o.read(model)
             except TaskError as err:
@@ -91,7 +99,21 @@ class BoundTask:
         mujoco.mj_getState(model, scratch, state, FULLPHYSICS)
         return model, state
 
-    def observer(self, names: tuple[str, ...]) -> Callable[[np.ndarray], np.ndarray]:
-        """The observations `names`, side by side: (n, nstate) -> (n, total size)."""
-        reads = [self.observe[n] for n in names]
+    def observer(
+        self, names: tuple[str, ...], values: Mapping[str, np.ndarray] | None = None
+    ) -> Callable[[np.ndarray], np.ndarray]:
+        """The observations `names`, side by side: (n, nstate) -> (n, total size).
+
+        `values` are the batch's state parameter values, state parameter -> (n,), in the
+        batch's row order: what an episode-value observation reads."""
+        declared = {o.name: o for o in self.task.observations}
+
+        def read(name: str) -> Callable[[np.ndarray], np.ndarray]:
+            parameter = declared[name].parameter
+            if parameter is None:
+                return self.observe[name]
+            column = np.asarray((values or {})[parameter], dtype=np.float64)[:, None]
+            return lambda states: column
+
+        reads = [read(n) for n in names]
         return lambda states: np.concatenate([r(states) for r in reads], axis=1)

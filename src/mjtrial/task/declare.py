@@ -6,7 +6,7 @@ raises.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,65 @@ class JointVelocity:
 
 
 @dataclass(frozen=True)
+class ModelValue:
+    """Sets one number of an element of the episode's model, by MuJoCo's named accessor:
+    `ModelValue("geom", "target", "pos", 0)` sets `model.geom("target").pos[0]` (a goal's x).
+    `kind` is an `MjModel` accessor (`body`, `geom`, `site`, `joint`, `actuator`, `tendon`,
+    `eq`, `sensor`, ...), `attribute` that element's field without its prefix (`pos`, `size`,
+    `friction`, `damping`, `gear`), `index` the number within it. Applied before constants
+    are recomputed, like every model parameter."""
+
+    kind: str
+    name: str
+    attribute: str
+    index: int = 0
+    stage = "model"
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        what = f"{self.kind} {self.name!r}"
+        try:
+            element = getattr(model, self.kind)(self.name)
+        except (AttributeError, TypeError):
+            raise TaskError(f"expected an MjModel element kind, got {self.kind!r}") from None
+        except KeyError:
+            raise TaskError(f"expected a {self.kind} named {self.name!r} in the model") from None
+        field_ = np.atleast_1d(getattr(element, self.attribute, None))
+        if field_.dtype.kind != "f" or not 0 <= self.index < field_.size:
+            raise TaskError(
+                f"{what}: expected a numeric field {self.attribute!r} with an "
+                f"index {self.index} (it has {field_.size} numbers)"
+            )
+        kind, name, attribute, index = self.kind, self.name, self.attribute, self.index
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            getattr(getattr(m, kind)(name), attribute)[index] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class MocapPosition:
+    """Sets a mocap body's position along one axis (0, 1, 2: x, y, z) in the reset data."""
+
+    body: str
+    axis: int
+    stage = "initial"
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        mocap = model.body_mocapid[_element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)]
+        if mocap < 0:
+            raise TaskError(f"expected body {self.body!r} to be a mocap body")
+        if self.axis not in (0, 1, 2):
+            raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
+        axis = self.axis
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            d.mocap_pos[mocap, axis] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
 class Custom:
     """A function of the task's own: `fn(model, data, value)`, applied to the episode's model
     (`stage="model"`, before constants are recomputed) or to its reset data (`"initial"`)."""
@@ -129,7 +188,9 @@ class StateParameter:
     unit: str
     low: float
     high: float
-    apply: BodyMass | JointPosition | JointVelocity | Custom | Disturbance
+    apply: (
+        BodyMass | JointPosition | JointVelocity | ModelValue | MocapPosition | Custom | Disturbance
+    )
     description: str = ""
     nominal: float | None = None  # the careless evaluation's single state (default: mid-range)
 
@@ -182,14 +243,24 @@ def _plain(value: float) -> float | int:
 @dataclass(frozen=True)
 class Observation:
     """A quantity the controller may read: `read(model)` gives a function from a batch of
-    mjSTATE_FULLPHYSICS rows (n, nstate) to (n, size) values. `source` names the real sensor
-    it stands for (encoder, IMU, camera pose estimate); None marks it privileged: the
-    simulator knows it, a robot would not."""
+    mjSTATE_FULLPHYSICS rows (n, nstate) to (n, size) values, or `parameter` names a state
+    parameter whose per-episode value it is (`Observation.episode_value`). `source` names the
+    real sensor it stands for (encoder, IMU, camera pose estimate); None marks it privileged:
+    the simulator knows it, a robot would not."""
 
     name: str
     source: str | None
-    read: Callable[[mujoco.MjModel], Callable[[np.ndarray], np.ndarray]]
+    read: Callable[[mujoco.MjModel], Callable[[np.ndarray], np.ndarray]] | None
     size: int = 1
+    parameter: str | None = None  # a state parameter's per-episode value (`episode_value`)
+
+    @classmethod
+    def episode_value(cls, name: str, parameter: str, *, source: str | None) -> Observation:
+        """A state parameter's value in each episode, as the robot is given it: a goal drawn
+        per episode and applied to the model (a target's position) is invisible in the physics
+        state, so a goal-conditioned policy reads it here. `source` says how a real robot
+        would know it ("the goal it is commanded", "motion capture"); None: privileged."""
+        return cls(name, source, None, 1, parameter)
 
     @classmethod
     def joint_position(cls, name: str, joint: str, *, source: str | None) -> Observation:
@@ -327,6 +398,8 @@ class Episodes:
       healthy: (n,) False where a MuJoCo warning froze the episode or it went non-finite.
       ctrl: (n, n_steps, nu) the ctrl applied before each step (open loop: one sequence for
         every episode, broadcast).
+      values: state parameter -> (n,) each episode's value (a goal drawn per episode, applied
+        to the episode's own model, is read here: `model` is the condition's nominal one).
     """
 
     model: mujoco.MjModel
@@ -335,6 +408,7 @@ class Episodes:
     sensordata: np.ndarray
     healthy: np.ndarray
     ctrl: np.ndarray
+    values: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
