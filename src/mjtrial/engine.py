@@ -95,6 +95,12 @@ def episode_steps(bound: BoundTask, condition: Mapping[str, float]) -> int:
     return call(task, "timing", controller.timing, model, params).n_steps
 
 
+# A batch's episodes with model parameters each run on a copy of the model, textures included
+# (dm_control's skybox alone makes the reacher 11.8 MB): the copies of one batch stay under this.
+# Outcomes never depend on the batch, so this changes memory, not results.
+MODEL_COPIES_BYTES = 48 * 2**20
+
+
 def iter_batches(
     bound: BoundTask,
     values: Mapping[str, np.ndarray],
@@ -115,6 +121,12 @@ def iter_batches(
       batch_size: episodes per batch (memory is bounded by it).
     """
     task, model = bound.task, bound.model
+    if any(p.apply.stage == "model" for p in task.state_parameters):
+        # each episode runs on its own copy of the model, textures and all
+        batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
+    if any(p.apply.stage == "model" for p in task.state_parameters):
+        # each episode runs on its own copy of the model, textures and all
+        batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
     params = task.parameters(condition)
     n = len(next(iter(values.values())))
     scratch = mujoco.MjData(model)
