@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.crate.graph import crate_metadata
+from mjtrial.crate.graph import crate_metadata, entity_path
 from mjtrial.crate.record import RunRecord, input_records, read_record, time_problems
 from mjtrial.crate.sources import stage_scripts
 from mjtrial.crate.stamp import graph_entities, read_crate_stamp
@@ -51,12 +51,13 @@ def listed_sources(
     """The files of the copy of the sources as the crate lists them: path -> (sha256, size)."""
     listed = {}
     for identifier, entity in entities.items():
-        if identifier.startswith(prefix) and not identifier.endswith("/"):
+        path = entity_path(identifier)
+        if path.startswith(prefix) and not path.endswith("/"):
             try:
                 size = int(entity.get("contentSize"))
             except (TypeError, ValueError):
                 size = -1
-            listed[identifier.removeprefix(prefix)] = (entity.get("sha256"), size)
+            listed[path.removeprefix(prefix)] = (entity.get("sha256"), size)
     return dict(sorted(listed.items()))
 
 
