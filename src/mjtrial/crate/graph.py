@@ -547,7 +547,12 @@ class _Builder:
         root["datePublished"] = (
             rec.times.get("crate", (None, None))[1] or rec.crate_stamp["created_utc"]
         )
-        license_ = (rec.crate_stamp.get("config_slice") or {}).get("license")
+        described = rec.crate_stamp.get("config_slice") or {}
+        if described.get("authors"):
+            root["author"] = [self.author(a) for a in described["authors"]]
+        if described.get("keywords"):
+            root["keywords"] = list(described["keywords"])
+        license_ = described.get("license")
         if license_ is None:
             root["license"] = _UNLICENSED
         else:
@@ -566,6 +571,15 @@ class _Builder:
                 identifier, {"@type": ["CreativeWork", "Profile"], "name": name, "version": version}
             )
         root["conformsTo"] = [self.ref(i) for i in PROFILES]
+
+    def author(self, author: Mapping[str, str]) -> dict[str, str]:
+        """A `Person` of the config's `provenance.authors`: its ORCID iD as its @id if given."""
+        identifier = author.get("orcid") or "#author/" + quote(author["name"], safe="")
+        properties = {"@type": "Person", "name": author["name"]}
+        if author.get("affiliation"):
+            properties["affiliation"] = author["affiliation"]
+        self.entity(identifier, properties)
+        return self.ref(identifier)
 
     def build(self) -> dict[str, Any]:
         self.actions: list[Any] = []
