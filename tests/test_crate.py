@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import json
+import re
 import shutil
 import socket
 import subprocess
@@ -518,3 +519,70 @@ def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_validates_and_z
         resimulate=0,
     )
     assert report.ok, report.format()
+
+
+AUTHORS = [
+    {
+        "name": "Ada Lovelace",
+        "orcid": "https://orcid.org/0000-0002-1825-0097",
+        "affiliation": "Analytical Engine Lab",
+    },
+    {"name": "Émilie du Châtelet"},
+]
+
+
+def test_a_hand_added_author_is_tampered_and_says_where_to_set_it(work, capsys):
+    crate = work / LAYOUT.crate
+    document = json.loads(crate.read_text())
+    for entity in document["@graph"]:
+        if entity["@id"] == "./":
+            entity["author"] = {"@id": "#ada"}
+    document["@graph"].append({"@id": "#ada", "@type": "Person", "name": "Ada Lovelace"})
+    crate.write_text(json.dumps(document, indent=2))
+    report = verify(work)
+    assert report[CRATE].status is Status.TAMPERED
+    assert [o.path for o in report.outputs if o.status is not Status.OK] == [CRATE]
+    how = "provenance.authors and provenance.keywords in the config: set them there"
+    assert how in report[CRATE].reasons[0]
+    out = work / "run.zip"
+    args = ["crate", str(work / LAYOUT.root), "--zip", str(out), "--repo-root", str(work)]
+    assert cli.main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and how in err[0] and not out.exists(), err
+
+
+def test_the_authors_and_keywords_the_config_gives_are_in_the_crate_and_rerun_it_alone(
+    work, tmp_path
+):
+    from conftest import edit_config, run_snakemake
+
+    before = {p: sha256(work / p) for p in [LAYOUT.manifest, LAYOUT.report, LAYOUT.seal]}
+
+    def described(config):
+        config["provenance"]["authors"] = AUTHORS
+        config["provenance"]["keywords"] = ["MuJoCo", "grasping"]
+
+    edit_config(work, described)
+    proc = run_snakemake(work)
+    out = proc.stdout + proc.stderr
+    jobs = [m.group(2) for m in re.finditer(r"^(local)?rule (\w+):", out, re.MULTILINE)]
+    assert jobs == ["crate", "all"], out  # its own job: no result reruns for an author
+    assert {p: sha256(work / p) for p in before} == before
+    entities = graph(work / LAYOUT.crate)
+    root = entities["./"]
+    assert root["author"] == [
+        {"@id": "https://orcid.org/0000-0002-1825-0097"},
+        {"@id": "#author/%C3%89milie%20du%20Ch%C3%A2telet"},
+    ]
+    assert entities["https://orcid.org/0000-0002-1825-0097"] == {
+        "@id": "https://orcid.org/0000-0002-1825-0097",
+        "@type": "Person",
+        "name": "Ada Lovelace",
+        "affiliation": "Analytical Engine Lab",
+    }
+    assert entities["#author/%C3%89milie%20du%20Ch%C3%A2telet"]["name"] == "Émilie du Châtelet"
+    assert root["keywords"] == ["MuJoCo", "grasping"]
+    report = verify(work)
+    assert report.ok, report.format()
+    findings = validation.validate(work / LAYOUT.root, cache_path=tmp_path / "cache" / "http")
+    assert findings == [], "\n".join(f.line() for f in findings)
