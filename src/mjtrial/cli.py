@@ -307,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser(
         "crate",
         help="check a results folder's RO-Crate (ro-crate-metadata.json) against the folder; "
-        "--zip packs the folder, its crate and its sources into one archive",
+        "--zip packs the run's files (what the crate lists) and its sources into one archive",
     )
     p.add_argument("results_dir", nargs="?", help="results folder (default: results/<experiment>)")
     p.add_argument("--zip", metavar="OUT.zip", help="write the archive here")
