@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import json
+import re
 import shutil
 import socket
 import subprocess
@@ -440,3 +441,149 @@ def test_a_model_or_task_outside_the_usual_folders_is_copied_and_nothing_outside
     files = source_files(tmp_path / "lab" / "..", read)
     assert files["lab/arm/arm.xml"] == tmp_path / "lab" / ".." / "lab/arm/arm.xml"
     assert not [k for k in files if "secret" in k or "missing" in k]
+
+
+# A task folder whose name has a space and a non-ASCII letter; its ids in a crate, encoded
+# once by hand: " " is %20 and "ü" (UTF-8 C3 BC) is %C3%BC.
+ODD_FOLDER = "tasks/odd ü"
+ODD_ID = "tasks/odd%20%C3%BC"
+ODD = Layout.of("odd")
+
+
+@pytest.fixture(scope="module")
+def odd_names(built, tmp_path_factory) -> Path:
+    """A copy of the built experiment with a second one whose task (`mjtrial new-task`'s)
+    lives in `tasks/odd ü/`, built small; then the first experiment's crate rebuilt, its copy
+    of the sources holding the new folder too."""
+    import yaml
+    from conftest import run_snakemake
+
+    work = tmp_path_factory.mktemp("names") / "experiment"
+    shutil.copytree(built, work, symlinks=True)
+    assert cli.main(["new-task", "odd", "--repo-root", str(work)]) == 0
+    (work / "tasks" / "odd").rename(work / ODD_FOLDER)
+    path = work / "config" / "odd.yaml"
+    config = yaml.safe_load(path.read_text())
+    config.update(model=f"{ODD_FOLDER}/model.xml", task=f"{ODD_FOLDER}/task.py")
+    config["states"]["n"] = 10
+    config["rollout"]["shard_size"] = 10
+    config["analysis"]["n_resamples"] = 200
+    config["recording"]["episodes"] = "none"  # the names are the task folder's: time saved
+    path.write_text(yaml.safe_dump(config, sort_keys=False, allow_unicode=True))
+    run_snakemake(work, "--configfile", "config/odd.yaml")
+    run_snakemake(work, "-R", "crate")
+    return work
+
+
+def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_verifies(odd_names):
+    entities = graph(odd_names / ODD.crate)
+    assert f"source/{ODD_ID}/task.py" in entities and f"source/{ODD_ID}/model.xml" in entities
+    assert not [i for i in entities if "%25" in i or " " in i or "ü" in i]  # encoded once
+    job = entities["#job/rollout:firm/shard-00000"]
+    assert {"@id": f"source/{ODD_ID}/task.py"} in job["object"]
+    report = verify_results(
+        odd_names / ODD.root,
+        config_path=odd_names / "config" / "odd.yaml",
+        repo_root=odd_names,
+        resimulate=0,
+    )
+    assert report.ok, report.format()
+    # The other experiment, whose crate was rebuilt with the folder in its copy of the sources.
+    assert f"source/{ODD_ID}/task.py" in graph(odd_names / LAYOUT.crate)
+    report = verify(odd_names)
+    assert report.ok, report.format()
+
+
+def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_validates_and_zips(
+    odd_names, tmp_path, capsys
+):
+    import zipfile
+
+    from rocrate.rocrate import ROCrate
+
+    results = odd_names / ODD.root
+    args = ["crate", str(results), "--repo-root", str(odd_names)]
+    assert cli.main([*args, "--validate"]) == 0, capsys.readouterr()
+    assert "validator: 0 REQUIRED issues" in capsys.readouterr().out
+    archive = tmp_path / "odd.zip"
+    assert cli.main([*args, "--zip", str(archive)]) == 0, capsys.readouterr().err
+    with zipfile.ZipFile(archive) as z:
+        assert f"{ODD_FOLDER}/task.py" in z.namelist()
+        z.extractall(tmp_path / "elsewhere")
+    crate = ROCrate(archive)  # ro-crate-py finds the task by its id
+    assert crate.get(f"{ODD_ID}/task.py").type == "File"
+    there = tmp_path / "elsewhere"
+    report = verify_results(
+        there / ODD.root,
+        config_path=there / "config" / "odd.yaml",
+        repo_root=there,
+        resimulate=0,
+    )
+    assert report.ok, report.format()
+
+
+AUTHORS = [
+    {
+        "name": "Ada Lovelace",
+        "orcid": "https://orcid.org/0000-0002-1825-0097",
+        "affiliation": "Analytical Engine Lab",
+    },
+    {"name": "Émilie du Châtelet"},
+]
+
+
+def test_a_hand_added_author_is_tampered_and_says_where_to_set_it(work, capsys):
+    crate = work / LAYOUT.crate
+    document = json.loads(crate.read_text())
+    for entity in document["@graph"]:
+        if entity["@id"] == "./":
+            entity["author"] = {"@id": "#ada"}
+    document["@graph"].append({"@id": "#ada", "@type": "Person", "name": "Ada Lovelace"})
+    crate.write_text(json.dumps(document, indent=2))
+    report = verify(work)
+    assert report[CRATE].status is Status.TAMPERED
+    assert [o.path for o in report.outputs if o.status is not Status.OK] == [CRATE]
+    how = "provenance.authors and provenance.keywords in the config: set them there"
+    assert how in report[CRATE].reasons[0]
+    out = work / "run.zip"
+    args = ["crate", str(work / LAYOUT.root), "--zip", str(out), "--repo-root", str(work)]
+    assert cli.main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and how in err[0] and not out.exists(), err
+
+
+def test_the_authors_and_keywords_the_config_gives_are_in_the_crate_and_rerun_it_alone(
+    work, tmp_path
+):
+    from conftest import edit_config, run_snakemake
+
+    before = {p: sha256(work / p) for p in [LAYOUT.manifest, LAYOUT.report, LAYOUT.seal]}
+
+    def described(config):
+        config["provenance"]["authors"] = AUTHORS
+        config["provenance"]["keywords"] = ["MuJoCo", "grasping"]
+
+    edit_config(work, described)
+    proc = run_snakemake(work)
+    out = proc.stdout + proc.stderr
+    jobs = [m.group(2) for m in re.finditer(r"^(local)?rule (\w+):", out, re.MULTILINE)]
+    assert jobs == ["crate", "all"], out  # its own job: no result reruns for an author
+    assert {p: sha256(work / p) for p in before} == before
+    entities = graph(work / LAYOUT.crate)
+    root = entities["./"]
+    assert root["author"] == [
+        {"@id": "https://orcid.org/0000-0002-1825-0097"},
+        {"@id": "#author/%C3%89milie%20du%20Ch%C3%A2telet"},
+    ]
+    assert entities["https://orcid.org/0000-0002-1825-0097"] == {
+        "@id": "https://orcid.org/0000-0002-1825-0097",
+        "@type": "Person",
+        "name": "Ada Lovelace",
+        "affiliation": "Analytical Engine Lab",
+    }
+    assert entities["#author/%C3%89milie%20du%20Ch%C3%A2telet"]["name"] == "Émilie du Châtelet"
+    assert root["keywords"] == ["MuJoCo", "grasping"]
+    report = verify(work)
+    assert report.ok, report.format()
+    findings = validation.validate(work / LAYOUT.root, cache_path=tmp_path / "cache" / "http")
+    assert findings == [], "\n".join(f.line() for f in findings)

@@ -40,11 +40,16 @@ def test_the_archive_holds_the_results_their_crate_and_the_sources(built, archiv
     for source in ("Snakefile", "pyproject.toml", "README.md", "src/mjtrial/cli.py"):
         assert source in names
     assert "workflow/rules/crate.smk" in names and "tasks/gantry_lift/task.py" in names
-    results = built / LAYOUT.root
-    for file in results.rglob("*"):
-        rel = file.relative_to(built).as_posix()
-        if file.is_file() and not any(p.startswith(".") for p in file.relative_to(results).parts):
-            assert rel in names, rel
+    sealed = json.loads((built / LAYOUT.seal).read_text())["outputs"]
+    run = [built / p for p in sealed] + [built / LAYOUT.seal, built / LAYOUT.crate]
+    run += [p for p in (built / LAYOUT.source).rglob("*") if p.is_file()]
+    for file in run:
+        files = [q for q in file.rglob("*") if q.is_file()] if file.is_dir() else [file]
+        for f in files:
+            assert f.relative_to(built).as_posix() in names, f
+    # The jobs' logs are not the run's results (no seal lists them): left out.
+    assert list((built / LAYOUT.logs_dir).glob("*.log"))
+    assert not [n for n in names if n.startswith(f"{LAYOUT.logs_dir.as_posix()}/")]
     entities = {e["@id"]: e for e in top["@graph"]}
     assert entities["./"]["mainEntity"] == {"@id": "Snakefile"}
     assert (
@@ -137,3 +142,57 @@ def test_a_folder_that_does_not_match_its_crate_is_not_archived(built, tmp_path,
     assert cli.main(args) == 1
     err = capsys.readouterr().err.strip()
     assert err.endswith("no crate; `snakemake -c2` (or a study's target) writes it"), err
+
+
+def test_the_archive_holds_only_the_runs_files_each_as_its_seal_records(built, tmp_path, capsys):
+    """A file no job wrote is left out, and named; a symbolic link leaving the repository, a
+    sealed output replaced by one, and a file slipped into a sealed folder are refused."""
+    work = tmp_path / "experiment"
+    shutil.copytree(built, work, symlinks=True)
+    results = work / LAYOUT.root
+    out = tmp_path / "run.zip"
+    args = ["crate", str(results), "--repo-root", str(work)]
+    (results / "analysis" / "extra_claims.json").write_text('{"success_rate": 1.0}\n')
+    outside = tmp_path / "hostname"
+    outside.write_text("a file outside the repository\n")
+    (results / "figures" / "zz.png").symlink_to(outside)
+    for argv in (args, [*args, "--zip", str(out)]):
+        assert cli.main(argv) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "figures/zz.png: a symbolic link to" in err[0], err
+        assert "outside" in err[0] and not out.exists()
+    (results / "figures" / "zz.png").unlink()
+
+    assert cli.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "not the run's (--zip leaves them out):" in printed
+    assert "a file no seal lists (analysis/extra_claims.json)" in printed
+    assert cli.main([*args, "--zip", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "left out of it:" in printed and "analysis/extra_claims.json" in printed
+    with zipfile.ZipFile(out) as z:
+        names = z.namelist()
+    assert f"{LAYOUT.summary.as_posix()}" in names
+    assert not [n for n in names if "extra_claims" in n or "zz.png" in n]
+    out.unlink()
+
+    # A sealed output swapped for a link to a copy outside the repository: its bytes are the
+    # seal's, but it is not the run's file.
+    states = work / LAYOUT.states
+    copy = tmp_path / "states.parquet"
+    shutil.copy2(states, copy)
+    states.unlink()
+    states.symlink_to(copy)
+    assert cli.main([*args, "--zip", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "states.parquet: a symbolic link to" in err[0], err
+    states.unlink()
+    shutil.copy2(copy, states)
+
+    # A file slipped into a sealed folder output: the folder is not what its seal records.
+    shard = work / LAYOUT.shard_recordings("fast", "00000")
+    (shard / "forged.rrd").write_bytes(b"not an episode")
+    assert cli.main([*args, "--zip", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "shard-00000: not the file the crate lists" in err[0], err
+    assert not out.exists() and not list(tmp_path.glob(".run.zip.tmp-*"))

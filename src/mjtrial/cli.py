@@ -179,7 +179,13 @@ def _crate(args: argparse.Namespace) -> int:
     # Imported here: the crate reads stamps (rerun-sdk) and uses the rocrate library, which
     # `mjtrial plan` need not load.
     from mjtrial.config import ConfigError, read_config_file
-    from mjtrial.crate.archive import ArchiveError, check_crate, write_archive
+    from mjtrial.crate.archive import (
+        ArchiveError,
+        check_crate,
+        folder_members,
+        left_out_summary,
+        write_archive,
+    )
 
     repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
     foreign = foreign_package(repo_root)
@@ -203,10 +209,17 @@ def _crate(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
             return 1
-        print(f"crate ok: {layout.crate} describes the folder as it is")
+        members = folder_members(layout, repo_root=repo_root)
+        described = len(members.packed)
+        print(f"crate ok: {layout.crate} describes the run's {described} files as they are")
+        others = left_out_summary(layout, members.left_out)
         if args.zip:
             archive = write_archive(results_dir, Path(args.zip), repo_root=repo_root)
             print(f"wrote {archive.path}: {archive.files} files, {archive.bytes / 1e6:.1f} MB")
+            if others:
+                print(f"left out of it: {others}; it holds what the crate describes")
+        elif others:
+            print(f"not the run's (--zip leaves them out): {others}")
         if args.validate:
             from mjtrial.crate.validation import validate  # the validator: a test dependency
 
@@ -317,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser(
         "crate",
         help="check a results folder's RO-Crate (ro-crate-metadata.json) against the folder; "
-        "--zip packs the folder, its crate and its sources into one archive",
+        "--zip packs the run's files (what the crate lists) and its sources into one archive",
     )
     p.add_argument("results_dir", nargs="?", help="results folder (default: results/<experiment>)")
     p.add_argument("--zip", metavar="OUT.zip", help="write the archive here")

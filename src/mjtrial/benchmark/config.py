@@ -27,6 +27,7 @@ from mjtrial.config import (
     check_config,
     read_config_file,
 )
+from mjtrial.crate.description import crate_description
 from mjtrial.layout import shard_ids, shard_range
 from mjtrial.task import Task, TaskError, load_task
 
@@ -228,9 +229,10 @@ def evaluate_slice(tasks: Mapping[str, BenchmarkTask], task: str) -> dict[str, A
 
 def crate_slice(config: Mapping[str, Any], *, command: str, config_file: str) -> dict[str, Any]:
     """What a benchmark's crate says of the run beyond its files (an experiment's crate reads
-    it from the manifest): the question, the config file and the command that rebuilds it."""
+    it from the manifest): the question, the config file and the command that rebuilds it;
+    the license, authors and keywords as an experiment's (`crate_description`)."""
     return {
-        "license": None,
+        **crate_description(config),
         "design": {"question": config["benchmark"]["question"]},
         "rerun": {"command": command, "config_file": config_file},
     }

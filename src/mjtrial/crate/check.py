@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.crate.graph import crate_metadata
+from mjtrial.crate.description import DESCRIPTIVE, HOW_TO_SET
+from mjtrial.crate.graph import crate_metadata, entity_path
 from mjtrial.crate.record import RunRecord, input_records, read_record, time_problems
 from mjtrial.crate.sources import stage_scripts
 from mjtrial.crate.stamp import graph_entities, read_crate_stamp
@@ -51,12 +52,13 @@ def listed_sources(
     """The files of the copy of the sources as the crate lists them: path -> (sha256, size)."""
     listed = {}
     for identifier, entity in entities.items():
-        if identifier.startswith(prefix) and not identifier.endswith("/"):
+        path = entity_path(identifier)
+        if path.startswith(prefix) and not path.endswith("/"):
             try:
                 size = int(entity.get("contentSize"))
             except (TypeError, ValueError):
                 size = -1
-            listed[identifier.removeprefix(prefix)] = (entity.get("sha256"), size)
+            listed[path.removeprefix(prefix)] = (entity.get("sha256"), size)
     return dict(sorted(listed.items()))
 
 
@@ -146,11 +148,25 @@ def crate_differences(
     reasons = []
     if have.get("@context") != want["@context"]:
         reasons.append("its @context differs")
-    reasons += _entity_differences(entities, {e["@id"]: e for e in want["@graph"]})
+    wanted = {e["@id"]: e for e in want["@graph"]}
+    reasons += _entity_differences(entities, wanted)
+    if _described_by_hand(entities, wanted):
+        reasons.insert(0, f"edited by hand ({HOW_TO_SET})")
     reasons += time_problems(record)
     if reasons:
         differs[rel[crate]] = _more(reasons) + " (file -> recomputed)"
     return differs
+
+
+def _described_by_hand(
+    have: Mapping[str, Mapping[str, Any]], want: Mapping[str, Mapping[str, Any]]
+) -> bool:
+    """Whether the crate's license, authors or keywords (or a person) are not the config's."""
+    root, wanted = have.get("./") or {}, want.get("./") or {}
+    if any(root.get(key) != wanted.get(key) for key in DESCRIPTIVE):
+        return True
+    people = [i for i in have.keys() | want.keys() if have.get(i) != want.get(i)]
+    return any("Person" in str((have.get(i) or want.get(i) or {}).get("@type")) for i in people)
 
 
 def _listed_digest(entities: Mapping[str, Mapping[str, Any]], record: RunRecord) -> str:

@@ -30,7 +30,7 @@ import json
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
-from urllib.parse import quote
+from urllib.parse import quote, unquote
 
 from rocrate.model import ContextEntity
 from rocrate.rocrate import ROCrate
@@ -102,10 +102,23 @@ _UNLICENSED = (
 )
 
 
+def entity_id(path: str) -> str:
+    """A data entity's @id from its path relative to the crate's root: percent-encoded once
+    (RO-Crate 1.1: an @id is a URI reference), as ro-crate-py encodes the `dest_path` it is
+    given (`quote`, "/" kept). `entity_path` reads it back."""
+    return quote(path)
+
+
+def entity_path(identifier: str) -> str:
+    """The path relative to the crate's root of a data entity's @id (`entity_id` undone)."""
+    return unquote(identifier)
+
+
 @dataclass(frozen=True)
 class Ids:
     """Where the crate's files are, relative to its root: the results folder's files under
-    `data` ("" in the folder's own crate), the copy of the sources under `source`."""
+    `data` ("" in the folder's own crate), the copy of the sources under `source`. Paths, not
+    yet percent-encoded: `entity_id` gives each one's @id."""
 
     results: str  # the results folder relative to the repository, as the seals name it
     data: str = ""
@@ -113,10 +126,10 @@ class Ids:
 
     def output(self, path: str, *, folder: bool = False) -> str:
         rel = path.removeprefix(self.results.rstrip("/") + "/")
-        return quote(self.data + rel + ("/" if folder else ""), safe="/:._-~")
+        return self.data + rel + ("/" if folder else "")
 
     def of_source(self, rel: str) -> str:
-        return quote(self.source + rel, safe="/:._-~")
+        return self.source + rel
 
 
 def _job_id(rule: str) -> str:
@@ -170,6 +183,20 @@ class _Builder:
     def ref(self, identifier: str) -> dict[str, str]:
         return {"@id": identifier}
 
+    def data_ref(self, path: str) -> dict[str, str]:
+        """A reference to the data entity of `path` (relative to the crate's root)."""
+        return self.ref(entity_id(path))
+
+    def add_data_entity(self, path: str, properties: dict[str, Any], *, folder: bool) -> Any:
+        """A File or Dataset at `path`, its @id percent-encoded once by ro-crate-py; the id
+        is checked to be the one `data_ref` gives (encoded twice, a name with a space or a
+        non-ASCII letter was an id no reference pointed at)."""
+        add = self.crate.add_dataset if folder else self.crate.add_file
+        entity = add(dest_path=path, properties=properties)
+        if entity.id != entity_id(path):
+            raise ValueError(f"{path}: ro-crate-py gave it the @id {entity.id!r}")
+        return entity
+
     def parameter(self, name: str, value: Any) -> dict[str, str]:
         digest = hashlib.sha256(json.dumps([name, value]).encode()).hexdigest()[:12]
         identifier = "#param/" + quote(name, safe="._-") + "/" + digest
@@ -184,7 +211,7 @@ class _Builder:
             )
             url = "https://www.python.org/"
         elif key == "mjtrial":
-            identifier, url = f"#mjtrial-{version}", self.ids.of_source("")
+            identifier, url = f"#mjtrial-{version}", entity_id(self.ids.of_source(""))
         else:
             identifier = f"https://pypi.org/project/{project}/{version}/"
             url = identifier
@@ -198,8 +225,9 @@ class _Builder:
         for path, out in rec.outputs.items():
             identifier = ids.output(path, folder=out.folder)
             if out.folder:
-                self.crate.add_dataset(
-                    dest_path=identifier,
+                self.add_data_entity(
+                    identifier,
+                    folder=True,
                     properties={
                         "name": path.rsplit("/", 1)[-1],
                         "description": (
@@ -218,17 +246,19 @@ class _Builder:
                 "contentSize": str(out.size),
                 "encodingFormat": encoding_format(path),
             }
-            self.crate.add_file(dest_path=identifier, properties=properties)
+            self.add_data_entity(identifier, properties, folder=False)
         if ids.data:  # the archive's crate: the folder's own crate and its copy are files of it
-            self.crate.add_file(
-                dest_path=ids.output(f"{rec.results}/{CRATE_FILE}"),
+            self.add_data_entity(
+                ids.output(f"{rec.results}/{CRATE_FILE}"),
+                folder=False,
                 properties={
                     "name": "The results folder's own crate",
                     "encodingFormat": "application/ld+json",
                 },
             )
-        self.crate.add_dataset(
-            dest_path=ids.output(f"{rec.results}/source", folder=True),
+        self.add_data_entity(
+            ids.output(f"{rec.results}/source", folder=True),
+            folder=True,
             properties={
                 "name": "source",
                 "description": (
@@ -243,8 +273,9 @@ class _Builder:
         for rel, (sha, size) in rec.sources.items():
             if rel == "Snakefile":
                 continue  # the workflow, added with its own types
-            self.crate.add_file(
-                dest_path=ids.of_source(rel),
+            self.add_data_entity(
+                ids.of_source(rel),
+                folder=False,
                 properties={
                     "name": rel,
                     "sha256": sha,
@@ -258,19 +289,18 @@ class _Builder:
         of the copy of the sources (the model, the task); None for anything else."""
         rec = self.record
         if path in rec.outputs:
-            return self.ref(self.ids.output(path, folder=rec.outputs[path].folder))
+            return self.data_ref(self.ids.output(path, folder=rec.outputs[path].folder))
         if path in rec.sources:
-            return self.ref(self.ids.of_source(path) if path != "Snakefile" else self.workflow_id)
+            return self.data_ref(self.ids.of_source(path))
         return None
 
     # -- the workflow, its tools and steps ----------------------------------------------------
     def add_workflow(self) -> None:
         rec = self.record
         versions = rec.crate_stamp.get("versions", {})
-        self.workflow_id = self.ids.of_source("Snakefile")
         sha, size = rec.sources["Snakefile"]
         self.workflow = self.crate.add_workflow(
-            dest_path=self.workflow_id,
+            dest_path=self.ids.of_source("Snakefile"),
             main=True,
             lang="snakemake",
             lang_version=versions.get("snakemake"),
@@ -289,7 +319,7 @@ class _Builder:
                 "sha256": sha,
                 "contentSize": str(size),
                 "encodingFormat": encoding_format("Snakefile"),
-                "url": self.ref(self.ids.of_source("")),
+                "url": self.data_ref(self.ids.of_source("")),
             },
         )
         stages = sorted(
@@ -331,7 +361,7 @@ class _Builder:
             "softwareRequirements": [self.library(k, v) for k, v in libraries],
         }
         if script in self.record.sources:
-            properties["url"] = self.ref(self.ids.of_source(script))
+            properties["url"] = self.data_ref(self.ids.of_source(script))
         self.entity(identifier, properties)
         return identifier
 
@@ -358,12 +388,12 @@ class _Builder:
                 objects.append(self.ref(STAMP_ID))
                 self.entity(STAMP_ID, stamp_entity(dict(stamp)))
                 results = [
-                    self.ref(
+                    self.data_ref(
                         self.ids.output(f"{self.record.results}/{CRATE_FILE}")
                         if self.ids.data
                         else CRATE_FILE
                     ),
-                    self.ref(self.ids.output(f"{self.record.results}/source", folder=True)),
+                    self.data_ref(self.ids.output(f"{self.record.results}/source", folder=True)),
                 ]
             else:
                 results = [self.input_ref(p) for p in self.jobs[rule]]
@@ -517,7 +547,12 @@ class _Builder:
         root["datePublished"] = (
             rec.times.get("crate", (None, None))[1] or rec.crate_stamp["created_utc"]
         )
-        license_ = (rec.crate_stamp.get("config_slice") or {}).get("license")
+        described = rec.crate_stamp.get("config_slice") or {}
+        if described.get("authors"):
+            root["author"] = [self.author(a) for a in described["authors"]]
+        if described.get("keywords"):
+            root["keywords"] = list(described["keywords"])
+        license_ = described.get("license")
         if license_ is None:
             root["license"] = _UNLICENSED
         else:
@@ -536,6 +571,15 @@ class _Builder:
                 identifier, {"@type": ["CreativeWork", "Profile"], "name": name, "version": version}
             )
         root["conformsTo"] = [self.ref(i) for i in PROFILES]
+
+    def author(self, author: Mapping[str, str]) -> dict[str, str]:
+        """A `Person` of the config's `provenance.authors`: its ORCID iD as its @id if given."""
+        identifier = author.get("orcid") or "#author/" + quote(author["name"], safe="")
+        properties = {"@type": "Person", "name": author["name"]}
+        if author.get("affiliation"):
+            properties["affiliation"] = author["affiliation"]
+        self.entity(identifier, properties)
+        return self.ref(identifier)
 
     def build(self) -> dict[str, Any]:
         self.actions: list[Any] = []

@@ -10,6 +10,7 @@ from typing import Any
 
 from mjtrial import REPO_ROOT, codehash, provenance
 from mjtrial.conditions import all_conditions
+from mjtrial.crate.description import crate_description
 from mjtrial.layout import STAGES
 from mjtrial.task import task_files
 
@@ -81,12 +82,18 @@ def _slice(
         return {"failures_max": config["recording"]["failures_max"]}
     if stage == "seal":
         return {}
-    if stage == "crate":  # the crate's license, if the config gives one
-        return {"license": config["provenance"].get("license")}
+    if stage == "crate":  # the crate's license, authors and keywords
+        return crate_description(config)
     if stage in ("manifest", "report"):
         # The whole design, but not the studies' (their own outputs record it): adding a
-        # variant never reruns the built-in experiment.
-        return {k: v for k, v in config.items() if k not in ("variants", "sweep")}
+        # variant never reruns the built-in experiment; nor the crate's authors and keywords
+        # (the crate records them): naming an author reruns the crate alone.
+        design = {k: v for k, v in config.items() if k not in ("variants", "sweep")}
+        if "provenance" in design:
+            design["provenance"] = {
+                k: v for k, v in design["provenance"].items() if k not in ("authors", "keywords")
+            }
+        return design
     raise ValueError(f"stage: expected one of {list(STAGES)}, got {stage!r}")
 
 
