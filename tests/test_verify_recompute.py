@@ -66,6 +66,20 @@ def test_a_fresh_build_recomputes_equal(built):
     )
 
 
+def test_the_command_prints_its_sample_seed_and_seed_draws_that_sample(built, monkeypatch, capsys):
+    from mjtrial import cli
+
+    monkeypatch.chdir(built)
+    assert cli.main(["verify", "--resimulate", "1"]) == 0
+    line = capsys.readouterr().out.splitlines()[-2]
+    seed = line.split("(sample seed ")[1].split(":")[0]
+    assert f"--seed {seed} draws it again" in line
+    assert cli.main(["verify", "--resimulate", "1", "--seed", "12"]) == 0
+    assert "re-simulated 6 episodes (sample seed 12: --seed 12 draws it again)" in (
+        capsys.readouterr().out
+    )
+
+
 def test_an_edited_report_with_its_seal_deleted_is_named(built, tmp_path):
     """Edit report.md, delete seal.json, rebuild: only the seal reran and sealed the edit."""
     workdir = copy_of(built, tmp_path)
