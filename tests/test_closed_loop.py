@@ -18,6 +18,7 @@ from mjtrial.closed_loop import (
     Pushes,
     Timing,
     check_batch_independence,
+    check_replayed,
     reference_episode,
     run_batch,
 )
@@ -226,3 +227,32 @@ def test_bad_controls_are_named(cartpole, bad, message):
             datas=[mujoco.MjData(cartpole)],
             pushes=pushes,
         )
+
+
+class _FirstRowNudged:
+    """Depends on a row's position: the first row of any batch gets 1e-9 N more."""
+
+    def reset(self, n_episodes):
+        pass
+
+    def __call__(self, observations):
+        controls = -observations[:, :1].copy()
+        controls[0] += 1e-9
+        return controls
+
+
+def test_replaying_a_batch_in_other_batches_names_a_row_that_moved():
+    """Issue 26 case 1: in the first other batch (rows 5, 4, 3), row 5 comes first."""
+    observations = np.random.default_rng(1).normal(size=(6, 3, 2))
+    policy = _FirstRowNudged()
+    controls = np.stack([policy(observations[:, k]) for k in range(3)], axis=1)
+    with pytest.raises(
+        PolicyError,
+        match=r"episode row 5 of a batch of 6 gets other controls at control instant 0 when its "
+        r"observations are replayed in a batch of 3 \(largest difference 1e-09\)",
+    ):
+        check_replayed(policy, observations, controls)
+    honest = _policy(NOMINAL)  # with memory: velocities by finite differences
+    honest.reset(6)
+    controls = np.stack([honest(observations[:, k]) for k in range(3)], axis=1)
+    check_replayed(honest, observations, controls)

@@ -321,3 +321,36 @@ def test_the_cartpole_task_passes_its_preflight(cartpole):
         {"zero": {"latency": 0.0}, "twenty": {"latency": 0.02}},
         thresholds=THRESHOLDS,
     )
+
+
+class _LargeBatchesDiffer:
+    """Issue 26 case 1's policy: the cart-pole's own, but 1 % more force in a batch of more
+    than 8 rows. The preflight (one row against a batch of 4) cannot see it."""
+
+    def __init__(self, policy):
+        self.policy = policy
+
+    def reset(self, n_episodes):
+        self.policy.reset(n_episodes)
+
+    def __call__(self, observations):
+        controls = self.policy(observations)
+        return controls * 1.01 if len(observations) > 8 else controls
+
+
+def test_a_policy_that_depends_on_its_batch_fails_the_rollout_in_one_line(cartpole):
+    own = cartpole.controller.policy
+    bound = _bad(
+        cartpole,
+        controller=replace(cartpole.controller, policy=lambda m, p: _LargeBatchesDiffer(own(m, p))),
+    )
+    condition = {"latency": 0.02, "duration": 1.5}
+    run_task_code(bound, {"twenty": condition}, thresholds=THRESHOLDS)  # the preflight passes
+    values = _values(cartpole, 10)
+    small = list(iter_batches(bound, values, condition, thresholds=THRESHOLDS, batch_size=5))
+    assert len(small) == 2  # batches of 5 (a shard_size of 5): what they give is what alone gives
+    with pytest.raises(TaskError) as err:  # one batch of 10 (a shard_size of 10)
+        list(iter_batches(bound, values, condition, thresholds=THRESHOLDS, batch_size=10))
+    message = str(err.value)
+    assert message.startswith(f"{cartpole.source}: policy: episode row 9 of a batch of 10 ")
+    assert "(rollout.shard_size)" in message and "\n" not in message

@@ -4,9 +4,12 @@ and re-simulating episodes. Each end-to-end test failed before the recomputation
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import json
 import shutil
 import time
+import zlib
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -52,13 +55,29 @@ def now_utc() -> str:
 
 
 def test_a_fresh_build_recomputes_equal(built):
-    report = verified(built, resimulate=5)
+    report = verified(built, resimulate=5, seed=7)
     assert report.ok, report.format()
     [line] = report.checks
     # states, 2 gathered tables, 2 nominal episodes, 6 shard tables, summary, manifest, report,
-    # the crate and its copy of the sources
-    assert line.startswith("recomputed 16 outputs from their inputs and re-simulated 24 episodes")
-    assert line.endswith(": 0 differ")
+    # the crate and its copy of the sources; 12 states' episodes under 2 conditions recorded
+    assert line == (
+        "recomputed 16 outputs from their inputs, compared 24 recorded episodes with their rows "
+        "and re-simulated 24 episodes (sample seed 7: --seed 7 draws it again): 0 differ"
+    )
+
+
+def test_the_command_prints_its_sample_seed_and_seed_draws_that_sample(built, monkeypatch, capsys):
+    from mjtrial import cli
+
+    monkeypatch.chdir(built)
+    assert cli.main(["verify", "--resimulate", "1"]) == 0
+    line = capsys.readouterr().out.splitlines()[-2]
+    seed = line.split("(sample seed ")[1].split(":")[0]
+    assert f"--seed {seed} draws it again" in line
+    assert cli.main(["verify", "--resimulate", "1", "--seed", "12"]) == 0
+    assert "re-simulated 6 episodes (sample seed 12: --seed 12 draws it again)" in (
+        capsys.readouterr().out
+    )
 
 
 def test_an_edited_report_with_its_seal_deleted_is_named(built, tmp_path):
@@ -99,29 +118,112 @@ def test_a_forged_summary_restamped_with_the_manifest_forced_is_named(built, tmp
         assert "input tampered" in " ".join(report[downstream].reasons)
 
 
+def _yesterdays_sample(first: int, stop: int, k: int, key: str) -> list[int]:
+    """The sample verify re-simulated before issue 26: a function of the shard's path alone,
+    which a forger can compute (written out here, as a forger would)."""
+    rng = np.random.default_rng(zlib.crc32(key.encode()))
+    return sorted(rng.choice(np.arange(first, stop), size=k, replace=False).tolist())
+
+
+def _flip_to_success(path: Path, state_id: int) -> None:
+    """A forger's edit: the state's row a success without a category, under a fresh stamp."""
+    stamp = dict(provenance.read_stamp(path), created_utc=now_utc())
+    table = pq.read_table(path).replace_schema_metadata(None)
+    row = table.column("state_id").to_pylist().index(state_id)
+    for name, value in (("success", True), ("failure_category", None)):
+        values = table.column(name).to_pylist()
+        values[row] = value
+        i = table.column_names.index(name)
+        table = table.set_column(i, name, pa.array(values, type=table.schema.field(i).type))
+    provenance.write_parquet(table, path, stamp)
+
+
+def test_a_flipped_failure_outside_the_resimulated_sample_is_named_by_its_recording(
+    built, tmp_path
+):
+    """Issue 26 case 5: flip a failed episode that the deterministic sample of 2 per shard
+    leaves out, in its shard's table and the gathered one, rebuild what follows: its recording
+    still says it failed, and verify names it (before, "0 differ" and one success more)."""
+    workdir = copy_of(built, tmp_path)
+    rollouts = workdir / RESULTS / "rollouts"
+    forged = None
+    for condition in ("fast", "slow"):
+        gathered = pq.read_table(rollouts / f"{condition}.parquet")
+        ids = np.array(gathered.column("state_id").to_pylist())
+        success = np.array(gathered.column("success").to_pylist())
+        # The report draws the three lowest-id successes from their recordings
+        # (mjtrial.report.traces): the forger flips a failure it will not draw as one.
+        for state_id in ids[~success]:
+            first = int(state_id) // 5 * 5
+            shard = rollouts / condition / f"shard-{first // 5:05d}.parquet"
+            key = shard.relative_to(workdir).as_posix()
+            sampled = _yesterdays_sample(first, min(first + 5, 12), 2, key)
+            if state_id not in sampled and state_id > max(ids[success][:3]):
+                forged = (condition, int(state_id), shard)
+                break
+        if forged:
+            break
+    assert forged, "expected a failed episode outside the sample in the built run"
+    condition, state_id, shard = forged
+    _flip_to_success(shard, state_id)
+    _flip_to_success(rollouts / f"{condition}.parquet", state_id)
+    run_snakemake(workdir)
+
+    report = verified(workdir, resimulate=2)
+    rel = shard.relative_to(workdir).as_posix()
+    assert report[rel].status is Status.TAMPERED, report.format()
+    reasons = " ".join(report[rel].reasons)
+    assert f"state {state_id}: recorded success False differs from True" in reasons, reasons
+
+
+def test_an_outcome_that_depends_on_its_batch_is_not_reconfirmed_in_its_batch(built, monkeypatch):
+    """Issue 26 case 1: a task whose final height is another alone than beside other episodes
+    (as the run's batches of 5 and 2 had them). Re-simulated in the run's batches, the sample
+    agreed with the tables; re-simulated in another composition, it does not."""
+    recompute = importlib.import_module("mjtrial.verify.recompute")  # not verify's function
+    real = recompute.condition_task
+
+    def batch_dependent(*args, **kwargs):
+        bound = real(*args, **kwargs)
+        task = bound.task
+
+        def measure(episodes, own=task.measure):
+            measures = dict(own(episodes))
+            if len(episodes.physics) == 1:
+                measures["final_height"] = measures["final_height"] + 1e-3
+            return measures
+
+        return dataclasses.replace(bound, task=dataclasses.replace(task, measure=measure))
+
+    monkeypatch.setattr(recompute, "condition_task", batch_dependent)
+    report = verified(built, resimulate=5)
+    shard = (RESULTS / "rollouts" / "fast" / "shard-00000.parquet").as_posix()
+    assert report[shard].status is Status.TAMPERED, report.format()
+    assert "differ in final_height" in " ".join(report[shard].reasons)
+
+
 def test_a_forged_episode_rebuilt_downstream_is_found_by_resimulation(built, tmp_path):
-    """Nudge an episode's final height in a shard table under its own stamp and let Snakemake
-    rebuild everything after it: only re-simulating the episode can tell. (Flipping its
-    success is caught by the failures stage already: its recording says otherwise; a stamp
-    made after the job ended, by the crate's record of the job's times: test_crate.)"""
+    """Nudge an episode's final x (a measure its recording does not carry: a recorded one,
+    its recording names) in a shard table under its own stamp and let Snakemake rebuild
+    everything after it: only re-simulating the episode can tell. (Flipping its success is
+    caught by its recording, which says otherwise: the test above; a stamp made after the job
+    ended, by the crate's record of the job's times: test_crate.)"""
     workdir = copy_of(built, tmp_path)
     shard = workdir / RESULTS / "rollouts" / "slow" / "shard-00001.parquet"
     stamp = provenance.read_stamp(shard)
     table = pq.read_table(shard).replace_schema_metadata(None)
-    height = table.column("final_height").to_numpy().copy()
-    height[2] += 1e-6  # state 7
-    table = table.set_column(
-        table.column_names.index("final_height"), "final_height", pa.array(height)
-    )
+    final_x = table.column("final_x").to_numpy().copy()
+    final_x[2] += 1e-6  # state 7
+    table = table.set_column(table.column_names.index("final_x"), "final_x", pa.array(final_x))
     provenance.write_parquet(table, shard, stamp)
     run_snakemake(workdir)
 
-    assert verified(workdir, resimulate=0).ok  # every stamp and seal agrees
+    assert verified(workdir, resimulate=0).ok  # every stamp, seal and recording agrees
     report = verified(workdir, resimulate=5)  # shards hold 5 states: all re-simulated
     rel = shard.relative_to(workdir).as_posix()
     assert report[rel].status is Status.TAMPERED, report.format()
     reasons = " ".join(report[rel].reasons)
-    assert "re-simulated episodes for states 7 differ in final_height" in reasons
+    assert "re-simulated episodes for states 7 differ in final_x" in reasons
     assert report[SUMMARY].status is Status.STALE
 
 
@@ -191,9 +293,11 @@ def test_table_difference_names_states_and_columns():
     assert table_difference(table, {"x": np.array([0.5])}) == "3 rows, 1 recomputed"
 
 
-def test_the_resimulated_sample_is_fixed_by_the_shard_and_covers_small_shards():
-    a = sample_ids(1000, 2000, 20, key="results/x/rollouts/fast/shard-00001.parquet")
-    assert a == sample_ids(1000, 2000, 20, key="results/x/rollouts/fast/shard-00001.parquet")
-    assert a != sample_ids(1000, 2000, 20, key="results/x/rollouts/slow/shard-00001.parquet")
+def test_the_resimulated_sample_is_fixed_by_the_seed_and_shard_and_covers_small_shards():
+    fast = "results/x/rollouts/fast/shard-00001.parquet"
+    a = sample_ids(1000, 2000, 20, seed=1, key=fast)
+    assert a == sample_ids(1000, 2000, 20, seed=1, key=fast)  # --seed repeats a check
+    assert a != sample_ids(1000, 2000, 20, seed=2, key=fast)
+    assert a != sample_ids(1000, 2000, 20, seed=1, key=fast.replace("fast", "slow"))
     assert len(set(a)) == 20 and all(1000 <= i < 2000 for i in a) and a == sorted(a)
-    assert sample_ids(10, 12, 20, key="k") == [10, 11]
+    assert sample_ids(10, 12, 20, seed=1, key="k") == [10, 11]

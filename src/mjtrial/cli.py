@@ -144,6 +144,7 @@ def _verify(args: argparse.Namespace) -> int:
             config_path=config_path,
             repo_root=repo_root,
             resimulate=DEFAULT_RESIMULATE if args.resimulate is None else args.resimulate,
+            seed=args.seed,
         )
     except (ConfigError, OSError, ValueError) as err:
         print(f"mjtrial verify: {err}", file=sys.stderr)
@@ -325,6 +326,13 @@ def main(argv: list[str] | None = None) -> int:
         metavar="K",
         help="episodes re-simulated per shard and compared with its table (default: "
         "mjtrial.verify.DEFAULT_RESIMULATE; 0: none)",
+    )
+    p.add_argument(
+        "--seed",
+        type=_count,
+        metavar="N",
+        help="draw the re-simulated episodes with this seed, to repeat a check (default: a "
+        "fresh seed, printed)",
     )
     p.set_defaults(run=_verify)
     p = sub.add_parser(

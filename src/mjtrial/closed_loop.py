@@ -12,9 +12,11 @@ paid once per batch instead of once per episode.
 
 Results do not depend on the batch: each episode's physics is its own (`mujoco.rollout` sets
 each episode's full state before its steps), and the policy must compute each row from that row
-alone (`check_batch_independence` tests a policy for it). With no constraint active the solver
-has no warm start to carry, and the engine's episodes equal the reference's bit for bit; a
-model with contacts would differ by the warm start MuJoCo keeps between steps.
+alone (`check_batch_independence` tests a policy for it before work, and every batch replays
+its recorded observations through the policy in other batches: `check_replayed`). With no
+constraint active the solver has no warm start to carry, and the engine's episodes equal the
+reference's bit for bit; a model with contacts would differ by the warm start MuJoCo keeps
+between steps.
 
 Timing: a control instant every `steps_per_control` physics steps; the observation used at
 instant k is measured `latency_steps` physics steps earlier (the initial state's while k's time
@@ -37,6 +39,13 @@ from mjtrial.physics import FULLPHYSICS
 # What mujoco.rollout's control columns hold: the actuators' ctrl, then every body's applied
 # wrench (force, torque in the world frame), so pushes travel with the controls.
 CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL.value | mujoco.mjtState.mjSTATE_XFRC_APPLIED.value
+
+
+# Control instants replayed from the reset (`check_replayed`): on the built-in closed-loop
+# experiment (300 instants an episode) the first 20 cost under 1 % of its rollout stage's time
+# and all 300 about 12 %; a difference that shows only later is still caught on verify's
+# re-simulated sample, whose every episode runs alone.
+REPLAYED_INSTANTS = 20
 
 
 class BatchPolicy(Protocol):
@@ -144,6 +153,7 @@ def run_batch(
     runner: rollout.Rollout,
     datas: list[mujoco.MjData],
     pushes: Pushes | None = None,
+    check: bool = True,
 ) -> ClosedLoopBatch:
     """Run a batch of closed-loop episodes in lockstep.
 
@@ -156,6 +166,9 @@ def run_batch(
       runner: a `mujoco.rollout.Rollout` (its thread pool is reused across batches).
       datas: one MjData per runner thread (at least one).
       pushes: a wrench pulse per episode, or None.
+      check: replay the first `REPLAYED_INSTANTS` instants' observations through the policy in
+        other batches (`check_replayed`) and raise `PolicyError` if a row's controls differ;
+        off only to measure its cost.
     """
     n, nstate = initial.shape
     model = models[0]
@@ -168,11 +181,18 @@ def run_batch(
     step_sensors = np.empty((n, s, model.nsensordata))
     controls = np.zeros((n, s, nu + nbody * 6))
     state = np.ascontiguousarray(initial, dtype=np.float64)
+    replayed = min(timing.n_controls, REPLAYED_INSTANTS) if check else 0
+    observed: np.ndarray | None = None  # (n, replayed, n_observations), for check_replayed
     policy.reset(n)
     for k in range(timing.n_controls):
         j = timing.measured_step(k)
         measured = initial if j == 0 else physics[:, j - 1]
-        ctrl = _checked_controls(policy(np.asarray(observe(measured), dtype=np.float64)), n, nu)
+        obs = np.asarray(observe(measured), dtype=np.float64)
+        if k < replayed:
+            if observed is None:
+                observed = np.empty((n, replayed, *obs.shape[1:]))
+            observed[:, k] = obs  # a copy: the policy may change its argument
+        ctrl = _checked_controls(policy(obs), n, nu)
         ctrl_log[:, k] = ctrl
         controls[:, :, :nu] = ctrl[:, None, :]
         if pushes is not None:
@@ -191,6 +211,8 @@ def run_batch(
         physics[:, k * s : (k + 1) * s] = step_states
         sensordata[:, k * s : (k + 1) * s] = step_sensors
         state = np.ascontiguousarray(step_states[:, -1])
+    if observed is not None:
+        check_replayed(policy, observed, ctrl_log[:, :replayed])
     return ClosedLoopBatch(physics=physics, sensordata=sensordata, ctrl=ctrl_log)
 
 
@@ -260,4 +282,43 @@ def check_batch_independence(policy: BatchPolicy, observations: np.ndarray) -> N
                 f"(largest difference {diff:.3g}); compute each row from that row alone "
                 "(elementwise arithmetic, not a matrix product whose summation order depends on "
                 "the batch)"
+            )
+
+
+def replay_splits(n: int) -> list[np.ndarray]:
+    """Other batches of a batch's rows 0..n-1: its rows in reverse order, in two halves of
+    different sizes (so every row sits at another position, in a batch of another size), and
+    its first row alone (the reference's batch of one). None for a batch of one row."""
+    if n < 2:
+        return []
+    backwards = np.arange(n)[::-1]
+    return [backwards[: n // 2], backwards[n // 2 :], np.array([0])]
+
+
+def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.ndarray) -> None:
+    """Raise `PolicyError` unless the policy, given the same observations from its reset on but
+    in other batches (`replay_splits`), gives every row the controls it gave in the batch, bit
+    for bit: an episode's controls, and so its result, must not depend on its batch (the
+    shard's size, the episodes beside it).
+
+    Args:
+      policy: the batch's policy (reset here; its memory is per episode from a reset on).
+      observations: (n, k, n_observations) what the policy saw at its first k instants.
+      controls: (n, k, nu) what it returned.
+    """
+    n, n_controls, nu = controls.shape
+    for rows in replay_splits(n):
+        policy.reset(len(rows))
+        for k in range(n_controls):
+            again = _checked_controls(policy(observations[rows, k].copy()), len(rows), nu)
+            given = controls[rows, k]
+            if np.array_equal(again, given):  # both finite (`_checked_controls`)
+                continue
+            bad = int(np.flatnonzero((again != given).any(axis=1))[0])
+            diff = float(np.max(np.abs(again[bad] - given[bad])))
+            raise PolicyError(
+                f"policy: episode row {rows[bad]} of a batch of {n} gets other controls at "
+                f"control instant {k} when its observations are replayed in a batch of "
+                f"{len(rows)} (largest difference {diff:.3g}): its results would depend on the "
+                "batch (rollout.shard_size); compute each row from that row's observations alone"
             )

@@ -2,8 +2,12 @@
 by `mujoco.rollout` (open loop) or the lockstep closed-loop engine, then success, the task's
 measures and one failure category per failed episode.
 
-Every episode starts from its own full state with a zero warm start, so its results never
-depend on the batch it ran in or the number of threads.
+Every episode starts from its own full state with a zero warm start, so its physics never
+depends on the batch it ran in or the number of threads. An open-loop task's controls are
+computed once per condition, before any batch, so they cannot depend on it either; a
+closed-loop policy could, and every batch checks it (`closed_loop.check_replayed`). The task's
+measure, success and pushes read a whole batch too: verify re-simulates its sample each
+episode alone, so one that depends on the batch is not confirmed.
 """
 
 from __future__ import annotations
@@ -124,9 +128,6 @@ def iter_batches(
     if any(p.apply.stage == "model" for p in task.state_parameters):
         # each episode runs on its own copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
-    if any(p.apply.stage == "model" for p in task.state_parameters):
-        # each episode runs on its own copy of the model, textures and all
-        batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
     params = task.parameters(condition)
     n = len(next(iter(values.values())))
     scratch = mujoco.MjData(model)
@@ -163,16 +164,19 @@ def iter_batches(
                 observe = bound.observer(
                     controller.observations, {p: rows[p] for p in episode_values}
                 )
-                result = closed_loop.run_batch(
-                    models,
-                    initial_states,
-                    policy,
-                    observe,
-                    timing,
-                    runner=runner,
-                    datas=datas,
-                    pushes=pushes,
-                )
+                try:
+                    result = closed_loop.run_batch(
+                        models,
+                        initial_states,
+                        policy,
+                        observe,
+                        timing,
+                        runner=runner,
+                        datas=datas,
+                        pushes=pushes,
+                    )
+                except closed_loop.PolicyError as err:
+                    raise TaskError(f"{task.source or task.name}: {err}") from None
                 physics, sensordata = result.physics, result.sensordata
                 applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
             stopped, broken = halted(physics), nonfinite(physics)

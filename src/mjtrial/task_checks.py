@@ -100,9 +100,7 @@ def run_task_code(
             batch = next(
                 iter_batches(bound, nominal_values(task), condition, thresholds=thresholds)
             )
-        except PolicyError as err:
-            raise TaskError(f"{_where(task)}: condition {name}: {err}") from None
-        except TaskError:
+        except TaskError:  # the policy's too (`iter_batches` names the task file)
             raise
         except Exception as err:  # noqa: BLE001 - an error in the task's functions
             raise TaskError(

@@ -56,7 +56,7 @@ def _chosen_episodes(table_path: Path, per_outcome: int) -> list[tuple[int, dict
     ]
 
 
-def _stale(record: Mapping[str, object], row: Mapping[str, object]) -> str | None:
+def record_difference(record: Mapping[str, object], row: Mapping[str, object]) -> str | None:
     """What the recording's episode record says that its table row does not."""
     for key in ("success", *(k for k in record if k in row and k != "state_id")):
         if key not in record or key == "failure_category" and record[key] is None:
@@ -116,7 +116,7 @@ def sample_traces(
                 continue  # not recorded (recording.episodes: failed or none): not drawn
             where = f"{file}: {name} state {state_id}"
             record = next(r for r in list_recordings(file) if r.get("state_id") == state_id)
-            stale = _stale(record, row)
+            stale = record_difference(record, row)
             if stale:
                 raise ValueError(f"{where}: {stale} in {table_path}; the rollouts are stale")
             logged = read_episode(file, condition=name, state_id=state_id)

@@ -227,10 +227,12 @@ def verify_results(
     config_path: Path,
     repo_root: Path,
     resimulate: int = DEFAULT_RESIMULATE,
+    seed: int | None = None,
 ) -> VerifyReport:
     """Read every stamp under ``results_dir`` and check the chain (see :func:`check_stamps`),
     then recompute what the stamps judge current and re-simulate ``resimulate`` episodes per
-    shard (:mod:`mjtrial.verify.recompute`): an output that differs is tampered.
+    shard (:mod:`mjtrial.verify.recompute`), drawn with ``seed`` (None: a fresh one, which the
+    report's check line prints): an output that differs is tampered.
 
     ``repo_root`` is the folder Snakemake ran in: stamps record paths relative to it, and the
     model path in the config is resolved in it.  ``results_dir`` must lie inside it.  Raises
@@ -326,6 +328,7 @@ def verify_results(
         repo_root=repo_root,
         current=report.with_status(Status.OK),
         resimulate=resimulate,
+        seed=seed,
         command_line=command_line,
         command=_recorded_command(manifest),
         # as the Snakefile records it: relative to the repository, even from outside it

@@ -4,10 +4,14 @@ A stamp or a seal records what a file was when it was written, not that it is ri
 forged `summary.json` restamped, or a report edited with its seal deleted, passes every check
 on stamps. So verify also rebuilds, in memory, every output that is cheap to rebuild from its
 own inputs (the states, each condition's table from its shards, the analysis, the manifest,
-the report's text, the studies' summaries and reports) and compares, and re-simulates a
-deterministic sample of episodes of every shard (`resimulate` per shard) against its table.
-By induction a forged link anywhere in the chain is named: each output is what its inputs
-give, and the roots (states, episodes) are what the seeds and the simulator give.
+the report's text, the studies' summaries and reports) and compares; compares every recorded
+episode's outcome and measures (its recording's `episode` property) with its table row; and
+re-simulates a sample of episodes of every shard (`resimulate` per shard), each episode alone,
+against its table. The sample is drawn from a seed chosen at verify time (printed, `--seed`
+repeats it): a forger who can read the code cannot know which rows it will be, and an episode
+whose result depends on its batch is not re-confirmed in the batch that made it. By
+induction a forged link anywhere in the chain is named: each output is what its inputs give,
+and the roots (states, episodes) are what the seeds and the simulator give.
 
 Only outputs the stamps judge current are recomputed: for a stale one (a config value, the
 code or the model changed) a difference is expected, and the rebuild fixes it.
@@ -31,7 +35,9 @@ from mjtrial import provenance
 from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
 from mjtrial.crate.check import crate_differences
 from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
+from mjtrial.recording import list_recordings
 from mjtrial.report import report_text
+from mjtrial.report.traces import record_difference
 from mjtrial.stages.analysis import summarize_tables
 from mjtrial.stages.manifest import manifest_record
 from mjtrial.stages.rollout import (
@@ -63,11 +69,15 @@ class Recomputation:
     differs: dict[str, str] = field(default_factory=dict)
     recomputed: int = 0
     resimulated: int = 0
+    recorded: int = 0  # recorded episodes compared with their rows
+    seed: int = 0  # the re-simulated sample's
 
     def line(self) -> str:
         return (
-            f"recomputed {self.recomputed} outputs from their inputs and re-simulated "
-            f"{self.resimulated} episodes: {len(self.differs)} differ"
+            f"recomputed {self.recomputed} outputs from their inputs, compared "
+            f"{self.recorded} recorded episodes with their rows and re-simulated "
+            f"{self.resimulated} episodes (sample seed {self.seed}: --seed {self.seed} draws "
+            f"it again): {len(self.differs)} differ"
         )
 
 
@@ -160,12 +170,17 @@ def _platform_note(stamp: Mapping[str, Any]) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def sample_ids(first: int, stop: int, k: int, *, key: str) -> list[int]:
-    """A deterministic sample of `k` state ids in [first, stop), fixed by `key` (the shard)."""
+def fresh_seed() -> int:
+    """A seed for the re-simulated sample, drawn from the system's entropy at verify time."""
+    return int(np.random.SeedSequence().entropy % 2**32)
+
+
+def sample_ids(first: int, stop: int, k: int, *, seed: int, key: str) -> list[int]:
+    """A sample of `k` state ids in [first, stop), fixed by `seed` and `key` (the shard)."""
     ids = np.arange(first, stop)
     if k >= ids.size:
         return ids.tolist()
-    rng = np.random.default_rng(zlib.crc32(key.encode()))
+    rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
     return sorted(rng.choice(ids, size=k, replace=False).tolist())
 
 
@@ -203,7 +218,14 @@ class _Checker:
         except Exception as err:  # noqa: BLE001 - an output that cannot be read back is named
             why = f"cannot be recomputed ({type(err).__name__}: {' '.join(str(err).split())[:100]})"
         if why:
-            self.found.differs[self.rel(path)] = f"differs from its recomputation: {why}"
+            self.add(path, f"differs from its recomputation: {why}")
+
+    def add(self, path: Path, why: str) -> None:
+        """Record why an output differs (after what an earlier check found in it)."""
+        rel = self.rel(path)
+        self.found.differs[rel] = (
+            f"{self.found.differs[rel]}; {why}" if rel in self.found.differs else why
+        )
 
     # -- the checks --------------------------------------------------------------------------
 
@@ -235,6 +257,7 @@ class _Checker:
     def rollouts(self, resimulate: int) -> None:
         n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
         shards = shard_ids(n, size)
+        recorded = self.config["recording"]["episodes"]
         for variant, condition in self.conditions():
             qualified = condition if variant == NOMINAL else f"{variant}/{condition}"
             slice_ = config_slice("rollout", self.config, condition=qualified)
@@ -264,11 +287,55 @@ class _Checker:
                     p, nominal_episode(s, self.model_file, repo_root=self.repo_root)
                 ),
             )
-            if resimulate > 0:
-                for shard, table in zip(shards, tables, strict=True):
+            for shard, table in zip(shards, tables, strict=True):
+                folder = self.layout.shard_recordings(condition, shard, variant)
+                if recorded != "none" and self.is_current(table, folder):
+                    self.recordings(table, folder, condition, only_failed=recorded == "failed")
+                if resimulate > 0:
                     first, stop = shard_range(shard, size, n)
-                    ids = sample_ids(first, stop, resimulate, key=self.rel(table))
+                    ids = sample_ids(
+                        first, stop, resimulate, seed=self.found.seed, key=self.rel(table)
+                    )
                     self.check(table, lambda s=slice_, t=table, i=ids: self.resimulated(s, t, i))
+
+    def recordings(self, table_path: Path, folder: Path, condition: str, *, only_failed: bool):
+        """Compare every recorded episode's outcome and measures (its recording's `episode`
+        property, no trajectory read) with its row of the shard's table, and check that every
+        episode the config records has a recording: a row edited under a fresh stamp is named
+        though it lies outside the re-simulated sample."""
+        try:
+            table = pq.read_table(table_path)
+            records = {
+                r["state_id"]: r for r in list_recordings(folder) if r.get("condition") == condition
+            }
+        except (OSError, ValueError) as err:
+            self.add(
+                table_path, f"its recordings cannot be read ({' '.join(str(err).split())[:100]})"
+            )
+            return
+        columns = {c: table.column(c).to_pylist() for c in table.column_names}
+        differ, unrecorded = [], []
+        for i, state_id in enumerate(columns["state_id"]):
+            row = {c: v[i] for c, v in columns.items()}
+            record = records.pop(state_id, None)
+            if record is None:
+                if not (only_failed and row["success"]):
+                    unrecorded.append(state_id)
+                continue
+            self.found.recorded += 1
+            why = record_difference(record, row)
+            if why:
+                differ.append(f"state {state_id}: {why} in the table")
+        for state_id in records:
+            differ.append(f"state {state_id}: recorded, but the table has no row for it")
+        if unrecorded:
+            differ.append(f"no recording of states {unrecorded[:_SHOWN]} in {self.rel(folder)}")
+        if differ:
+            more = f" and {len(differ) - _SHOWN} more" if len(differ) > _SHOWN else ""
+            self.add(
+                table_path,
+                f"its recorded episodes say otherwise: {'; '.join(differ[:_SHOWN])}{more}",
+            )
 
     def resimulated(
         self, slice_: Mapping[str, Any], table_path: Path, ids: list[int]
@@ -283,7 +350,9 @@ class _Checker:
         values = {k: v[ids] for k, v in every.items()}
         columns = rollout_columns(bound.task)
         outcome: dict[str, list[np.ndarray]] = {c: [] for c in columns}
-        for batch in condition_batches(bound, slice_, values, nthread=1):
+        # Each episode alone: not the batch it ran in (`mjtrial.engine.BATCH_SIZE` rows or the
+        # shard's), so a result that depends on its batch is not confirmed.
+        for batch in condition_batches(bound, slice_, values, nthread=1, batch_size=1):
             outcome["state_id"].append(batch.values["state_id"])
             for c in columns[1:]:
                 outcome[c].append(batch.outcome[c])
@@ -429,13 +498,15 @@ def recompute(
     repo_root: Path,
     current: Iterable[str],
     resimulate: int = DEFAULT_RESIMULATE,
+    seed: int | None = None,
     command_line: Mapping[str, Any] | None = None,
     command: str = "snakemake -c2",
     config_file: str = CONFIG_FILE,
     stamps: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> Recomputation:
     """Recompute every light output of `layout` that the stamps judged current (`current`,
-    repository-relative paths) and re-simulate `resimulate` episodes per shard.
+    repository-relative paths) and re-simulate `resimulate` episodes per shard, drawn with
+    `seed` (None: a fresh one, `fresh_seed`).
 
     `command_line` and `command` are what the manifest records of the run's command line
     (`mjtrial.stages.manifest`): the config values it was given, and the command itself;
@@ -444,6 +515,7 @@ def recompute(
     """
     checker = _Checker(layout, config, Path(repo_root), current, command_line or {}, command)
     checker.config_file = config_file
+    checker.found.seed = fresh_seed() if seed is None else seed
     checker.states()
     checker.rollouts(resimulate)
     checker.analysis()
