@@ -12,6 +12,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
@@ -179,11 +180,13 @@ def test_every_training_read_the_development_states_only(bench):
 
 
 def verify(workdir: Path):
+    """`mjtrial verify --config` without re-simulation (tested on its own below): a few
+    seconds less each."""
     import subprocess
     import sys
 
     return subprocess.run(
-        [sys.executable, "-m", "mjtrial.cli", "verify", "--config", CONFIG],
+        [sys.executable, "-m", "mjtrial.cli", "verify", "--config", CONFIG, "--resimulate", "0"],
         cwd=workdir,
         capture_output=True,
         text=True,
@@ -412,3 +415,165 @@ def test_the_closest_calls_replay_file_holds_each_episode_as_its_table_scored_it
         assert recorded[measure] == evaluation[measure]  # the re-simulation, bit for bit
     report = (bench / LAYOUT.report).read_text()
     assert "## Closest calls" in report and "closest success 1" in report
+
+
+def _copy(bench: Path, tmp_path: Path) -> Path:
+    workdir = tmp_path / "copy"
+    shutil.copytree(bench, workdir, symlinks=True)
+    return workdir
+
+
+def _pooled_by_hand(workdir: Path, task: str, method: str) -> tuple[int, int]:
+    """(successes, episodes) of a method on a task over every seed, counted in its tables."""
+    success = [
+        pq.read_table(workdir / LAYOUT.evaluation(task, method, seed)).column("success").to_pylist()
+        for seed in (1, 2, 3)
+    ]
+    return sum(map(sum, success)), sum(map(len, success))
+
+
+def test_verify_recomputes_a_forged_summary_and_closest_calls_from_the_tables(bench, tmp_path):
+    """A pooled rate and a closest call forged under their stamps, the report, seal and crate
+    rebuilt from them: every stamp and the seal agree, the recomputation does not."""
+    workdir = _copy(bench, tmp_path)
+    summary = workdir / LAYOUT.summary
+    data = json.loads(summary.read_text())
+    pooled = data["per_task"]["gantry_lift"]["tuned"]["pooled_over_seeds"]
+    k, n = _pooled_by_hand(workdir, "gantry_lift", "tuned")
+    assert (pooled["successes"], pooled["n"]) == (k, n)
+    forged = n if k < n else 0
+    pooled.update(successes=forged, rate=forged / n)
+    summary.write_text(json.dumps(data, indent=2))
+    table_path = workdir / LAYOUT.closest_calls_table
+    table = pq.read_table(table_path)
+    rows = table.to_pylist()
+    rows[0]["state_id"] = (rows[0]["state_id"] + 1) % N_STATES
+    provenance.write_parquet(
+        pa.Table.from_pylist(rows, schema=table.schema.remove_metadata()),
+        table_path,
+        provenance.read_stamp(table_path),
+    )
+    run_snakemake(workdir, "--configfile", CONFIG, "--forcerun", "benchmark_report")
+    assert f"({forged}/{n})" in (workdir / LAYOUT.report).read_text()
+    done = verify(workdir)
+    assert done.returncode == 1, done.stdout + done.stderr
+    problems = [line for line in done.stdout.splitlines() if line.startswith("problem")]
+    assert len(problems) == 3, done.stdout
+    assert problems[0].startswith(
+        f"problem  {LAYOUT.summary.as_posix()}: differs from its recomputation: "
+        f"per_task.gantry_lift.tuned.pooled_over_seeds.rate: {forged / n} -> {k / n}"
+    )
+    assert problems[1].startswith(
+        f"problem  {LAYOUT.closest_calls_table.as_posix()}: differs from its recomputation: "
+        f"row 1: state_id {rows[0]['state_id']} -> "
+    )
+    assert problems[2].startswith(f"problem  {LAYOUT.report.as_posix()}: differs from its")
+
+
+def test_verify_names_a_parameter_file_edited_after_training(bench, tmp_path):
+    """One tuned parameter changed (its finalists and score still the old ones), and the
+    evaluations rerun on it: the training's stamp holds the sha256 of the record it wrote."""
+    workdir = _copy(bench, tmp_path)
+    rel = LAYOUT.parameters("gantry_lift", "tuned", 1)
+    record = json.loads((workdir / rel).read_text())
+    name, (low, high) = next(iter(record["tuned"].items()))
+    record["parameters"][name] = high if record["parameters"][name] != high else low
+    (workdir / rel).write_text(json.dumps(record, indent=2))
+    run_snakemake(workdir, "--configfile", CONFIG)
+    evaluation = provenance.read_stamp(workdir / LAYOUT.evaluation("gantry_lift", "tuned", 1))
+    assert evaluation["inputs"]["parameters"]["sha256"] == provenance.file_sha256(workdir / rel)
+    done = verify(workdir)
+    assert done.returncode == 1, done.stdout + done.stderr
+    problems = [line for line in done.stdout.splitlines() if line.startswith("problem")]
+    assert problems == [
+        f"problem  {rel.as_posix()}: edited after training (its record's sha256 is not the one "
+        "its training stamp holds)",
+        f"problem  {rel.as_posix()}: parameters {record['parameters']} are not its best "
+        f"finalist's ({max(record['finalists'], key=lambda f: f['score'])['origin']}: "
+        f"{max(record['finalists'], key=lambda f: f['score'])['parameters']} with the fixed "
+        "values)",
+    ]
+
+
+def test_a_parameter_record_is_consistent_with_its_final_choice(bench):
+    from mjtrial.benchmark.config import check_benchmark_config, train_slice
+    from mjtrial.benchmark.recompute import record_problems
+    from mjtrial.config import read_config_file
+
+    config = read_config_file(bench / CONFIG)
+    tasks = check_benchmark_config(config, source=CONFIG, repo_root=bench)
+    for task in ("gantry_lift", "cartpole_latency"):
+        for method in ("as_designed", "tuned"):
+            record = json.loads((bench / LAYOUT.parameters(task, method, 2)).read_text())
+            expected = train_slice(config, tasks, task, method, 2)
+            assert record_problems(record, expected) == []
+            name = next(iter(record["parameters"]))
+            forged = {**record, "parameters": {**record["parameters"], name: 0.123}}
+            assert len(record_problems(forged, expected)) == 1
+    tuned = json.loads((bench / LAYOUT.parameters("cartpole_latency", "tuned", 3)).read_text())
+    forged = {**tuned, "score_on_development": tuned["score_on_development"] / 2 + 0.01}
+    expected = train_slice(config, tasks, "cartpole_latency", "tuned", 3)
+    assert record_problems(forged, expected) == [
+        f"score_on_development {forged['score_on_development']} is not its best finalist's "
+        f"{tuned['score_on_development']}"
+    ]
+
+
+def mjtrial(workdir: Path, *args: str):
+    import subprocess
+    import sys
+
+    return subprocess.run(
+        [sys.executable, "-m", "mjtrial.cli", *args],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench, tmp_path):
+    """Its crate records its config file; `--resimulate K` runs K episodes of every evaluation
+    shard again, with the trained parameters, and compares them with the shard's rows."""
+    folder = LAYOUT.root.as_posix()
+    done = mjtrial(bench, "verify", folder)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert f"verified: {folder}:" in done.stdout
+    # every state of every evaluation: 20 by default, more than any shard holds
+    assert "re-simulated 192 evaluation episodes" in done.stdout
+    workdir = _copy(bench, tmp_path)
+    shard = LAYOUT.evaluation_shard("cartpole_latency", "tuned", 2, "00001")
+    table = pq.read_table(workdir / shard)
+    flipped = table.set_column(
+        table.column_names.index("success"),
+        "success",
+        pa.array([not s for s in table.column("success").to_pylist()]),
+    )
+    provenance.write_parquet(flipped, workdir / shard, provenance.read_stamp(workdir / shard))
+    done = mjtrial(workdir, "verify", folder, "--resimulate", "2")
+    assert done.returncode == 1, done.stdout + done.stderr
+    # 2 of each shard: 1 shard of the gantry's and 3 of the cart-pole's, 6 runs each
+    assert "re-simulated 48 evaluation episodes (sample seed " in done.stdout
+    resimulated = [line for line in done.stdout.splitlines() if "re-simulated episodes" in line]
+    assert len(resimulated) == 1, done.stdout
+    found = re.fullmatch(
+        rf"problem  {re.escape(shard.as_posix())}: differs from its recomputation: re-simulated "
+        r"episodes for states (\d+), (\d+) differ in success",
+        resimulated[0],
+    )
+    assert found and all(6 <= int(i) < 2 * CARTPOLE_SHARD for i in found.groups()), resimulated
+
+
+def test_verify_of_a_renamed_copy_says_what_it_is(bench):
+    copy = LAYOUT.root.with_name("benchmark_cp")
+    shutil.copytree(bench / LAYOUT.root, bench / copy, symlinks=True)
+    try:
+        done = mjtrial(bench, "verify", copy.as_posix())
+    finally:
+        shutil.rmtree(bench / copy)
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        f"mjtrial verify: {copy.as_posix()} is a copy of the run recorded as "
+        f"{LAYOUT.root.as_posix()} (its seal lists the outputs there; stamps record paths in "
+        f"the repository): verify {LAYOUT.root.as_posix()}, or rebuild this folder with snakemake"
+    ]

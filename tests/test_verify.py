@@ -322,6 +322,35 @@ def test_bad_config_is_a_usage_error(work, capsys):
     assert "states.n" in capsys.readouterr().err
 
 
+def test_a_renamed_copy_is_named_as_such_not_missing(work, monkeypatch, capsys):
+    """Stamps record paths in the repository: a copy under another name holds the original's
+    record; verify says what the folder is, in one line, and checks nothing in place."""
+    shutil.copytree(work / RESULTS, work / f"{RESULTS}_cp", symlinks=True)
+    monkeypatch.chdir(work)
+    assert cli.main(["verify", f"{RESULTS}_cp"]) == 2
+    out = capsys.readouterr()
+    assert out.out == ""
+    assert out.err.splitlines() == [
+        f"mjtrial verify: {RESULTS}_cp is a copy of the run recorded as {RESULTS} (its seal "
+        "lists the outputs there; stamps record paths in the repository): verify "
+        f"{RESULTS}, or rebuild this folder with snakemake"
+    ]
+    assert cli.main(["verify", RESULTS]) == 0  # the original is what it was
+
+
+def test_a_benchmarks_folder_without_its_recorded_config_asks_for_it(tmp_path, capsys):
+    """A benchmark's config is recorded in its crate; without one, verify does not check the
+    folder against the experiment's default config: it says to give the benchmark's."""
+    (tmp_path / "results" / "bench" / "training").mkdir(parents=True)
+    assert (
+        cli.main(["verify", str(tmp_path / "results" / "bench"), "--repo-root", str(tmp_path)]) == 2
+    )
+    assert capsys.readouterr().err.splitlines() == [
+        f"mjtrial verify: {tmp_path / 'results' / 'bench'} is a benchmark's folder that records "
+        "no config file (no ro-crate-metadata.json): give it, --config config/<benchmark>.yaml"
+    ]
+
+
 # --------------------------------------------------------------------------------------------
 # Unit tests on hand-made stamps
 # --------------------------------------------------------------------------------------------

@@ -118,32 +118,62 @@ def _recorded_config_file(results_dir: Path, default: str | None = CONFIG_FILE) 
     return recorded if isinstance(recorded, str) else default
 
 
+def _crate_config_file(results_dir: Path) -> str | None:
+    """The config file a benchmark's crate records (a benchmark has no manifest), or None."""
+    # Imported here (the crate package, half a second): `mjtrial plan` need not pay it.
+    from mjtrial.crate.stamp import read_crate_stamp
+
+    try:
+        recorded = (read_crate_stamp(Layout(results_dir).crate) or {})["config_slice"]["rerun"]
+        recorded = recorded["config_file"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return recorded if isinstance(recorded, str) else None
+
+
 def _verify(args: argparse.Namespace) -> int:
     # Imported here (mujoco, rerun-sdk, jsonschema): `mjtrial plan` need not pay for them.
     from mjtrial.config import ConfigError
     from mjtrial.verify import DEFAULT_RESIMULATE, load_checked_config, verify_results
+    from mjtrial.verify.folder import copied_from, looks_like_benchmark
 
     repo_root = Path(args.repo_root) if args.repo_root else Path.cwd()
     config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
-    if not args.config and args.results_dir:  # the config file the run recorded it used
-        config_path = repo_root / _recorded_config_file(Path(args.results_dir))
+    results_dir = Path(args.results_dir) if args.results_dir else None
+    recorded = None  # the config file the run recorded (a manifest's, a benchmark's crate's)
+    if results_dir is not None:
+        recorded = _recorded_config_file(results_dir, None) or _crate_config_file(results_dir)
+    if not args.config and recorded:
+        config_path = repo_root / recorded
     foreign = foreign_package(repo_root)
     if foreign:
         print(f"mjtrial verify: {foreign}", file=sys.stderr)
         return 2
+    resimulate = DEFAULT_RESIMULATE if args.resimulate is None else args.resimulate
     try:
-        if args.results_dir is None and _is_benchmark_file(config_path):
-            return _verify_benchmark(config_path, repo_root)
-        if args.results_dir:
-            results_dir = Path(args.results_dir)
-        else:
+        if results_dir is not None:
+            origin = copied_from(results_dir, repo_root=repo_root)
+            if origin:
+                print(f"mjtrial verify: {origin}", file=sys.stderr)
+                return 2
+            if not args.config and not recorded and looks_like_benchmark(results_dir):
+                print(
+                    f"mjtrial verify: {results_dir} is a benchmark's folder that records no "
+                    "config file (no ro-crate-metadata.json): give it, --config "
+                    "config/<benchmark>.yaml",
+                    file=sys.stderr,
+                )
+                return 2
+        if _is_benchmark_file(config_path):
+            return _verify_benchmark(config_path, repo_root, results_dir, resimulate, args.seed)
+        if results_dir is None:
             config = load_checked_config(config_path, repo_root=repo_root)
             results_dir = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR).root
         report = verify_results(
             results_dir,
             config_path=config_path,
             repo_root=repo_root,
-            resimulate=DEFAULT_RESIMULATE if args.resimulate is None else args.resimulate,
+            resimulate=resimulate,
             seed=args.seed,
         )
     except (ConfigError, OSError, ValueError) as err:
@@ -162,16 +192,36 @@ def _is_benchmark_file(config_path: Path) -> bool:
     return config_path.is_file() and is_benchmark(read_config_file(config_path))
 
 
-def _verify_benchmark(config_path: Path, repo_root: Path) -> int:
-    """`mjtrial verify --config config/benchmark.yaml`: the benchmark's split and files."""
+def _verify_benchmark(
+    config_path: Path,
+    repo_root: Path,
+    results_dir: Path | None,
+    resimulate: int,
+    seed: int | None = None,
+) -> int:
+    """`mjtrial verify --config config/benchmark.yaml` (or the benchmark's folder, whose crate
+    records its config file): the benchmark's split, files and derived numbers."""
     # Imported here (mujoco, cma, scipy): `mjtrial plan` need not pay for them.
     from mjtrial.benchmark.config import check_benchmark_config
     from mjtrial.benchmark.verify import verify_benchmark
     from mjtrial.config import read_config_file
+    from mjtrial.layout import BenchmarkLayout
 
     config = read_config_file(config_path)
     tasks = check_benchmark_config(config, source=str(config_path), repo_root=repo_root)
-    verdict = verify_benchmark(config, tasks, repo_root=repo_root)
+    root = BenchmarkLayout.of(config["experiment"]).root
+    if results_dir is not None and provenance.path_in_repo(results_dir, repo_root) != (
+        root.as_posix()
+    ):
+        print(
+            f"mjtrial verify: {results_dir} is not the folder of the benchmark {config_path} "
+            f"describes ({root.as_posix()})",
+            file=sys.stderr,
+        )
+        return 2
+    verdict = verify_benchmark(
+        config, tasks, repo_root=repo_root, resimulate=resimulate, sample_seed=seed
+    )
     print(verdict.format())
     return verdict.exit_code
 

@@ -9,9 +9,11 @@ sha256 of now; the stamps of the summary and of the closest calls (table and rep
 every evaluation and parameter file as they are; the report's names the summary and the
 closest calls' table. A training that read anything but its development states fails.
 
-Then, as for an experiment, the seal lists every output with its sha256 of now (the report and
-its figures, which nothing after them records, included), and the crate is what the folder
-gives (`mjtrial.crate.check`).
+Then every derived output is recomputed from the evaluation tables, each parameter file checked
+against its training's record of it, and a sample of evaluation episodes re-simulated
+(`mjtrial.benchmark.recompute`). And, as for an experiment, the seal lists every output with
+its sha256 of now (the report and its figures, which nothing after them records, included),
+and the crate is what the folder gives (`mjtrial.crate.check`).
 """
 
 from __future__ import annotations
@@ -27,11 +29,13 @@ import pyarrow.parquet as pq
 
 from mjtrial import provenance
 from mjtrial.benchmark.config import BenchmarkTask, evaluation_shards
+from mjtrial.benchmark.recompute import recompute_benchmark
 from mjtrial.crate.check import covered_seals, crate_differences
 from mjtrial.crate.record import input_records
 from mjtrial.crate.stamp import read_crate_stamp
 from mjtrial.layout import BenchmarkLayout
 from mjtrial.stages.states import states_rule
+from mjtrial.verify.recompute import DEFAULT_RESIMULATE
 
 
 @dataclass
@@ -41,13 +45,14 @@ class BenchmarkVerdict:
     results: str
     checked: int = 0
     problems: list[str] = field(default_factory=list)
+    checks: list[str] = field(default_factory=list)  # what was recomputed, in one line each
 
     @property
     def exit_code(self) -> int:
         return 1 if self.problems else 0
 
     def format(self) -> str:
-        lines = [f"problem  {p}" for p in self.problems]
+        lines = [f"problem  {p}" for p in self.problems] + [f"checked  {c}" for c in self.checks]
         verdict = "verified" if not self.problems else "NOT verified"
         lines.append(
             f"{verdict}: {self.results}: {self.checked} files checked, "
@@ -57,9 +62,16 @@ class BenchmarkVerdict:
 
 
 def verify_benchmark(
-    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], *, repo_root: Path
+    config: Mapping[str, Any],
+    tasks: Mapping[str, BenchmarkTask],
+    *,
+    repo_root: Path,
+    resimulate: int = DEFAULT_RESIMULATE,
+    sample_seed: int | None = None,
 ) -> BenchmarkVerdict:
-    """Check the benchmark `config` describes (its tasks as `check_benchmark_config` gave)."""
+    """Check the benchmark `config` describes (its tasks as `check_benchmark_config` gave),
+    re-simulating `resimulate` episodes of every evaluation shard (drawn from `sample_seed`,
+    None: a fresh one, printed)."""
     repo_root = Path(repo_root)
     layout = BenchmarkLayout.of(config["experiment"])
     verdict = BenchmarkVerdict(layout.root.as_posix())
@@ -135,6 +147,12 @@ def verify_benchmark(
     outputs = layout.benchmark_outputs(runs, {t: evaluation_shards(tasks, t) for t in tasks})
     verdict.problems += _seal_problems(layout, outputs, repo_root)
     verdict.checked += 1
+    if all((repo_root / p).is_file() for p in outputs):  # a missing one is named above
+        found = recompute_benchmark(
+            config, tasks, repo_root=repo_root, resimulate=resimulate, sample_seed=sample_seed
+        )
+        verdict.problems += found.problems
+        verdict.checks.append(found.line())
     if not verdict.problems:  # the crate is rebuilt from a folder whose chain holds
         verdict.problems += _crate_problems(layout, repo_root)
         verdict.checked += 1

@@ -4,11 +4,14 @@ the task's development states only, written as a stamped parameter file.
 The split is enforced here, not advised: the job reads one states file, and refuses it unless
 its stamp says the states stage drew it as development states (`states:development`). The
 stamp of the parameter file records that file's sha256, so `mjtrial verify` can check, on any
-machine, that no training read an evaluation state.
+machine, that no training read an evaluation state; and the sha256 of the parameter file's own
+record (`record_sha256`): the evaluations' stamps record the file as they read it, so only this
+names a file edited after training and evaluated again.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -21,6 +24,12 @@ from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.stages.states import check_drawn_as
 
 log = logging.getLogger("mjtrial")
+
+
+def record_sha256(record: Mapping[str, Any]) -> str:
+    """sha256 of a parameter file's record (its JSON without the stamp), as read back."""
+    payload = {k: v for k, v in record.items() if k != "provenance"}
+    return provenance.config_hash(json.loads(json.dumps(payload)))
 
 
 def train_method(
@@ -86,6 +95,7 @@ def train_method(
         seeds={"training": train_slice["seed"]},
         repo_root=repo_root,
     )
+    stamp["extra"]["record_sha256"] = record_sha256(record)
     provenance.write_json(record, Path(output), stamp)
     log.info(
         "train %s on %s, seed %s: %s (%d episodes) -> %s",
