@@ -88,13 +88,17 @@ else:
         "report": LAYOUT.report,
         "seal": LAYOUT.seal,
         "crate": LAYOUT.crate,
+        "outputs": LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED),
+        "source": LAYOUT.source,
     }
 
 
 include: "workflow/rules/run.smk"
 
 
-# The default target (here: an included file's rules never are): every result of the run.
+# The default target (here: an included file's rules never are): every result of the run,
+# each named: Snakemake rebuilds a missing file only when a job that reads it runs, or when a
+# target names it, so a deleted shard (read by its gather only) is rebuilt, with what reads it.
 rule all:
     default_target: True
     input:

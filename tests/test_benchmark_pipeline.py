@@ -148,6 +148,24 @@ def test_an_evaluation_in_shards_equals_one_over_every_state(bench, tmp_path):
     assert gathered.num_rows == N_STATES
 
 
+def test_a_deleted_evaluation_shard_is_rebuilt_with_what_reads_it(bench, tmp_path):
+    """Trust survey 3, case 8: a deleted evaluation shard (read by its gather only) was never
+    rebuilt: `snakemake -c2` had nothing to do while verify said missing."""
+    workdir = tmp_path / "copy"
+    shutil.copytree(bench, workdir, symlinks=True)
+    (workdir / LAYOUT.evaluation_shard("cartpole_latency", "tuned", 2, "00001")).unlink()
+    assert planned(workdir) == {
+        "evaluate": 1,
+        "evaluate_gather": 1,
+        "benchmark_summary": 1,
+        "closest_calls": 1,
+        "benchmark_report": 1,
+        "benchmark_seal": 1,
+        "benchmark_crate": 1,
+        "all": 1,
+    }
+
+
 def test_both_overall_rates_equal_sums_over_the_evaluation_tables(bench):
     summary = json.loads((bench / LAYOUT.summary).read_text())
     for method in ("as_designed", "tuned"):

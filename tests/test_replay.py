@@ -143,7 +143,6 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
     assert failed > 1
     assert (
         gather_failures(
-            recordings=folders,
             tables=tables,
             failures_max=200,
             shard_folders=shards,
@@ -155,7 +154,6 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
     # At most failures_max in the .rrd; the table still lists every failure.
     assert (
         gather_failures(
-            recordings=folders,
             tables=tables,
             failures_max=1,
             shard_folders=shards,
@@ -180,7 +178,6 @@ def test_failures_come_from_the_tables_and_must_agree_with_the_recordings(built,
     )
     with pytest.raises(ValueError, match=f"slow-state-{first_success:06d}.*not a failed episode"):
         gather_failures(
-            recordings=folders,
             tables={"fast": tables["fast"], "slow": edited},
             failures_max=200,
             shard_folders=shards,

@@ -111,6 +111,34 @@ def test_the_snapshot_keeps_old_bytes_when_the_output_is_replaced(workdir):
     assert table.read_text() == "old table"
 
 
+def test_with_replaced_what_a_job_of_the_run_rebuilt_comes_back_too(workdir):
+    """A failed run's `onerror`: an output a job that succeeded rebuilt (its record is not the
+    snapshot's) comes back with its record, as a missing one does; an output no job touched,
+    and a new one the snapshot never held, stay."""
+    snap = snapshot(workdir)
+    snap.take()
+    table = workdir / RESULTS / "table.parquet"
+    replace(table, "new table")
+    record_path(workdir, RESULTS / "table.parquet").write_text("record of the new table")
+    folder = workdir / RESULTS / "rollouts" / "fast"
+    for p in folder.iterdir():
+        p.unlink()
+    write(folder / "ep-3.rrd", "new 3")
+    record_path(workdir, RESULTS / "rollouts/fast").write_text("record of the new folder")
+    write(workdir / RESULTS / "new.parquet", "a new output")
+
+    assert snap.restore(replaced=True) == [RESULTS / "rollouts" / "fast", RESULTS / "table.parquet"]
+    assert table.read_text() == "old table"
+    assert {p.name: p.read_text() for p in folder.iterdir()} == {
+        "ep-1.rrd": "old 1",
+        "ep-2.rrd": "old 2",
+    }
+    for output in ("table.parquet", "rollouts/fast"):
+        assert record_path(workdir, RESULTS / output).read_text() == f"record of old {output}"
+    assert (workdir / RESULTS / "new.parquet").read_text() == "a new output"
+    assert not [p for p in (workdir / RESULTS).rglob(".*.tmp-*")]
+
+
 def _killed(snap: Snapshot, workdir: Path) -> None:
     """The snapshot now belongs to a run that is dead (no process has its start time)."""
     owner = snap.folder / "owner.json"

@@ -24,6 +24,7 @@ __all__ = [
     "atomic_directory",
     "atomic_path",
     "fsync_file",
+    "remove_folder",
     "temp_path_for",
     "write_bytes_atomic",
     "write_json_atomic",
@@ -125,6 +126,16 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
         if old is not None:
             _remove(old)
     _fsync_dir(path.parent)
+
+
+def remove_folder(path: str | os.PathLike[str]) -> None:
+    """Remove the folder ``path`` if there is one: renamed aside first, so that a kill leaves
+    a hidden temporary (which the next run removes), never a half-emptied folder."""
+    path = Path(path)
+    if path.is_dir() and not path.is_symlink():
+        aside = temp_path_for(path)
+        os.replace(path, aside)
+        _remove(aside)
 
 
 def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:

@@ -4,8 +4,9 @@ the run was killed.
 Snakemake deletes a job's outputs before it runs the job, and again when the job fails, so a
 failure (a bug, a bad value, a full disk, an out-of-memory kill) would lose the last good
 results. The Snakefile's `onstart` takes a snapshot of the results folder before any job runs;
-`onerror` puts back every output that the run removed and did not rebuild; `onsuccess` drops
-the snapshot.
+`onerror` puts back every output that the run removed or rebuilt, so that the folder is the last
+good run's (a rebuilt states table beside the old rollouts would be consistent with nothing);
+`onsuccess` drops the snapshot.
 
 The snapshot lives inside the results folder (`<results>/.snapshot/`, hidden): on the results'
 own filesystem, so hard links work wherever the results are (a symlink to another disk
@@ -36,6 +37,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import psutil
+
+from mjtrial.atomic import temp_path_for
 
 SNAPSHOT = ".snapshot"  # inside the results folder
 METADATA = Path(".snakemake") / "metadata"
@@ -166,14 +169,15 @@ class Snapshot:
             self.drop()
             raise
 
-    def restore(self, only: set[Path] | None = None) -> list[Path]:
+    def restore(self, only: set[Path] | None = None, *, replaced: bool = False) -> list[Path]:
         """Put back every output of the snapshot that is missing now (of `only`, if given),
-        with its metadata record.
+        with its metadata record; with `replaced`, also every output that a job of this run
+        rebuilt (its record is not the snapshot's), so that the folder is the last good run's.
 
         An output is a file, or a folder that Snakemake records as one output (the rollouts'
-        recordings): a folder comes back whole, and only when it is missing whole, so a folder
-        that a successful job rebuilt is never mixed with old files. Logs are not outputs and
-        stay as the failed run wrote them. Returns the outputs put back, sorted.
+        recordings): a folder comes back whole, never mixed with a rebuilt folder's files. Logs
+        are not outputs and stay as the failed run wrote them. Returns the outputs put back,
+        sorted.
         """
         files = self.folder / _FILES
         if not files.is_dir():
@@ -181,19 +185,38 @@ class Snapshot:
         saved_records = self.folder / _RECORDS
         records = self._outputs(saved_records)
         folders = {p for p in records if (files / p).is_dir()}
+        metadata = self.workdir / METADATA
+
+        def wanted(output: Path) -> bool:
+            if only is not None and output not in only:
+                return False
+            if not (self.workdir / output).exists():
+                return True
+            return replaced and any(
+                not (metadata / r.relative_to(saved_records)).is_file()
+                or (metadata / r.relative_to(saved_records)).read_bytes() != r.read_bytes()
+                for r in records.get(output, [])
+            )
+
         restored: list[Path] = []
         for folder in sorted(folders):
-            if (only is None or folder in only) and not (self.workdir / folder).exists():
-                shutil.copytree(files / folder, self.workdir / folder, copy_function=_link_or_copy)
+            if wanted(folder):
+                target = self.workdir / folder
+                aside = temp_path_for(target)
+                if target.exists():
+                    os.replace(target, aside)
+                shutil.copytree(files / folder, target, copy_function=_link_or_copy)
+                shutil.rmtree(aside, ignore_errors=True)
                 restored.append(folder)
         for saved in sorted(p for p in files.rglob("*") if p.is_file()):
             rel = saved.relative_to(files)
             if any(f == rel or f in rel.parents for f in folders) or self.logs in rel.parents:
                 continue  # inside a recorded folder (handled above), or a log
-            if (only is None or rel in only) and not (self.workdir / rel).exists():
-                _link_or_copy(saved, self.workdir / rel)
+            if wanted(rel):
+                tmp = temp_path_for(self.workdir / rel)
+                _link_or_copy(saved, tmp)
+                os.replace(tmp, self.workdir / rel)
                 restored.append(rel)
-        metadata = self.workdir / METADATA
         for output in restored:
             for record in records.get(output, []):
                 target = metadata / record.relative_to(saved_records)

@@ -53,6 +53,13 @@ def shard_tables(wildcards):
     return [LAYOUT.shard_table(wildcards.condition, s, variant) for s in SHARDS]
 
 
+def shard_recordings_of(wildcards):
+    """The job's shard's recordings folder (a rollout's param: one that records nothing
+    removes an earlier run's, so the folder never holds recordings not of this run)."""
+    variant = getattr(wildcards, "variant", NOMINAL)
+    return str(LAYOUT.shard_recordings(wildcards.condition, wildcards.shard, variant))
+
+
 def shard_recording_output(folder):
     """A shard's recordings folder as a named output, unless recording.episodes is none."""
     return {"recording": directory(folder)} if RECORDED else {}

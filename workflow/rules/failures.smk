@@ -12,7 +12,6 @@ rule failures:
     params:
         slice=config_slice("failures", config),
         conditions=CONDITIONS,
-        recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
         shard_folders=shard_folders(CONDITIONS),
         code=stage_code_hash("failures"),
     run:

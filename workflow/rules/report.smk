@@ -16,7 +16,6 @@ rule report:
         # The report renders the design record, so it depends on all of the config.
         slice=config_slice("report", config),
         task_sha256=task_content,
-        recordings=[str(p) for p in per_condition(LAYOUT.recordings)],
         shard_folders=shard_folders(CONDITIONS),
         model_sha256=model_content,
         code=stage_code_hash("report"),

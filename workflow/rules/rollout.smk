@@ -21,6 +21,8 @@ rule rollout:
     params:
         slice=rollout_slice,
         shard=shard_bounds,
+        # its recordings folder: one recording nothing removes an earlier run's
+        recordings=shard_recordings_of,
         model_sha256=model_content,
         code=stage_code_hash("rollout"),
     script:

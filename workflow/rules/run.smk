@@ -76,8 +76,9 @@ def on_start():
 
 
 def on_error():
-    """Put back every output the failed run removed, and say so."""
-    restored = SAFEKEEPING.restore()
+    """Put back every output the failed run removed or rebuilt, and say so: the folder is
+    the last good run's (a job that succeeded may not fit what the failed one left)."""
+    restored = SAFEKEEPING.restore(replaced=True)
     SAFEKEEPING.drop()
     if restored:
         print(

@@ -11,7 +11,6 @@ run_job(
     snakemake,
     gather_failures,
     rule="failures",
-    recordings=dict(zip(conditions, map(Path, snakemake.params.recordings), strict=True)),
     shard_folders={c: list(map(Path, f)) for c, f in snakemake.params.shard_folders.items()},
     tables=dict(zip(conditions, map(Path, snakemake.input.tables), strict=True)),
     failures_max=snakemake.params.slice["failures_max"],

@@ -18,7 +18,6 @@ run_job(
     rollout_tables=dict(
         zip(config["conditions"], map(Path, snakemake.input.rollouts), strict=True)
     ),
-    recordings=dict(zip(config["conditions"], map(Path, snakemake.params.recordings), strict=True)),
     shard_folders={c: list(map(Path, f)) for c, f in snakemake.params.shard_folders.items()},
     model_file=Path(snakemake.input.model),
     figures_dir=Path(snakemake.output[FIGURES[0]]).parent,

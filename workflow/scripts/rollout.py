@@ -10,6 +10,7 @@ condition = snakemake.params.slice["condition"]
 variant = snakemake.params.slice.get("variant")
 qualified = f"{variant['name']}/{condition}" if variant else condition
 first, stop = snakemake.params.shard
+recorded = "recording" in snakemake.output.keys()
 run_job(
     snakemake,
     run_shard,
@@ -20,9 +21,8 @@ run_job(
     first=first,
     stop=stop,
     output_table=Path(snakemake.output.table),
-    output_recording=Path(snakemake.output.recording)
-    if "recording" in snakemake.output.keys()
-    else None,
+    output_recording=Path(snakemake.output.recording) if recorded else None,
+    unrecorded=None if recorded else Path(snakemake.params.recordings),
     nthread=snakemake.threads,
     repo_root=Path.cwd(),
 )

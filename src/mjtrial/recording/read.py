@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -191,16 +191,22 @@ def recorded_signals(reader: RrdReader, entry: StoreEntry) -> dict[str, list[str
     return out
 
 
-def find_episode_file(folder: str | os.PathLike[str], *, condition: str, state_id: int) -> Path:
-    """The file of one episode's recording in a condition's folder, in whichever shard.
+def find_episode_file(
+    folder: str | os.PathLike[str] | Sequence[Path], *, condition: str, state_id: int
+) -> Path:
+    """The file of one episode's recording in a condition's folder, in whichever shard, or in
+    one of a list of shard folders (a run's own: a folder an earlier run left is not read).
 
     Raises:
       KeyError: no shard of the folder holds it (say, `recording.episodes` is `failed` and the
         episode succeeded).
     """
-    folder = Path(folder)
     name = episode_file_name(condition, state_id)
-    found = sorted(folder.glob(f"shard-*/{name}")) or sorted(folder.glob(name))
+    if isinstance(folder, (str, os.PathLike)):
+        folder = Path(folder)
+        found = sorted(folder.glob(f"shard-*/{name}")) or sorted(folder.glob(name))
+    else:
+        found = [Path(f) / name for f in folder if (Path(f) / name).is_file()]
     if not found:
         raise KeyError(
             f"{folder}: no recording of condition {condition!r}, state {state_id} (no file "

@@ -456,7 +456,7 @@ def write_figures(
     summary: Mapping[str, Any],
     bound: BoundTask,
     rollout_tables: Mapping[str, Path],
-    recordings: Mapping[str, Path],
+    recordings: Mapping[str, Sequence[Path]],
     conditions: Mapping[str, Mapping[str, float]],
     out_dir: Path,
     stamp: Mapping[str, Any],
@@ -467,8 +467,8 @@ def write_figures(
       summary: `summary.json` (`mjtrial.analysis.summarize`).
       bound: the task on the model that ran: the figures' words and the traces' series.
       rollout_tables: condition -> its rollout table, which picks the traced episodes.
-      recordings: condition -> its folder of recordings (`rollouts/<condition>/`), from which
-        the traces are read.
+      recordings: condition -> its shards' folders of recordings (`rollouts/<condition>/shard-*`
+        of this run), from which the traces are read.
       conditions: condition -> its protocol parameters (config `conditions`).
       out_dir: the figures' folder.
       stamp: the provenance stamp of every file written.

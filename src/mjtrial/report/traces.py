@@ -3,7 +3,7 @@ recordings: what a success and a failure look like over time."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,7 +77,7 @@ def sample_traces(
     *,
     bound: BoundTask,
     rollout_tables: Mapping[str, Path],
-    recordings: Mapping[str, Path],
+    recordings: Mapping[str, Sequence[Path]],
     conditions: Mapping[str, Mapping[str, float]],
     per_outcome: int = TRACES_PER_OUTCOME,
 ) -> dict[str, SampleTraces]:
@@ -86,7 +86,8 @@ def sample_traces(
     Args:
       bound: the task on the model that ran; its `trace_series` is read.
       rollout_tables: condition -> its rollout table.
-      recordings: condition -> its folder of recordings.
+      recordings: condition -> its shards' folders of recordings (the run's own, as the layout
+        names them: a folder an earlier run left is never read).
       conditions: condition -> its protocol parameters (config `conditions.<name>`).
       per_outcome: episodes of each outcome per condition.
 

@@ -61,7 +61,6 @@ def choose_failures(
 
 def gather_failures(
     *,
-    recordings: Mapping[str, Path],
     tables: Mapping[str, Path],
     failures_max: int,
     shard_folders: Mapping[str, Sequence[Path]],
@@ -72,11 +71,11 @@ def gather_failures(
     """Write `failures.rrd` (at most `failures_max` failed episodes) and `failures.parquet`.
 
     Args:
-      recordings: condition -> its folder of shards (`rollouts/<condition>/`).
       tables: condition -> its rollout table; the tables say which episodes failed, so only
         the chosen episodes' files are opened.
-      shard_folders: condition -> its shards' folders as the layout names them (the stamp's
-        inputs; never a glob, which would pick up an earlier configuration's leftovers).
+      shard_folders: condition -> its shards' folders as the layout names them: where the
+        recordings are read, and the stamp's inputs (never a glob, which would pick up an
+        earlier configuration's leftovers).
 
     A recording that does not say it failed is an error (`write_failures_rrd`'s
     `only_failures`).
@@ -89,12 +88,12 @@ def gather_failures(
                 failures.append((condition, row["state_id"], row["failure_category"]))
     chosen = choose_failures(failures, at_most=failures_max)
     files = [
-        recording.find_episode_file(recordings[c], condition=c, state_id=s)
+        recording.find_episode_file(shard_folders[c], condition=c, state_id=s)
         for c, s, _ in failures
         if (c, s) in chosen
     ]
     inputs = {f"{c}_table": p for c, p in tables.items()}
-    inputs |= {c: list(shard_folders[c]) for c in recordings}
+    inputs |= {c: list(shard_folders[c]) for c in tables}
     stamp = make_stage_stamp(
         "failures", {"failures_max": failures_max}, inputs, repo_root=repo_root
     )

@@ -22,7 +22,6 @@ def write_report_stage(
     summary_path: Path,
     manifest_path: Path,
     rollout_tables: Mapping[str, Path],
-    recordings: Mapping[str, Path],
     shard_folders: Mapping[str, Sequence[Path]],
     model_file: Path,
     figures_dir: Path,
@@ -31,7 +30,9 @@ def write_report_stage(
 ) -> list[Path]:
     """Draw the figures and write `report.md`; every number in them comes from the inputs.
 
-    `recordings` (condition -> its folder of recordings) hold the sample traces drawn;
+    `shard_folders` (condition -> its shards' folders of recordings, as the layout names them
+    for this run, none without recordings) hold the sample traces drawn: a folder an earlier
+    run left is never read;
     `model_file` is the model the report describes (checked against the manifest's hash).
     """
     inputs = {
@@ -41,7 +42,8 @@ def write_report_stage(
         **task_inputs(config["task"], repo_root=repo_root),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
         **{
-            f"recordings:{k}": [p for p in shard_folders[k] if Path(p).is_dir()] for k in recordings
+            f"recordings:{k}": [p for p in shard_folders[k] if Path(p).is_dir()]
+            for k in shard_folders
         },
     }
     stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
@@ -54,7 +56,7 @@ def write_report_stage(
         summary=summary,
         bound=bound,
         rollout_tables=rollout_tables,
-        recordings=recordings,
+        recordings=shard_folders,
         conditions=config["conditions"],
         out_dir=figures_dir,
         stamp=stamp,

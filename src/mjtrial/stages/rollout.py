@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, engine, provenance, recording
+from mjtrial import REPO_ROOT, atomic, engine, provenance, recording
 from mjtrial.conditions import model_edits
 from mjtrial.engine import BATCH_SIZE
 from mjtrial.physics import load_model
@@ -234,6 +234,7 @@ def run_shard(
     stop: int,
     output_table: Path,
     output_recording: Path | None = None,
+    unrecorded: Path | None = None,
     nthread: int,
     rule: str,
     batch_size: int = BATCH_SIZE,
@@ -245,7 +246,9 @@ def run_shard(
     Writes the shard's rows of the rollout table and (given `output_recording`, a folder) the
     trajectory of every episode that `recording.episodes` asks for (`all` or `failed`) as a
     Rerun recording, one .rrd per episode, written while the next batch runs. Memory is bounded
-    by the batch and the shard, never by the number of states.
+    by the batch and the shard, never by the number of states. `unrecorded` is the shard's
+    recordings folder when `recording.episodes` is none: an earlier run's is removed once the
+    table is written, so that no reader takes its recordings for this run's.
     """
     bound = condition_task(condition_slice, model_file, repo_root=repo_root)
     task = bound.task
@@ -295,6 +298,8 @@ def run_shard(
         )
     table = outcome_table(task, columns)
     provenance.write_parquet(table, output_table, stamp)
+    if unrecorded is not None:
+        atomic.remove_folder(unrecorded)
     log.info(
         "%s: %d/%d successes -> %s",
         rule,

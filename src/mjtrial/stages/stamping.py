@@ -125,7 +125,7 @@ def model_inputs(model_file: Path) -> dict[str, Any]:
 
 
 def task_inputs(reference: str, *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:
-    """A stamp's record of the task: its file, or every file of its task package, when the
+    """A stamp's record of the task: every file of its folder (`task.task_files`), when the
     config names it by path (a task named by module is code of an installed package, recorded
     by the library versions)."""
     if not str(reference).endswith(".py"):

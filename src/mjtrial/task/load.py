@@ -59,12 +59,14 @@ def _from_file(path: Path) -> Task:
 
 
 def task_files(task_file: Path) -> list[Path]:
-    """The files a task named by path is made of: the file, or every `.py` file of its folder
-    when the folder is a task package (sorted): what stamps record and an edit reruns."""
+    """What stamps record of a task named by path and an edit reruns: every file of its folder
+    and below (data the task reads included), less caches and hidden files, sorted."""
     folder = Path(task_file).parent
-    if (folder / "__init__.py").is_file():
-        return sorted(folder.rglob("*.py"))
-    return [Path(task_file)]
+    if (folder / "Snakefile").exists():
+        raise TaskError(f"{task_file}: expected a folder of its own (its files are its inputs)")
+    files = {p.relative_to(folder) for p in folder.rglob("*") if p.is_file()}
+    cached = {p for p in files if any(x == "__pycache__" or x[0] == "." for x in p.parts)}
+    return sorted(folder / p for p in files - cached)
 
 
 def _task_of(module: Any, where: str, folder: Path) -> Task:
@@ -96,6 +98,7 @@ def load_task(reference: str | Path, *, repo_root: Path = Path(".")) -> Task:
         path = Path(text) if Path(text).is_absolute() else Path(repo_root) / text
         if not path.is_file():
             raise TaskError(f"{text}: task file not found")
+        task_files(path)
         return _from_file(path)
     for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         if entry.name == text:

@@ -262,15 +262,21 @@ def verify_results(
     config, command_line, config_warnings = _config_of_the_run(
         Path(config_path), manifest, repo_root=repo_root
     )
-    current = Current.of_environment(config)
+    current = Current.of_environment(config, repo_root=repo_root)
 
     ours = _rollout_outputs(layout, config)
+    # recording.episodes none gathers no failures: those of an earlier run are not this one's
+    unrecorded = (
+        {layout.failures, layout.failures_table}
+        if config["recording"]["episodes"] == "none"
+        else set()
+    )
     stamps: dict[str, dict[str, Any]] = {}
     unreadable: dict[str, str] = {}
     leftovers: list[Skipped] = []
     for file in _stamped_files(results_dir):
         rel = _relative(file, repo_root)
-        if _is_rollout_output(layout, file) and file not in ours:
+        if (_is_rollout_output(layout, file) and file not in ours) or file in unrecorded:
             leftovers.append(
                 Skipped(rel, "left by an earlier configuration; not one of its outputs")
             )

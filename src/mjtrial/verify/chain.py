@@ -13,11 +13,13 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from enum import Enum
+from pathlib import Path
 from typing import Any
 
-from mjtrial import codehash, provenance
+from mjtrial import REPO_ROOT, codehash, provenance
 from mjtrial.layout import STAGES
 from mjtrial.stages.stamping import config_slice, stage_code
+from mjtrial.task import task_files
 
 __all__ = [
     "STAMPED_SUFFIXES",
@@ -145,11 +147,19 @@ class Current:
     code: Mapping[str, Mapping[str, str] | None]  # per stage: `stamping.stage_code`
     versions: Mapping[str, str | None]
     platform: Mapping[str, Any] = field(default_factory=dict)
+    task_files: tuple[str, ...] | None = None  # a task named by path: its files, as recorded
 
     @classmethod
-    def of_environment(cls, config: Mapping[str, Any]) -> Current:
-        """``config`` with each stage's code as it is now, this environment's library versions
-        and this machine's platform fingerprint."""
+    def of_environment(cls, config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> Current:
+        """``config`` with each stage's code as it is now, this environment's library versions,
+        this machine's platform fingerprint and the files of the config's task."""
+        task, files = config.get("task"), None
+        if isinstance(task, str) and task.endswith(".py"):
+            try:
+                found = task_files(Path(repo_root) / task)
+                files = tuple(provenance.repo_relative(p, repo_root) for p in found)
+            except (OSError, ValueError):
+                files = None
         code: dict[str, Mapping[str, str] | None] = {}
         for stage in STAGES:
             try:
@@ -161,6 +171,7 @@ class Current:
             code=code,
             versions=provenance.library_versions(),
             platform=provenance.platform_fingerprint(),
+            task_files=files,
         )
 
 
@@ -515,6 +526,11 @@ def check_stamps(
                 stale[path].append(f"{label} changed: {source}")
             if name == "model" and isinstance(model_path, str) and source != model_path:
                 stale[path].append(f"model changed: {source} -> {model_path}")
+        # A file added to the task's folder (an edited or removed one is seen above).
+        task = {r["path"] for n, r in _input_records(stamp) if n == "task" and _valid_record(r)}
+        if task and current.task_files is not None:
+            if added := sorted(set(current.task_files) - task):
+                stale[path].append(f"task file added: {_names(added, '')}")
 
     # The manifest's own record of the model.
     if manifest_path in pipeline_stamps and isinstance(manifest, Mapping):
