@@ -82,3 +82,26 @@ def test_the_report_is_true_of_this_model(reacher_run):
         report
     )
     assert "goal_x (the goal the robot is commanded)" in report
+
+
+def test_each_recording_draws_its_own_goal(reacher_run):
+    """The goal moves the model's target geom per episode: a recording draws it where it was."""
+    import rerun as rr
+
+    results = reacher_run / RESULTS
+    states = {r["state_id"]: r for r in pq.read_table(results / "states.parquet").to_pylist()}
+    rows = pq.read_table(results / "rollouts" / "latency_100ms.parquet").to_pylist()
+    failed = [r["state_id"] for r in rows if not r["success"]][:3]
+    assert failed
+    for state_id in failed:
+        [path] = (results / "rollouts" / "latency_100ms").glob(f"*/*-{state_id:06d}.rrd")
+        reader = rr.chunk.RrdReader(str(path))
+        [recording] = reader.recordings()
+        [world] = [
+            c.to_record_batch()
+            for c in reader.store(store=recording).stream().filter(content="/world")
+            if c.entity_path == "/world"
+        ]
+        [centers] = world.column(world.schema.names.index("Ellipsoids3D:centers")).to_pylist()
+        goal = [states[state_id]["goal_x"], states[state_id]["goal_y"], 0.01]
+        assert centers == [pytest.approx(goal, abs=1e-6)]  # the target, the world's one sphere

@@ -36,6 +36,7 @@ from rerun.chunk import ChunkStore
 from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
 from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT, RECORDING_FOLDER_STAMP, write_json
 from mjtrial.recording.arrow import (
+    archetype_columns,
     chunks,
     component_field,
     property_columns,
@@ -57,6 +58,7 @@ from mjtrial.recording.names import (
     logged_steps,
 )
 from mjtrial.recording.route import rrd_output, save_blueprint, write_store
+from mjtrial.recording.scene import static_scene
 from mjtrial.recording.series import Chunker, Signal
 
 
@@ -183,6 +185,7 @@ class _Pending:
     rows: np.ndarray  # logged rows of the physics state
     sensors: np.ndarray  # logged rows of sensordata
     ctrl: np.ndarray  # logged rows of ctrl
+    geometry: list[Any] | None = None  # the episode's own scene's columns, where it differs
 
 
 _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
@@ -200,6 +203,24 @@ class RecordingSpec:
     measure_names: Sequence[str]
     n_steps: int
     log_every: int
+    # `episode_model(values)`: the episode's own model, for a task whose state parameters edit
+    # it (a goal geom moved per episode); None when every episode runs on `model` itself
+    episode_model: Callable[[Mapping[str, float]], mujoco.MjModel] | None = None
+
+
+# What a recording's static scene is drawn from: an episode whose model differs here gets its own.
+SCENE_FIELDS = (
+    *("geom_type", "geom_pos", "geom_quat", "geom_size", "geom_rgba", "geom_dataid"),
+    *("geom_bodyid", "geom_group", "body_pos", "body_quat", "mat_rgba"),
+)
+
+
+def episode_geometry(model: mujoco.MjModel, nominal: mujoco.MjModel) -> list[Any] | None:
+    """The static scene's columns of an episode's own model, or None when it draws as `nominal`
+    (a mass drawn per episode changes no drawing; a goal geom moved per episode does)."""
+    if all(np.array_equal(getattr(model, f), getattr(nominal, f)) for f in SCENE_FIELDS):
+        return None
+    return [c for e, a in static_scene(model) for c in archetype_columns(e, a)]
 
 
 class EpisodeStores:
@@ -218,13 +239,11 @@ class EpisodeStores:
         self.chunker = chunker = Chunker(spec.model, spec.signals)
         self.episode_field = episode_field(spec.state_names, spec.measure_names)
         # the same in every recording: geometry, static poses, series names and the stamp
-        self.constant = chunks(
-            [
-                *chunker.geometry,
-                *chunker.styles,
-                *property_columns(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
-            ]
-        )
+        self.shared = [
+            *chunker.styles,
+            *property_columns(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
+        ]
+        self.constant = chunks([*chunker.geometry, *self.shared])
         self.plots = chunker.plots
         self.blueprint = default_blueprint(chunker.plots)
 
@@ -245,7 +264,14 @@ class EpisodeStores:
                 recording = [
                     *chunks(properties.slice(i, 1)),
                     # the same data in every recording, each time under a fresh chunk id
-                    *(c.with_entity_path(c.entity_path) for c in self.constant),
+                    *(
+                        c.with_entity_path(c.entity_path)
+                        for c in (
+                            self.constant
+                            if ep.geometry is None
+                            else chunks([*ep.geometry, *self.shared])
+                        )
+                    ),
                     *chunks(series.slice(i * n, n), temporal=True),
                 ]
                 store = ChunkStore.from_chunks(recording)
@@ -270,6 +296,11 @@ class EpisodeStores:
                     rows=physics[self.steps],
                     sensors=sensordata[self.steps],
                     ctrl=ctrl[self.steps],
+                    geometry=(
+                        None
+                        if spec.episode_model is None
+                        else episode_geometry(spec.episode_model(ep.values), spec.model)
+                    ),
                 )
             )
             seen.add(sid)

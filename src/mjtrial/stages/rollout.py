@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -186,7 +186,17 @@ def recording_spec(bound: BoundTask, n_steps: int, rate_hz: float) -> RecordingS
         measure_names=[m.name for m in recorded_measures(task)],
         n_steps=n_steps,
         log_every=log_every(rate_hz, model.opt.timestep),
+        episode_model=episode_model(bound),
     )
+
+
+def episode_model(bound: BoundTask) -> Callable[[Mapping[str, float]], mujoco.MjModel] | None:
+    """The function from an episode's state values to its own model, for a task whose state
+    parameters edit the model (what its recording draws); None when none do."""
+    if not any(p.apply.stage == "model" for p in bound.task.state_parameters):
+        return None
+    scratch = mujoco.MjData(bound.model)
+    return lambda values: bound.episode(values, scratch=scratch)[0]
 
 
 def episode_records(task: Task, batch: engine.Batch) -> Iterator[recording.EpisodeRecord]:
