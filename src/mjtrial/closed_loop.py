@@ -272,9 +272,15 @@ def check_batch_independence(policy: BatchPolicy, observations: np.ndarray) -> N
     n = len(observations)
     policy.reset(n)
     together = np.asarray(policy(observations), dtype=np.float64)
+    # the shape first: a transposed (nu, n) answer is a wrong shape, not a batch dependence
+    if together.ndim != 2 or together.shape[0] != n:
+        raise PolicyError(
+            f"policy: expected controls of shape ({n}, nu), one row per episode of a batch of "
+            f"{n}, got {together.shape}"
+        )
     for i in range(n):
         policy.reset(1)
-        alone = np.asarray(policy(observations[i : i + 1]), dtype=np.float64)
+        alone = _checked_controls(policy(observations[i : i + 1]), 1, together.shape[1])
         if not np.array_equal(alone[0], together[i], equal_nan=True):
             diff = float(np.max(np.abs(alone[0] - together[i])))
             raise PolicyError(

@@ -60,7 +60,19 @@ def _steps(seconds: float, model: mujoco.MjModel) -> int:
     return round(seconds / model.opt.timestep)
 
 
+def _whole_steps(name: str, seconds: float, model: mujoco.MjModel) -> None:
+    """Refuse a time that is not a whole number of physics steps: rounding it would run another
+    latency or period than the config says, without a word."""
+    if abs(_steps(seconds, model) * model.opt.timestep - seconds) > 1e-9:
+        raise ValueError(
+            f"{name} {seconds:g} s is not a whole number of {model.opt.timestep:g} s physics "
+            "steps; expected a multiple of the timestep"
+        )
+
+
 def timing(model: mujoco.MjModel, params) -> Timing:
+    for name in ("latency", "control_period"):
+        _whole_steps(name, params[name], model)
     per_control = _steps(params["control_period"], model)
     return Timing(
         steps_per_control=per_control,
