@@ -132,9 +132,11 @@ def main() -> None:
     print(f"clean snakemake -c{args.cores}, N = {args.n}: {wall:.1f} s; bar {BAR_MB} MB a process")
     print(f"\n{'process':<60} {'peak MB':>8}")
     print(f"{'snakemake (its own process, with the in-process jobs)':<60} {main_peak:8.0f}")
-    for pid, (name, mb) in sorted(jobs.items(), key=lambda kv: -kv[1][1])[:8]:
+    for _pid, (name, mb) in sorted(jobs.items(), key=lambda kv: -kv[1][1])[:8]:
         print(f"  {name:<58} {mb:8.0f}")
-    print("\nfrom the jobs' logs: each job process's peak, and Snakemake's rss after each of its jobs")
+    print(
+        "\nfrom the jobs' logs: each job process's peak, and Snakemake's rss after each of its jobs"
+    )
     for stem, mb in sorted(job_peaks.items(), key=lambda kv: -kv[1])[:6]:
         print(f"  {stem:<58} {mb:8.0f}  (peak)")
     for stem, mb in in_process.items():
