@@ -52,3 +52,41 @@ def test_a_job_process_reports_its_own_peak_not_its_parents():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     peak = float(re.search(r"peak rss (\d+) MB", proc.stdout).group(1))
     assert 0 < peak < held_mb / 2, proc.stdout  # the child imports little: tens of MB
+
+
+def test_no_job_reads_parquet_through_pyarrow_dataset():
+    """`pq.read_table` imports pyarrow.dataset and pandas (54 MB, for good, in Snakemake's
+    process): every module a workflow script runs reads tables with `mjtrial.tables`."""
+    from mjtrial.codehash import module_file, script_code
+
+    offenders = set()
+    for script in sorted((REPO_ROOT / "workflow/scripts").glob("*.py")):
+        for name in script_code(script):
+            file = module_file(name) or REPO_ROOT / name
+            if file.name == "tables.py":
+                continue
+            text = file.read_text(encoding="utf-8")
+            if re.search(r"\bread_table\(|pyarrow\.dataset|import pandas", text) and (
+                "from mjtrial.tables import read_table" not in text
+            ):
+                offenders.add(str(file.relative_to(REPO_ROOT)))
+    assert not offenders
+
+
+def test_reading_a_table_imports_neither_pyarrow_dataset_nor_pandas(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = tmp_path / "t.parquet"
+    pq.write_table(pa.table({"a": [1, 2]}, metadata={"k": "v"}), path)
+    code = (
+        "import sys\n"
+        "from mjtrial.tables import read_table\n"
+        f"path = {str(path)!r}\n"
+        "t = read_table(path)\n"
+        "assert t.schema.metadata == {b'k': b'v'} and t.column('a').to_pylist() == [1, 2]\n"
+        "assert read_table(path, columns=['a']).num_columns == 1\n"
+        "print([m for m in ('pyarrow.dataset', 'pandas') if m in sys.modules])\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "[]"

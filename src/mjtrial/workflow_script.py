@@ -91,8 +91,6 @@ def release_memory() -> None:
     from 411 to 451 MB). `malloc_trim` returns them; where there is no glibc this does nothing.
     """
     gc.collect()
-    if "pyarrow" in sys.modules:  # Arrow's own allocator (mimalloc) keeps what it freed too
-        sys.modules["pyarrow"].default_memory_pool().release_unused()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
