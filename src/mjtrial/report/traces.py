@@ -8,11 +8,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 
 from mjtrial.engine import episode_steps
 from mjtrial.recording import list_recordings, read_episode
 from mjtrial.recording.read import find_episode_file
-from mjtrial.tables import read_table
 from mjtrial.task import BoundTask, call
 
 # Episodes of each outcome per condition drawn in the traces figure.
@@ -45,7 +45,7 @@ class SampleTraces:
 def _chosen_episodes(table_path: Path, per_outcome: int) -> list[tuple[int, dict]]:
     """The lowest-id successes and failures, by state id, with their table rows: a choice fixed
     in advance, not a pick of telling examples."""
-    table = read_table(table_path)
+    table = pq.read_table(table_path)
     columns = {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
     order = np.argsort(columns["state_id"], kind="stable")
     success = np.asarray(columns["success"], dtype=bool)[order]

@@ -8,9 +8,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq
+
 from mjtrial import REPO_ROOT, analysis, provenance
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
-from mjtrial.tables import read_table
 from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
@@ -64,11 +65,11 @@ def summarize_tables(
     conditions = analysis_slice["conditions"]
     task = load_task(analysis_slice["task"], repo_root=repo_root)
     analysis_config = analysis_slice["analysis"]
-    states_table = read_table(states_path)
+    states_table = pq.read_table(states_path)
     states = {c: states_table.column(c).to_numpy() for c in states_table.column_names}
     outcomes = {}
     for name, path in rollout_tables.items():
-        t = read_table(path)
+        t = pq.read_table(path)
         outcomes[name] = {c: t.column(c).to_numpy(zero_copy_only=False) for c in t.column_names}
     nominal = {
         name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, engine, provenance
 from mjtrial.benchmark.report import benchmark_report
@@ -19,7 +20,6 @@ from mjtrial.benchmark.summary import summarize_benchmark
 from mjtrial.report.figures import write_benchmark_figures
 from mjtrial.stages.rollout import condition_task, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
-from mjtrial.tables import read_table
 
 log = logging.getLogger("mjtrial")
 
@@ -31,7 +31,7 @@ def _key(task: str, method: str, seed: int) -> str:
 def solvability_record(path: Path) -> dict[str, Any]:
     """A task's solvability check for the summary: how it probed, under which reference, how
     many probe states the reference solved, and every one it did not (the unsolvable regions)."""
-    table = read_table(path).to_pylist()
+    table = pq.read_table(path).to_pylist()
     stamp = provenance.read_stamp(path)
     failed = [r for r in table if not r["success"]]
     return {
@@ -65,7 +65,7 @@ def write_summary(
             outcomes[task][method], used[task][method] = {}, {}
             for seed in seeds:
                 key = _key(task, method, seed)
-                table = read_table(evaluations[key], columns=["state_id", "success"])
+                table = pq.read_table(evaluations[key], columns=["state_id", "success"])
                 ids = table.column("state_id").to_numpy()
                 if reference_ids is None:
                     reference_ids = ids
@@ -117,7 +117,7 @@ def write_report(
 ) -> str:
     """The benchmark's report and figures from its summary and its closest calls' table."""
     data = json.loads(Path(summary).read_text(encoding="utf-8"))
-    text = benchmark_report(data, read_table(closest_calls).to_pylist())
+    text = benchmark_report(data, pq.read_table(closest_calls).to_pylist())
     inputs = {"summary": Path(summary), "closest_calls": Path(closest_calls)}
     stamp = make_stage_stamp(rule, {}, inputs, repo_root=repo_root)
     write_benchmark_figures(summary=data, out_dir=Path(figures_dir), stamp=stamp)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, engine, provenance
 from mjtrial.closest_calls import choose, margins
@@ -38,7 +39,6 @@ from mjtrial.stages.rollout import (
     recording_spec,
 )
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
-from mjtrial.tables import read_table
 
 log = logging.getLogger("mjtrial")
 
@@ -101,7 +101,7 @@ def _task_calls(
         record = json.loads(parameters[run].read_text(encoding="utf-8"))
         condition = evaluation_condition(record, spec["evaluate_slice"])
         params = task.parameters(condition_parameters(bound, condition))
-        table = read_table(evaluations[run])
+        table = pq.read_table(evaluations[run])
         where = f"{evaluations[run].name} of {task_name}/{run[0]}"
         source = str(task.source or task.name)
         margin_parts.append(margins(task.margin, table, params, source=source, where=where))

@@ -22,7 +22,6 @@ from mjtrial import REPO_ROOT, provenance
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import check_drawn_as
-from mjtrial.tables import read_table
 
 
 def evaluation_condition(
@@ -85,7 +84,7 @@ def gather_evaluation(
 ) -> pa.Table:
     """The evaluation's table from its shards' (in state order): every evaluation state once.
     Its stamp names the states and the parameter file, as each shard's does."""
-    tables = [read_table(p).replace_schema_metadata(None) for p in shards]
+    tables = [pq.read_table(p).replace_schema_metadata(None) for p in shards]
     table = pa.concat_tables(tables)
     ids = table.column("state_id").to_numpy()
     n = pq.read_metadata(states).num_rows

@@ -15,10 +15,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance, recording
 from mjtrial.stages.stamping import make_stage_stamp
-from mjtrial.tables import read_table
 
 log = logging.getLogger("mjtrial")
 
@@ -83,7 +83,7 @@ def gather_failures(
     """
     failures: list[tuple[str, int, str]] = []
     for condition, table in tables.items():
-        rows = read_table(table, columns=["state_id", "success", "failure_category"])
+        rows = pq.read_table(table, columns=["state_id", "success", "failure_category"])
         for row in rows.to_pylist():
             if not row["success"]:
                 failures.append((condition, row["state_id"], row["failure_category"]))

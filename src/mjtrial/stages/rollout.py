@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, engine, provenance, recording
 from mjtrial.engine import BATCH_SIZE
@@ -18,7 +19,6 @@ from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.variants import variant_model
-from mjtrial.tables import read_table
 from mjtrial.task import BoundTask, Measure, Task, load_task
 
 log = logging.getLogger("mjtrial")
@@ -84,7 +84,7 @@ def read_state_values(
 ) -> dict[str, np.ndarray]:
     """The states with ids in [first, stop) of `states.parquet`: state_id and the task's state
     parameters, checked (every column present, every value finite, the ids in order)."""
-    table = read_table(path)
+    table = pq.read_table(path)
     missing = [c for c in task.state_columns if c not in table.column_names]
     if missing:
         raise ValueError(
@@ -308,7 +308,7 @@ def gather_condition(
     """The condition's rollout table from its shards' (in state order), and the nominal state's
     episode (each state parameter at its nominal value) for the "nominal state alone" mistake."""
     bound = condition_task(condition_slice, model_file, repo_root=repo_root)
-    tables = [read_table(p).replace_schema_metadata(None) for p in shard_tables]
+    tables = [pq.read_table(p).replace_schema_metadata(None) for p in shard_tables]
     table = pa.concat_tables(tables) if tables else rollout_schema(bound.task).empty_table()
     ids = table.column("state_id").to_numpy()
     if not np.array_equal(ids, np.arange(len(ids))):

@@ -13,6 +13,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq
+
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.layout import NOMINAL, STUDY_FIGURES
 from mjtrial.report import studies as study_report
@@ -20,14 +22,13 @@ from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.dose_response import summarize_dose_response
 from mjtrial.studies.sensitivity import summarize_sensitivity
 from mjtrial.studies.variants import nominal_model_hash, variant_model
-from mjtrial.tables import read_table
 from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
 
 
 def _columns(path: Path) -> dict[str, Any]:
-    table = read_table(path)
+    table = pq.read_table(path)
     return {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
 
 
