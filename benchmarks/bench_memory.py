@@ -52,7 +52,8 @@ def describe(process: psutil.Process) -> str:
         args = process.cmdline()
     except psutil.Error:
         return "?"
-    return " ".join(Path(a).name if "/" in a else a for a in args)[:90]
+    words = (Path(a).name if "/" in a else a for a in args)
+    return " ".join(" ".join(words).split())[:58]  # one line (a `python -c` spans several)
 
 
 def sample(root: psutil.Process, peaks: dict[int, tuple[str, float]], stop: threading.Event):
@@ -132,7 +133,7 @@ def main() -> None:
     print(f"clean snakemake -c{args.cores}, N = {args.n}: {wall:.1f} s; bar {BAR_MB} MB a process")
     print(f"\n{'process':<60} {'peak MB':>8}")
     print(f"{'snakemake (its own process, with the in-process jobs)':<60} {main_peak:8.0f}")
-    for _pid, (name, mb) in sorted(jobs.items(), key=lambda kv: -kv[1][1])[:8]:
+    for _pid, (name, mb) in sorted(jobs.items(), key=lambda kv: -kv[1][1])[:5]:
         print(f"  {name:<58} {mb:8.0f}")
     print(
         "\nfrom the jobs' logs: each job process's peak, and Snakemake's rss after each of its jobs"
