@@ -112,7 +112,9 @@ def main() -> None:
         sys.exit(f"snakemake failed:\n{err[-2000:]}")
 
     main_peak = peaks[proc.pid][1]
-    jobs = {pid: v for pid, v in peaks.items() if pid != proc.pid}
+    # Job processes; not Snakemake's forks caught before their `exec` (the same command line):
+    # those share Snakemake's pages, copy-on-write, until the job's program replaces them.
+    jobs = {pid: v for pid, v in peaks.items() if v[0] != peaks[proc.pid][0]}
     layout = Layout.of(cfg["experiment"], base=work / RESULTS_DIR)
     logged = {}  # a job's log -> its last `# resources:` line
     for log in sorted(layout.logs_dir.glob("*.log")):
