@@ -114,15 +114,15 @@ def test_every_log_begins_with_its_stamp(built):
 
 
 def test_every_log_holds_its_own_jobs_messages_and_ends_with_its_resources(built):
-    """The jobs after the rollouts run side by side in Snakemake's process (failures beside
-    analysis): each log still holds its own messages only, and ends with the job's resources;
-    a rollout's is its own process's."""
+    """The jobs after the rollouts run side by side in Snakemake's process (a gather beside
+    the other): each log still holds its own messages only, and ends with the job's resources;
+    a rollout's and the failures job's are their own process's."""
     for log in sorted((built / LAYOUT.logs_dir).glob("*.log")):
         lines = log.read_text(encoding="utf-8").splitlines()
         rule = provenance.read_stamp(log)["rule"]
         assert lines[-1].startswith("# resources: wall "), log.name
         in_process = "in snakemake's process" in lines[-1]
-        assert in_process == (not log.stem.startswith("rollout_")), log.name
+        assert in_process == (not log.stem.startswith(("rollout_", "failures"))), log.name
         stage = rule.split(":")[0]
         others = {"states", "rollout", "gather", "failures", "analysis", "manifest", "report"}
         others |= {"seal", "crate"}

@@ -25,7 +25,6 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import cma
 import numpy as np
 
 from mjtrial.engine import iter_batches
@@ -155,6 +154,10 @@ def tune(
     the states from another (both from `numpy.random.SeedSequence(seed)`); episodes never
     depend on `nthread`. pycma's global seed and numpy's global generator are not used.
     """
+    # Imported here: pycma imports scipy.stats and matplotlib (52 MB), and this module is
+    # imported by Snakemake's process (through mjtrial.benchmark.config), which never tunes.
+    import cma
+
     task = bound.task
     box = check_search(task, tuned, fixed)
     fixed = {k: float(v) for k, v in fixed.items()}
