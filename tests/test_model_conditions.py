@@ -54,13 +54,15 @@ def run(tmp_path_factory) -> Path:
 
 
 def _hand_edited_model(workdir: Path, tmp_path: Path) -> Path:
-    """The cart-pole's XML with the rail's frictionloss written in by hand (text, not MjSpec)."""
+    """The cart-pole's XML (one file, no includes) with the rail's frictionloss written in by
+    hand (text, not MjSpec)."""
     source = (workdir / "tasks" / "cartpole_latency" / "cartpole.xml").read_text()
     edited, count = re.subn(
         r'(<joint name="cart_slide")', rf'\1 frictionloss="{FRICTIONLOSS}"', source
     )
     assert count == 1
-    path = workdir / "tasks" / "cartpole_latency" / "cartpole_sticky_by_hand.xml"
+    # outside the task's folder: every file there is the task's input
+    path = tmp_path / "cartpole_sticky_by_hand.xml"
     path.write_text(edited)
     return path
 
