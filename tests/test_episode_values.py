@@ -134,3 +134,49 @@ def test_a_mocap_position_moves_the_mocap_body_in_the_reset_data():
     assert data.mocap_pos[0].tolist() == [0.0, 0.25, 0.0]
     with pytest.raises(TaskError, match="expected body 'world' to be a mocap body"):
         MocapPosition("world", 0).bind(model)
+
+
+@pytest.mark.parametrize("task_file", ["gantry_lift/task.py", "reacher_goal/task.py"])
+def test_a_reused_model_copy_is_the_model_a_fresh_copy_would_be(task_file):
+    """Model parameters that set their value (a mass, a goal's position) let the engine reuse
+    a batch slot's copy: after other episodes, the same compiled bytes (MJB) and initial state
+    as a fresh copy's."""
+    import hashlib
+    import tempfile
+    from pathlib import Path
+
+    bound = BoundTask.of(load_task(REPO_ROOT / "tasks" / task_file))
+    assert bound.reuses_models
+    scratch, slot = mujoco.MjData(bound.model), copy.copy(bound.model)
+    values = _states(bound.task, 5, seed=4)
+
+    def mjb(model) -> str:
+        with tempfile.TemporaryDirectory() as folder:
+            mujoco.mj_saveModel(model, str(Path(folder) / "m.mjb"), None)
+            return hashlib.sha256((Path(folder) / "m.mjb").read_bytes()).hexdigest()
+
+    for i in range(5):
+        episode = {k: float(v[i]) for k, v in values.items()}
+        fresh, fresh_state = bound.episode(episode, scratch=scratch)
+        reused, reused_state = bound.episode(episode, scratch=scratch, model=slot)
+        assert reused is slot and fresh is not bound.model
+        assert mjb(reused) == mjb(fresh)
+        np.testing.assert_array_equal(reused_state, fresh_state)
+
+
+def test_a_custom_model_parameter_gets_a_fresh_copy_every_episode(reacher):
+    from mjtrial.task import Custom
+
+    task = reacher.task
+
+    def scale(m, d, value):  # multiplies: a reused copy would compound
+        m.geom_size[0, 0] *= value
+
+    parameter = StateParameter("scale", "", 0.5, 2.0, Custom(scale, stage="model"))
+    parameters = (*task.state_parameters, parameter)
+    bound = BoundTask.of(type(task)(**{**task.__dict__, "state_parameters": parameters}))
+    assert not bound.reuses_models
+    slot = copy.copy(bound.model)
+    values = {p.name: 0.1 for p in parameters}
+    model, _ = bound.episode(values, scratch=mujoco.MjData(bound.model), model=slot)
+    assert model is not slot

@@ -12,6 +12,7 @@ episode alone, so one that depends on the batch is not confirmed.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
@@ -99,10 +100,11 @@ def episode_steps(bound: BoundTask, condition: Mapping[str, float]) -> int:
     return call(task, "timing", controller.timing, model, params).n_steps
 
 
-# A batch's episodes with model parameters each run on a copy of the model, textures included
-# (dm_control's skybox alone makes the reacher 11.8 MB): the copies of one batch stay under this.
-# Outcomes never depend on the batch, so this changes memory, not results.
-MODEL_COPIES_BYTES = 48 * 2**20
+# A batch's episodes with model parameters each run on a copy of the model (one per batch slot,
+# reused batch after batch where the task's parameters allow: `BoundTask.reuses_models`),
+# textures included: dm_control's reacher is 11.8 MB with its skybox, so it gets 8 slots.
+# Outcomes never depend on the batch, so this changes memory and speed, not results.
+MODEL_COPIES_BYTES = 96 * 2**20
 
 
 def iter_batches(
@@ -126,7 +128,7 @@ def iter_batches(
     """
     task, model = bound.task, bound.model
     if any(p.apply.stage == "model" for p in task.state_parameters):
-        # each episode runs on its own copy of the model, textures and all
+        # each batch slot holds a copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
     params = task.parameters(condition)
     n = len(next(iter(values.values())))
@@ -142,13 +144,19 @@ def iter_batches(
         policy = call(task, "policy", controller.policy, model, params)
     episode_values = [p.name for p in task.state_parameters]
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
+    # one copy of the model per batch slot, reused batch after batch where it can be
+    slots = [copy.copy(model) for _ in range(batch_size)] if bound.reuses_models else []
     with rollout.Rollout(nthread=nthread) as runner:
         for start in range(0, n, batch_size):
             rows = {k: np.asarray(v[start : start + batch_size]) for k, v in values.items()}
             size = len(next(iter(rows.values())))
             models, initial = [], []
             for i in range(size):
-                m, s = bound.episode({k: float(v[i]) for k, v in rows.items()}, scratch=scratch)
+                m, s = bound.episode(
+                    {k: float(v[i]) for k, v in rows.items()},
+                    scratch=scratch,
+                    model=slots[i] if slots else None,
+                )
                 models.append(m)
                 initial.append(s)
             initial_states = np.stack(initial)

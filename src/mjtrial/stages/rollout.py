@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -196,7 +197,8 @@ def episode_model(bound: BoundTask) -> Callable[[Mapping[str, float]], mujoco.Mj
     if not any(p.apply.stage == "model" for p in bound.task.state_parameters):
         return None
     scratch = mujoco.MjData(bound.model)
-    return lambda values: bound.episode(values, scratch=scratch)[0]
+    slot = copy.copy(bound.model) if bound.reuses_models else None
+    return lambda values: bound.episode(values, scratch=scratch, model=slot)[0]
 
 
 def episode_records(task: Task, batch: engine.Batch) -> Iterator[recording.EpisodeRecord]:

@@ -50,6 +50,7 @@ class BodyMass:
 
     body: str
     stage = "model"
+    sets = True  # writes its value whatever was there: a model copy can be reused
 
     def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
         index = _element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)
@@ -109,6 +110,7 @@ class ModelValue:
     attribute: str
     index: int = 0
     stage = "model"
+    sets = True  # writes its value whatever was there: a model copy can be reused
 
     def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
         what = f"{self.kind} {self.name!r}"
