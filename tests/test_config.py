@@ -194,6 +194,12 @@ def test_the_cartpole_config_is_valid():
     check_config(copy.deepcopy(CARTPOLE), source=CARTPOLE_SOURCE, repo_root=REPO_ROOT)
 
 
+@pytest.mark.parametrize("source", ["config/reacher_goal.yaml", "config/reacher_damping.yaml"])
+def test_the_reacher_configs_are_valid(source):
+    """The goal-conditioned reach and the model-change question (a condition editing joints)."""
+    check_config(yaml.safe_load((REPO_ROOT / source).read_text()), source=source)
+
+
 @pytest.mark.parametrize(
     ("base", "source", "edit", "message"),
     [

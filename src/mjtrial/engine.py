@@ -145,7 +145,7 @@ def iter_batches(
     episode_values = [p.name for p in task.state_parameters]
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
     # one copy of the model per batch slot, reused batch after batch where it can be
-    slots = [copy.copy(model) for _ in range(batch_size)] if bound.reuses_models else []
+    slots = [copy.copy(model) for _ in range(min(batch_size, n))] if bound.reuses_models else []
     with rollout.Rollout(nthread=nthread) as runner:
         for start in range(0, n, batch_size):
             rows = {k: np.asarray(v[start : start + batch_size]) for k, v in values.items()}
