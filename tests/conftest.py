@@ -51,6 +51,16 @@ SNAKEMAKE = str(Path(__import__("sys").executable).parent / "snakemake")
 WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")
 
 
+def copy_workflow(workdir: Path) -> Path:
+    """The workflow's files (`WORKFLOW_FILES`) copied into `workdir`, a folder to run it in."""
+    import shutil
+
+    for name in WORKFLOW_FILES:
+        src = REPO_ROOT / name
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    return workdir
+
+
 def edit_config(workdir: Path, edit) -> None:
     """Apply `edit` to the workdir's config/config.yaml."""
     import yaml

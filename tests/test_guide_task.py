@@ -5,12 +5,11 @@ replaces, then the pipeline, the studies and verify, on 24 states instead of 200
 from __future__ import annotations
 
 import re
-import shutil
 from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
+from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial.cli import main
 
@@ -34,9 +33,7 @@ def test_the_guide_gives_the_model_the_task_and_the_config():
 @pytest.fixture(scope="module")
 def pendulum(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("guide_task")
-    for name in WORKFLOW_FILES:
-        src = REPO_ROOT / name
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    copy_workflow(workdir)
     assert main(["new-task", "pendulum_hold", "--repo-root", str(workdir)]) == 0
     blocks = guide_blocks()
     for path in ("tasks/pendulum_hold/model.xml", "tasks/pendulum_hold/task.py"):

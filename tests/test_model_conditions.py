@@ -8,7 +8,6 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -16,7 +15,7 @@ import mujoco
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from conftest import REPO_ROOT, SNAKEMAKE, WORKFLOW_FILES, run_snakemake
+from conftest import REPO_ROOT, SNAKEMAKE, copy_workflow, run_snakemake
 
 from mjtrial.config import ConfigError, check_config
 from mjtrial.stages.rollout import run_shard
@@ -45,9 +44,7 @@ def _config() -> dict:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("sticky")
-    for name in WORKFLOW_FILES:
-        src = REPO_ROOT / name
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    copy_workflow(workdir)
     (workdir / "config" / "config.yaml").write_text(yaml.safe_dump(_config(), sort_keys=False))
     run_snakemake(workdir)
     return workdir

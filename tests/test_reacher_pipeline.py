@@ -5,13 +5,12 @@ of this model (contacts disabled, motors limited by ctrlrange times gear, in N·
 from __future__ import annotations
 
 import hashlib
-import shutil
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
+from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial.cli import main
 
@@ -34,9 +33,7 @@ def test_the_model_is_the_one_dm_control_ships():
 @pytest.fixture(scope="module")
 def reacher_run(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("reacher")
-    for name in WORKFLOW_FILES:
-        src = REPO_ROOT / name
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    copy_workflow(workdir)
     config = yaml.safe_load((REPO_ROOT / "config" / "reacher_goal.yaml").read_text())
     config["experiment"] = "reacher_small"
     config["states"]["n"] = 16
