@@ -101,3 +101,19 @@ def test_a_job_whose_snakemake_is_gone_does_nothing(tmp_path, monkeypatch):
         f"error: the Snakemake process {gone.pid} that started this job is gone\n"
     )
     assert not log.exists() and not (tmp_path / "out").exists()
+
+
+def test_a_killed_process_not_yet_reaped_counts_as_gone():
+    """A job checks its Snakemake right after its imports; killed but not yet reaped, that
+    process is a zombie: it exists, and is dead."""
+    from mjtrial.workflow_script import _alive
+
+    child = subprocess.Popen(["sleep", "30"])
+    child.kill()
+    deadline = time.monotonic() + 10
+    while psutil.Process(child.pid).status() != psutil.STATUS_ZOMBIE:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert not _alive(child.pid)
+    child.wait()
+    assert not _alive(child.pid) and _alive(os.getpid())

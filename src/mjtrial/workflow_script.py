@@ -125,7 +125,13 @@ def _alive(pid: int) -> bool:
         return False
     except PermissionError:  # it exists, and is another user's
         pass
-    return True
+    # A killed process stays a zombie until its parent reaps it: dead, though it exists (a job
+    # that checked in that window ran to its end after its Snakemake was killed, under load).
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state not in ("Z", "X")
 
 
 class _ThreadStream:
