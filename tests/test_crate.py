@@ -481,17 +481,19 @@ def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_verifies(odd_na
     assert not [i for i in entities if "%25" in i or " " in i or "ü" in i]  # encoded once
     job = entities["#job/rollout:firm/shard-00000"]
     assert {"@id": f"source/{ODD_ID}/task.py"} in job["object"]
-    report = verify_results(
-        odd_names / ODD.root,
-        config_path=odd_names / "config" / "odd.yaml",
-        repo_root=odd_names,
-        resimulate=0,
-    )
+    report = _verify_odd(odd_names)
     assert report.ok, report.format()
     # The other experiment, whose crate was rebuilt with the folder in its copy of the sources.
     assert f"source/{ODD_ID}/task.py" in graph(odd_names / LAYOUT.crate)
     report = verify(odd_names)
     assert report.ok, report.format()
+
+
+def _verify_odd(root):
+    """The odd-named experiment's results verified in the checkout `root`."""
+    return verify_results(
+        root / ODD.root, config_path=root / "config" / "odd.yaml", repo_root=root, resimulate=0
+    )
 
 
 def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_validates_and_zips(
@@ -513,12 +515,7 @@ def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_validates_and_z
     crate = ROCrate(archive)  # ro-crate-py finds the task by its id
     assert crate.get(f"{ODD_ID}/task.py").type == "File"
     there = tmp_path / "elsewhere"
-    report = verify_results(
-        there / ODD.root,
-        config_path=there / "config" / "odd.yaml",
-        repo_root=there,
-        resimulate=0,
-    )
+    report = _verify_odd(there)
     assert report.ok, report.format()
 
 

@@ -78,21 +78,7 @@ def test_trend_on_the_linear_scale_matches_the_fit_on_the_value_itself():
 
 
 def test_a_sweep_through_zero_is_summarized_on_the_linear_scale():
-    tables = {
-        v: table(np.r_[np.zeros(k, bool), np.ones(N - k, bool)])
-        for v, k in [(0.0, 0), (0.02, 4), (0.04, 9)]
-    }
-    out = summarize_dose_response(
-        tables,
-        parameter="latency",
-        states=states(),
-        band_parameter="mass",
-        band_edges=[0.05, 0.6],
-        analysis=ANALYSIS,
-        margin=0.05,
-        reference=0.0,
-        units={"latency": "s", "mass": "kg"},
-    )
+    out = _summarize(_latency_sweep({0.0: 0, 0.02: 4, 0.04: 9}), margin=0.05, reference=0.0)
     assert out["scale"] == "linear" and out["unit"] == "s" and out["band_unit"] == "kg"
     assert out["trend"]["slope_log_odds_per_unit_value"] < 0
     assert out["values_within_margin"] == [0.0]

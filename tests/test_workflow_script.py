@@ -113,9 +113,10 @@ def test_in_process_failure_raises_with_one_line_and_traceback_in_log(script, tm
     assert "after the job" not in (tmp_path / "logs/job.log").read_text()
 
 
-def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
-    """As Snakemake's `script:` runs it: a process of its own, exit status 1."""
-    args = job_args(tmp_path, "fail")
+def _run_as_script(script, tmp_path, what: str):
+    """The job run as Snakemake's `script:` runs it: a process of its own (its args, the
+    finished process)."""
+    args = job_args(tmp_path, what)
     runner = tmp_path / "runner.py"
     runner.write_text(
         "import sys\n"
@@ -123,11 +124,16 @@ def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
         "from test_workflow_script import Named\n"
         "from types import SimpleNamespace\n"
         f"snakemake = SimpleNamespace(input=Named(), output=Named({args['output'][0]!r}),\n"
-        "    params=Named(what='fail', slice={}), log=Named(" + repr(args["logs"][0]) + "),\n"
+        f"    params=Named(what={what!r}, slice={{}}), log=Named(" + repr(args["logs"][0]) + "),\n"
         "    rule='states')\n"
         f"exec(open({str(script)!r}).read(), {{'snakemake': snakemake}})\n"
     )
-    proc = subprocess.run([sys.executable, str(runner)], capture_output=True, text=True)
+    return args, subprocess.run([sys.executable, str(runner)], capture_output=True, text=True)
+
+
+def test_script_process_failure_exits_1_with_one_line(script, tmp_path):
+    """As Snakemake's `script:` runs it: a process of its own, exit status 1."""
+    args, proc = _run_as_script(script, tmp_path, "fail")
     assert proc.returncode == 1, proc.stderr
     assert proc.stderr == "error: states: the states table has no rows\n"
 
@@ -165,19 +171,7 @@ def test_an_in_process_jobs_prints_go_to_its_log_and_the_console_stays(script, t
 
 def test_a_process_jobs_prints_and_warnings_go_to_its_log(script, tmp_path):
     """As Snakemake's `script:` runs it: what the task prints or warns is in the job's log."""
-    args = job_args(tmp_path, "print")
-    runner = tmp_path / "runner.py"
-    runner.write_text(
-        "import sys\n"
-        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-        "from test_workflow_script import Named\n"
-        "from types import SimpleNamespace\n"
-        f"snakemake = SimpleNamespace(input=Named(), output=Named({args['output'][0]!r}),\n"
-        "    params=Named(what='print', slice={}), log=Named(" + repr(args["logs"][0]) + "),\n"
-        "    rule='states')\n"
-        f"exec(open({str(script)!r}).read(), {{'snakemake': snakemake}})\n"
-    )
-    proc = subprocess.run([sys.executable, str(runner)], capture_output=True, text=True)
+    args, proc = _run_as_script(script, tmp_path, "print")
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout == ""
     assert "the task" not in proc.stderr

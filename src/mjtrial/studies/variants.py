@@ -134,10 +134,6 @@ def apply_overrides(
                 _apply_element(element, name, value, f"{where}.{element_name}.{name}")
 
 
-def _spec(model_file: Path | str) -> mujoco.MjSpec:
-    return load_spec(model_file)
-
-
 def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]:
     # Compiled from the edited spec itself, never through `to_xml()`: the XML round trip is not
     # exact (a quaternion from `fromto` came back 6e-17 apart) and its text depends on what the
@@ -159,7 +155,7 @@ def check_overrides(
     Applies them to a fresh spec of `model_file` (nothing is compiled), so every element name
     is checked against the model itself.
     """
-    apply_overrides(_spec(model_file), overrides, key_prefix=key_prefix)
+    apply_overrides(load_spec(model_file), overrides, key_prefix=key_prefix)
 
 
 def variant_model(
@@ -176,7 +172,7 @@ def variant_model(
     and its hex sha256 (`physics.compiled_sha256`); with no edits this is the nominal model,
     identical to `physics.load_model(model_file)`, and its hash (`nominal_model_hash`).
     """
-    spec = _spec(model_file)
+    spec = load_spec(model_file)
     apply_overrides(spec, overrides, key_prefix=key_prefix)
     for edits, prefix in then:
         apply_overrides(spec, edits, key_prefix=prefix)
