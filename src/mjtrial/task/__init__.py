@@ -54,9 +54,9 @@ from mjtrial.task.declare import (
     TaskError,
     Threshold,
 )
-from mjtrial.task.observation_model import ObservationModel
 from mjtrial.task.definition import Task, call, expect_rows
 from mjtrial.task.load import ENTRY_POINT_GROUP, load_task, task_files
+from mjtrial.task.observation_model import ObservationModel
 
 __all__ = [
     "DISTURBANCE",
