@@ -163,7 +163,8 @@ class ClosedLoopBatch:
 
     Attributes:
       physics: (n_episodes, n_steps, nstate) mjSTATE_FULLPHYSICS after each physics step.
-      sensordata: (n_episodes, n_steps, nsensordata) sensor values after each physics step.
+      sensordata: (n_episodes, n_steps, nsensordata) the sensors each physics step recorded,
+        computed before it integrates: [:, j] are those of the state before step j + 1.
       ctrl: (n_episodes, n_controls, nu) the controls the policy chose at each instant.
       warnings: (mjNWARNING,) warning counters of a `reference_episode` (None from the engine,
         which, like `mujoco.rollout`, reports only the frozen state).

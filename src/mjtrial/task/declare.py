@@ -452,7 +452,9 @@ class Episodes:
       model: the nominal model of the condition.
       params: the condition's protocol parameters (defaults filled in).
       physics: (n, n_steps, nstate) mjSTATE_FULLPHYSICS after each step.
-      sensordata: (n, n_steps, nsensordata) sensor values after each step.
+      sensordata: (n, n_steps, nsensordata) the sensors each step recorded: `mj_step` computes
+        them before it integrates, so [:, j] are those of the state before step j + 1
+        (`physics[:, j - 1]`, the initial state's for j = 0).
       healthy: (n,) False where a MuJoCo warning froze the episode or it went non-finite.
       ctrl: (n, n_steps, nu) the ctrl applied before each step (open loop: one sequence for
         every episode, broadcast).
