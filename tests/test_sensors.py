@@ -13,6 +13,7 @@ import hashlib
 import mujoco
 import numpy as np
 import pytest
+import yaml
 from conftest import REPO_ROOT
 from mujoco import rollout
 
@@ -409,3 +410,86 @@ def test_a_bad_observation_model_value_is_one_line_before_any_episode(condition,
         next(iter_batches(bound, values, {"duration": 1.5, **condition}, thresholds=THRESHOLDS))
     assert str(err.value).startswith(f"{CARTPOLE}: observation 'cart_position': ")
     assert "\n" not in str(err.value)
+
+
+PIPELINE_CONFIG = "config/cartpole_sensors.yaml"
+PIPELINE_RESULTS = "results/cartpole_sensors"
+
+
+@pytest.fixture(scope="module")
+def noisy_run(tmp_path_factory):
+    """The cart-pole experiment, its task reading the encoder sensors through an observation
+    model, on 16 states: with exact encoders and with noise and dropped readings."""
+    from conftest import copy_workflow, run_snakemake
+
+    workdir = tmp_path_factory.mktemp("sensors")
+    copy_workflow(workdir)
+    task = workdir / "tasks" / "cartpole_latency" / "task.py"
+    text = task.read_text()
+    for name, joint in (("cart_position", "CART"), ("pole_angle", "POLE")):
+        old = f'Observation.joint_position("{name}", {joint}, source='
+        assert old in text
+        sensor = "cart_encoder" if joint == "CART" else "pole_encoder"
+        errors = 'noise="encoder_noise", dropout="encoder_dropout", source='
+        text = text.replace(old, f'Observation.sensor("{name}", "{sensor}", {errors}')
+    text = text.replace(
+        "    protocol_parameters=(\n",
+        "    protocol_parameters=(\n"
+        '        ProtocolParameter("encoder_noise", "rad", 0.0, minimum=0.0),\n'
+        '        ProtocolParameter("encoder_dropout", "", 0.0, minimum=0.0, maximum=0.9),\n',
+        1,
+    )
+    task.write_text(text)
+    config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
+    config |= {
+        "experiment": "cartpole_sensors",
+        "conditions": {
+            "exact": {"latency": 0.0},
+            "noisy": {"latency": 0.0, "encoder_noise": 0.01, "encoder_dropout": 0.3},
+        },
+    }
+    config["states"]["n"] = 16
+    config["rollout"]["shard_size"] = 16
+    config["recording"]["episodes"] = "none"
+    config["design"]["falsifier"] |= {"treatment": "exact", "baseline": "noisy"}
+    config["sweep"]["base"] = "noisy"
+    (workdir / PIPELINE_CONFIG).write_text(yaml.safe_dump(config, sort_keys=False))
+    tables = [f"{PIPELINE_RESULTS}/rollouts/{c}.parquet" for c in ("exact", "noisy")]
+    run_snakemake(workdir, *tables, "--configfile", PIPELINE_CONFIG)
+    return workdir
+
+
+def test_noisy_episodes_re_simulated_alone_as_verify_does_equal_their_rows(noisy_run):
+    """Verify re-simulates a sample of each table's episodes, each alone, from the states table
+    (`Recompute.resimulated`): the same draws, the same rows. Done here with the functions it
+    calls (a whole run's verify needs the report and the crate besides)."""
+    import pyarrow.parquet as pq
+
+    from mjtrial.layout import Layout
+    from mjtrial.stages.rollout import (
+        condition_batches,
+        condition_task,
+        read_state_values,
+        rollout_columns,
+    )
+    from mjtrial.stages.stamping import config_slice
+    from mjtrial.verify import load_checked_config
+
+    config = load_checked_config(noisy_run / PIPELINE_CONFIG, repo_root=noisy_run)
+    layout = Layout.of(config["experiment"], base=noisy_run / "results")
+    tables = {
+        c: pq.read_table(layout.rollout_table(c, "nominal")).to_pylist() for c in ("exact", "noisy")
+    }
+    assert [r["peak_angle"] for r in tables["noisy"]] != [r["peak_angle"] for r in tables["exact"]]
+    slice_ = config_slice("rollout", config, condition="noisy")
+    bound = condition_task(slice_, noisy_run / config["model"], repo_root=noisy_run)
+    every = read_state_values(layout.states, bound.task)
+    ids = [2, 11, 15]
+    columns = rollout_columns(bound.task)
+    batches = condition_batches(
+        bound, slice_, {k: v[ids] for k, v in every.items()}, nthread=1, batch_size=1
+    )
+    for state_id, batch in zip(ids, batches, strict=True):
+        alone = {c: batch.outcome[c][0] for c in columns[1:]}
+        alone = {c: v.item() if hasattr(v, "item") else v for c, v in alone.items()}
+        assert alone == {c: tables["noisy"][state_id][c] for c in alone}
