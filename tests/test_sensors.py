@@ -493,3 +493,29 @@ def test_noisy_episodes_re_simulated_alone_as_verify_does_equal_their_rows(noisy
         alone = {c: batch.outcome[c][0] for c in columns[1:]}
         alone = {c: v.item() if hasattr(v, "item") else v for c, v in alone.items()}
         assert alone == {c: tables["noisy"][state_id][c] for c in alone}
+
+
+def test_the_manifest_and_report_say_what_errors_an_observation_has(noisy_run):
+    from mjtrial.report.text import _task_lines
+    from mjtrial.stages.manifest import task_record
+
+    record = task_record({"task": "tasks/cartpole_latency/task.py"}, repo_root=noisy_run)
+    errors = {"noise": "encoder_noise", "dropout": "encoder_dropout"}
+    assert record["observation_errors"] == {"cart_position": errors, "pole_angle": errors}
+    [read] = [line for line in _task_lines(record) if "policy reads" in line]
+    assert "pole_angle (pole encoder; noise: `encoder_noise`; dropout: `encoder_dropout`)" in read
+    # a task without errors records nothing new (its manifest stays as it was)
+    assert "observation_errors" not in task_record({"task": str(CARTPOLE)})
+
+
+def test_a_sensor_without_a_source_is_privileged():
+    from mjtrial.task_checks import check_observations
+
+    task = _encoder_task()
+    hidden = Observation.sensor("pole_angle", "pole_encoder", source=None)
+    task = dataclasses.replace(task, observations=(task.observations[0], hidden))
+    with pytest.raises(TaskError, match="the policy reads 'pole_angle', a privileged observation"):
+        check_observations(task, {})
+    assert check_observations(task, {"pole_angle": "an upper bound"}) == {
+        "pole_angle": "an upper bound"
+    }
