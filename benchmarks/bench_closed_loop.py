@@ -200,6 +200,7 @@ def engine(nominal, models, initial, pushes, timing, nthread, sensing=None) -> i
     `sensing`: (the task reading sensors, the episodes' state values), or None: the state."""
     last_second = round(1.0 / nominal.opt.timestep)
     successes = 0
+    policy = policy_for(nominal)  # once, as the pipeline builds it once per condition
     with rollout.Rollout(nthread=nthread) as runner:
         datas = [mujoco.MjData(nominal) for _ in range(max(1, nthread))]
         for start in range(0, len(models), BATCH_SIZE):
@@ -217,7 +218,7 @@ def engine(nominal, models, initial, pushes, timing, nthread, sensing=None) -> i
             batch = run_batch(
                 models[rows],
                 initial[rows],
-                policy_for(nominal),
+                policy,
                 observe,
                 timing,
                 runner=runner,
