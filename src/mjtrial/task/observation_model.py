@@ -103,12 +103,14 @@ def with_errors(
     std, bias, quantum, dropout = (
         params[p] if p else 0.0 for p in (model.noise, model.bias, model.quantum, model.dropout)
     )
+    # instant-major, so each instant's rows are contiguous: (n_controls, n, 1)
     lost = (
-        np.stack([np.random.default_rng([*e, 1]).random(n_controls) for e in entropy]) < dropout
+        np.stack([np.random.default_rng([*e, 1]).random(n_controls) for e in entropy], 1)[..., None]
+        < dropout
         if dropout
         else None
     )
-    z: list[np.ndarray] = []  # (n, n_controls, size), drawn at the first call (size known)
+    noise: list[np.ndarray] = []  # (n_controls, n, size) std * z, drawn once the size is known
     last: list[np.ndarray] = []  # the reading delivered at the previous instant
 
     def observe(k: int, states: np.ndarray, sensors: np.ndarray | None) -> np.ndarray:
@@ -116,19 +118,16 @@ def with_errors(
         if bias:
             x = x + bias
         if std:
-            if not z:
+            if not noise:
                 shape = (n_controls, x.shape[1])
-                z.append(
-                    np.stack(
-                        [np.random.default_rng([*e, 0]).standard_normal(shape) for e in entropy]
-                    )
-                )
-            x = x + std * z[0][:, k]
+                z = [np.random.default_rng([*e, 0]).standard_normal(shape) for e in entropy]
+                noise.append(std * np.stack(z, 1))
+            x = x + noise[0][k]
         if quantum:
             x = np.round(x / quantum) * quantum
         if lost is not None:
             if k > 0:
-                x = np.where(lost[:, k, None], last[0], x)
+                x = np.where(lost[k], last[0], x)
             last[:] = [x]
         return x
 
