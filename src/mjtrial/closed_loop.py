@@ -21,6 +21,16 @@ between steps.
 Timing: a control instant every `steps_per_control` physics steps; the observation used at
 instant k is measured `latency_steps` physics steps earlier (the initial state's while k's time
 is within the latency), so sensing latency is a whole number of physics steps.
+
+Sensors: an `Observer` with `sensed=True` is also given the `sensordata` of the measured states,
+what `mj_forward` computes at each (`mj_setState` then `mj_forward`: `reference_episode` does
+exactly that). `mj_step`, and so `mujoco.rollout`, computes sensors before it integrates: the
+sensordata recorded with step j+1 is that of the state after step j. The engine reads them there,
+and for a state not yet stepped from (no latency) takes them from one more step that it runs and
+discards. Only sensors of the position and velocity stages are read this way (a task's sensor
+observation refuses others): they are functions of the state alone, so both ways agree bit for
+bit; an acceleration or force sensor would also depend on the control and the solver's warm
+start at that instant.
 """
 
 from __future__ import annotations
@@ -114,12 +124,47 @@ Observe = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
+class Observer:
+    """What the policy is given at each control instant.
+
+    Attributes:
+      read: `read(k, states, sensors)`: control instant k, the measured states (n_episodes,
+        nstate) mjSTATE_FULLPHYSICS and, when `sensed`, their sensor values (n_episodes,
+        nsensordata) (else None) -> (n_episodes, n_observations). Called once per instant, k
+        from 0 up, so it may hold what it delivered before (a dropped reading's last value).
+      sensed: whether `read` uses the sensor values (their cost is paid only then).
+    """
+
+    read: Callable[[int, np.ndarray, np.ndarray | None], np.ndarray]
+    sensed: bool = False
+
+    @classmethod
+    def of(cls, observe: Observe | Observer) -> Observer:
+        """An `Observer` as it is, or one of a function of the measured states alone."""
+        if isinstance(observe, Observer):
+            return observe
+        return cls(lambda k, states, sensors: observe(states))
+
+
+def sensors_at(models: list[mujoco.MjModel], states: np.ndarray, data: mujoco.MjData) -> np.ndarray:
+    """(n, nsensordata) sensor values at each state (n, nstate) mjSTATE_FULLPHYSICS:
+    `mj_setState` then `mj_forward` on `data`, episode i on `models[i]`."""
+    out = np.empty((len(states), models[0].nsensordata))
+    for i, (m, state) in enumerate(zip(models, states, strict=True)):
+        mujoco.mj_setState(m, data, state, FULLPHYSICS)
+        mujoco.mj_forward(m, data)
+        out[i] = data.sensordata
+    return out
+
+
+@dataclass(frozen=True)
 class ClosedLoopBatch:
     """Trajectories of a batch of closed-loop episodes.
 
     Attributes:
       physics: (n_episodes, n_steps, nstate) mjSTATE_FULLPHYSICS after each physics step.
-      sensordata: (n_episodes, n_steps, nsensordata) sensor values after each physics step.
+      sensordata: (n_episodes, n_steps, nsensordata) the sensors each physics step recorded,
+        computed before it integrates: [:, j] are those of the state before step j + 1.
       ctrl: (n_episodes, n_controls, nu) the controls the policy chose at each instant.
       warnings: (mjNWARNING,) warning counters of a `reference_episode` (None from the engine,
         which, like `mujoco.rollout`, reports only the frozen state).
@@ -147,7 +192,7 @@ def run_batch(
     models: list[mujoco.MjModel],
     initial: np.ndarray,
     policy: BatchPolicy,
-    observe: Observe,
+    observe: Observe | Observer,
     timing: Timing,
     *,
     runner: rollout.Rollout,
@@ -161,7 +206,8 @@ def run_batch(
       models: one model per episode (the same sizes; per-episode physical parameters).
       initial: (n_episodes, nstate) mjSTATE_FULLPHYSICS initial states.
       policy: called once per control instant on all the batch's observations.
-      observe: the observations of a batch of physics states.
+      observe: the observations of a batch of physics states (an `Observer`, or a function of
+        the measured states alone).
       timing: control period, episode length and sensing latency in physics steps.
       runner: a `mujoco.rollout.Rollout` (its thread pool is reused across batches).
       datas: one MjData per runner thread (at least one).
@@ -173,21 +219,35 @@ def run_batch(
     n, nstate = initial.shape
     model = models[0]
     nu, nbody, s = model.nu, model.nbody, timing.steps_per_control
+    observer = Observer.of(observe)
     physics = np.empty((n, timing.n_steps, nstate))
     sensordata = np.empty((n, timing.n_steps, model.nsensordata))
     ctrl_log = np.empty((n, timing.n_controls, nu))
+    # With no latency a sensed observation reads the state each block ends in, not yet stepped
+    # from: one more step gives its sensors (the module's docstring), then is discarded.
+    extra = int(observer.sensed and timing.latency_steps == 0)
     # Preallocated rollout outputs and controls, reused every call (skip_checks needs them whole).
-    step_states = np.empty((n, s, nstate))
-    step_sensors = np.empty((n, s, model.nsensordata))
-    controls = np.zeros((n, s, nu + nbody * 6))
+    step_states = np.empty((n, s + extra, nstate))
+    step_sensors = np.empty((n, s + extra, model.nsensordata))
+    controls = np.zeros((n, s + extra, nu + nbody * 6))
     state = np.ascontiguousarray(initial, dtype=np.float64)
+    initial_sensors = sensors_at(models, state, mujoco.MjData(model)) if observer.sensed else None
     replayed = min(timing.n_controls, REPLAYED_INSTANTS) if check else 0
     observed: np.ndarray | None = None  # (n, replayed, n_observations), for check_replayed
     policy.reset(n)
     for k in range(timing.n_controls):
         j = timing.measured_step(k)
         measured = initial if j == 0 else physics[:, j - 1]
-        obs = np.asarray(observe(measured), dtype=np.float64)
+        sensors = None
+        if observer.sensed:  # the sensors of state j were computed in step j + 1
+            sensors = (
+                initial_sensors
+                if j == 0
+                else step_sensors[:, s]
+                if j == k * s
+                else sensordata[:, j]
+            )
+        obs = np.asarray(observer.read(k, measured, sensors), dtype=np.float64)
         if k < replayed:
             if observed is None:
                 observed = np.empty((n, replayed, *obs.shape[1:]))
@@ -196,7 +256,7 @@ def run_batch(
         ctrl_log[:, k] = ctrl
         controls[:, :, :nu] = ctrl[:, None, :]
         if pushes is not None:
-            controls[:, :, nu:] = pushes.xfrc(nbody, k * s, s)
+            controls[:, :, nu:] = pushes.xfrc(nbody, k * s, s + extra)
         runner.rollout(
             models,
             datas,
@@ -204,13 +264,13 @@ def run_batch(
             controls,
             control_spec=CONTROL_SPEC,
             skip_checks=True,
-            nstep=s,
+            nstep=s + extra,
             state=step_states,
             sensordata=step_sensors,
         )
-        physics[:, k * s : (k + 1) * s] = step_states
-        sensordata[:, k * s : (k + 1) * s] = step_sensors
-        state = np.ascontiguousarray(step_states[:, -1])
+        physics[:, k * s : (k + 1) * s] = step_states[:, :s]
+        sensordata[:, k * s : (k + 1) * s] = step_sensors[:, :s]
+        state = np.ascontiguousarray(step_states[:, s - 1])
     if observed is not None:
         check_replayed(policy, observed, ctrl_log[:, :replayed])
     return ClosedLoopBatch(physics=physics, sensordata=sensordata, ctrl=ctrl_log)
@@ -220,7 +280,7 @@ def reference_episode(
     model: mujoco.MjModel,
     initial: np.ndarray,
     policy: BatchPolicy,
-    observe: Observe,
+    observe: Observe | Observer,
     timing: Timing,
     *,
     pushes: Pushes | None = None,
@@ -229,10 +289,13 @@ def reference_episode(
     one: what a user writes without the engine, and the engine's reference.
 
     Like `mujoco.rollout`, it stops stepping at the first MuJoCo warning and repeats the frozen
-    state. Returns a batch of one episode.
+    state. A sensed observation's sensors are computed at the measured state by `mj_setState`
+    and `mj_forward` on an MjData of their own. Returns a batch of one episode.
     """
+    observer = Observer.of(observe)
     m = copy.copy(model)
     d = mujoco.MjData(m)
+    probe = mujoco.MjData(m) if observer.sensed else None
     mujoco.mj_setState(m, d, initial, FULLPHYSICS)
     nstate = initial.shape[0]
     states = [np.asarray(initial, dtype=np.float64)]
@@ -241,8 +304,10 @@ def reference_episode(
     policy.reset(1)
     halted = False
     for k in range(timing.n_controls):
-        measured = states[timing.measured_step(k)]
-        ctrl = _checked_controls(policy(np.asarray(observe(measured[None]))), 1, m.nu)[0]
+        measured = states[timing.measured_step(k)][None]
+        sensed = sensors_at([m], measured, probe) if probe is not None else None
+        obs = np.asarray(observer.read(k, measured, sensed))
+        ctrl = _checked_controls(policy(obs), 1, m.nu)[0]
         ctrl_log[k] = ctrl
         d.ctrl[:] = ctrl
         for j in range(k * timing.steps_per_control, (k + 1) * timing.steps_per_control):

@@ -170,7 +170,10 @@ def iter_batches(
                     else None
                 )
                 observe = bound.observer(
-                    controller.observations, {p: rows[p] for p in episode_values}
+                    controller.observations,
+                    {p: rows[p] for p in episode_values},
+                    params=params,
+                    n_controls=timing.n_controls,
                 )
                 try:
                     result = closed_loop.run_batch(
@@ -222,6 +225,8 @@ def iter_batches(
                             bound.observer(
                                 controller.observations,
                                 {p: rows[p][i : i + 1] for p in episode_values},
+                                params=params,
+                                n_controls=timing.n_controls,
                             ),
                             timing,
                             pushes=pushes.rows(slice(i, i + 1)) if pushes else None,

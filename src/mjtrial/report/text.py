@@ -144,8 +144,11 @@ def _task_lines(record: Mapping[str, Any] | None) -> list[str]:
         return []
     lines = [f"- Task: {record['title']} (`{record['reference']}`), {record['controller']}."]
     if record["observations"]:
+        errors = record.get("observation_errors", {})
         read = ", ".join(
-            f"{name} ({source or '**privileged**: no real-world source'})"
+            f"{name} ({source or '**privileged**: no real-world source'}"
+            + "".join(f"; {role}: `{p}`" for role, p in errors.get(name, {}).items())
+            + ")"
             for name, source in record["observations"].items()
         )
         lines.append(f"- The policy reads: {read}.")

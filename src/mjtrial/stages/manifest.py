@@ -140,7 +140,8 @@ def manifest_record(
 
 def task_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:
     """What the manifest says of the task: where it is, what it is, what its policy reads
-    (each observation's real-world source) and the privileged observations allowed, with why."""
+    (each observation's real-world source, and the protocol parameters of its errors) and the
+    privileged observations allowed, with why."""
     task = load_task(config["task"], repo_root=repo_root)
     controller = task.controller
     read = getattr(controller, "observations", ())
@@ -153,6 +154,9 @@ def task_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> di
         "observations": {name: sources[name] for name in read},
         "privileged_observations": dict(config.get("privileged_observations") or {}),
     }
+    errors = {o.name: o.errors.parameters() for o in task.observations if o.errors}
+    if any(name in errors for name in read):  # each error's protocol parameter, by role
+        record["observation_errors"] = {name: errors[name] for name in read if name in errors}
     if task.source is not None and str(config["task"]).endswith(".py"):
         record["sha256"] = provenance.file_sha256(task.source)
     return record

@@ -13,7 +13,9 @@ gymnasium's `reset(seed=...)`, in declarations rather than callbacks where mjtri
 - `protocol_parameters`: what conditions, sweeps and variants may set, with types and bounds;
 - `controller`: `OpenLoop` (a control sequence per condition, run by `mujoco.rollout`) or
   `ClosedLoop` (a policy called on a batch of observations at the control rate);
-- `observations`: each with its real-world source, or privileged (`source=None`);
+- `observations`: each with its real-world source, or privileged (`source=None`): a joint's
+  position, a state parameter's value, a `<sensor>` of the model (`Observation.sensor`), each
+  through an optional `ObservationModel` (noise, bias, quantization, dropped readings);
 - `success`, `measures` and the ordered `failure_categories` with their `thresholds`.
 
 A task is loaded from a file path (`tasks/<name>/task.py`, which defines `TASK`) or an importable
@@ -54,6 +56,7 @@ from mjtrial.task.declare import (
 )
 from mjtrial.task.definition import Task, call, expect_rows
 from mjtrial.task.load import ENTRY_POINT_GROUP, load_task, task_files
+from mjtrial.task.observation_model import ObservationModel
 
 __all__ = [
     "DISTURBANCE",
@@ -79,6 +82,7 @@ __all__ = [
     "ModelValue",
     "ModelCheckError",
     "Observation",
+    "ObservationModel",
     "OpenLoop",
     "ProtocolParameter",
     "Series",

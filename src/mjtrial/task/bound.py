@@ -10,9 +10,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from mjtrial.closed_loop import Observer
 from mjtrial.physics import FULLPHYSICS, ModelError, load_model
-from mjtrial.task.declare import ModelCheckError, SeriesRead, TaskError, _element
+from mjtrial.task.declare import ModelCheckError, Observation, SeriesRead, TaskError, _element
 from mjtrial.task.definition import Task
+from mjtrial.task.observation_model import with_errors
 
 # --------------------------------------------------------------------------------------------
 # Episodes' models and initial states
@@ -26,7 +28,8 @@ class BoundTask:
     task: Task
     model: mujoco.MjModel
     appliers: tuple[Any, ...]  # per state parameter: its bound apply function, or None
-    observe: Mapping[str, Callable[[np.ndarray], np.ndarray]]
+    # per observation of the physics state: its read; of a sensor: its sensordata columns
+    observe: Mapping[str, Callable[[np.ndarray], np.ndarray] | slice]
     series: tuple[SeriesRead, ...] = ()  # per `task.series`: its bound read
 
     @classmethod
@@ -51,7 +54,14 @@ class BoundTask:
             except TaskError as err:
                 raise TaskError(f"{where}: state parameter {p.name!r}: {err}") from None
         parameters = [p.name for p in task.state_parameters]
+        protocol = [p.name for p in task.protocol_parameters]
         for o in task.observations:
+            for role, name in (o.errors.parameters() if o.errors else {}).items():
+                if name not in protocol:
+                    raise TaskError(
+                        f"{where}: observation {o.name!r}: {role}: expected one of the "
+                        f"protocol parameters {protocol}, got {name!r}"
+                    )
             if o.parameter is not None:
                 if o.parameter not in parameters:
                     raise TaskError(
@@ -60,7 +70,7 @@ class BoundTask:
                     )
                 continue
             try:
-                observe[o.name] = o.read(model)
+                observe[o.name] = _sensor(model, o) if o.sensor_name else o.read(model)
             except TaskError as err:
                 raise TaskError(f"{where}: observation {o.name!r}: {err}") from None
         for x in task.series:
@@ -118,20 +128,71 @@ class BoundTask:
         return model, state
 
     def observer(
-        self, names: tuple[str, ...], values: Mapping[str, np.ndarray] | None = None
-    ) -> Callable[[np.ndarray], np.ndarray]:
-        """The observations `names`, side by side: (n, nstate) -> (n, total size).
+        self,
+        names: tuple[str, ...],
+        values: Mapping[str, np.ndarray] | None = None,
+        *,
+        params: Mapping[str, float] | None = None,
+        n_controls: int | None = None,
+    ) -> Observer:
+        """The observations `names`, side by side: what the policy is given at each control
+        instant, (n, total size).
 
-        `values` are the batch's state parameter values, state parameter -> (n,), in the
-        batch's row order: what an episode-value observation reads."""
+        Args:
+          names: the observations, in the policy's order.
+          values: the batch's state parameter values, state parameter -> (n,), in the batch's
+            row order: what an episode-value observation reads, and the seed of each episode's
+            observation errors (`mjtrial.task.observation_model`).
+          params: the condition's protocol parameters (default: the defaults): the values of
+            the observation errors' parameters.
+          n_controls: control instants per episode (needed when an observation has errors).
+        """
         declared = {o.name: o for o in self.task.observations}
+        params = self.task.parameters(params or {})
+        where = self.task.source or self.task.name
 
-        def read(name: str) -> Callable[[np.ndarray], np.ndarray]:
-            parameter = declared[name].parameter
-            if parameter is None:
-                return self.observe[name]
-            column = np.asarray((values or {})[parameter], dtype=np.float64)[:, None]
-            return lambda states: column
+        def read(name: str) -> Callable[[int, np.ndarray, np.ndarray | None], np.ndarray]:
+            o = declared[name]
+            if o.parameter is not None:
+                column = np.asarray((values or {})[o.parameter], dtype=np.float64)[:, None]
+                true = lambda k, states, sensors: column  # noqa: E731
+            elif o.sensor_name is not None:
+                columns = self.observe[name]
+                true = lambda k, states, sensors: sensors[:, columns]  # noqa: E731
+            else:
+                of_states = self.observe[name]
+                true = lambda k, states, sensors: of_states(states)  # noqa: E731
+            if o.errors is None:
+                return true
+            problem = o.errors.problem(params)
+            if problem is not None:
+                raise TaskError(f"{where}: observation {name!r}: {problem}")
+            if values is None or n_controls is None:
+                raise ValueError(f"observation {name!r} has errors: give values and n_controls")
+            rows = np.stack([np.asarray(values[p.name]) for p in self.task.state_parameters], 1)
+            return with_errors(
+                true, o.errors, params, name=name, values=rows, n_controls=n_controls
+            )
 
         reads = [read(n) for n in names]
-        return lambda states: np.concatenate([r(states) for r in reads], axis=1)
+        sensed = any(declared[n].sensor_name is not None for n in names)
+        return Observer(
+            lambda k, states, sensors: np.concatenate(
+                [r(k, states, sensors) for r in reads], axis=1
+            ),
+            sensed=sensed,
+        )
+
+
+def _sensor(model: mujoco.MjModel, o: Observation) -> slice:
+    """The sensordata columns of a sensor observation; a sensor computed from accelerations or
+    forces is refused (the module docstring of `mjtrial.closed_loop`)."""
+    index = _element(model, mujoco.mjtObj.mjOBJ_SENSOR, o.sensor_name)
+    if model.sensor_needstage[index] == mujoco.mjtStage.mjSTAGE_ACC:
+        kind = mujoco.mjtSensor(model.sensor_type[index]).name.removeprefix("mjSENS_").lower()
+        raise TaskError(
+            f"sensor {o.sensor_name!r} ({kind}) is computed from accelerations and forces, which "
+            "depend on the control at the measured instant; expected a position or velocity sensor"
+        )
+    adr = int(model.sensor_adr[index])
+    return slice(adr, adr + int(model.sensor_dim[index]))

@@ -15,6 +15,7 @@ import numpy as np
 
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.physics import STATE_QPOS
+from mjtrial.task.observation_model import ObservationModel
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 
@@ -242,45 +243,100 @@ def _plain(value: float) -> float | int:
 # --------------------------------------------------------------------------------------------
 
 
+def _errors(**parameters: str | None) -> ObservationModel | None:
+    return ObservationModel(**parameters) if any(parameters.values()) else None
+
+
 @dataclass(frozen=True)
 class Observation:
     """A quantity the controller may read: `read(model)` gives a function from a batch of
     mjSTATE_FULLPHYSICS rows (n, nstate) to (n, size) values, or `parameter` names a state
-    parameter whose per-episode value it is (`Observation.episode_value`). `source` names the
-    real sensor it stands for (encoder, IMU, camera pose estimate); None marks it privileged:
-    the simulator knows it, a robot would not."""
+    parameter whose per-episode value it is (`Observation.episode_value`), or `sensor_name`
+    a sensor of the model (`Observation.sensor`). `source` names the real sensor it stands
+    for (encoder, IMU, camera pose estimate); None marks it privileged: the simulator knows
+    it, a robot would not. `errors`: its noise, bias, quantization and dropped readings, as
+    protocol parameters (`ObservationModel`; the constructors' `noise`, `bias`, `quantum`
+    and `dropout` arguments build it)."""
 
     name: str
     source: str | None
     read: Callable[[mujoco.MjModel], Callable[[np.ndarray], np.ndarray]] | None
     size: int = 1
     parameter: str | None = None  # a state parameter's per-episode value (`episode_value`)
+    sensor_name: str | None = None  # a sensor of the model (`sensor`)
+    errors: ObservationModel | None = None
 
     @classmethod
-    def episode_value(cls, name: str, parameter: str, *, source: str | None) -> Observation:
+    def sensor(
+        cls,
+        name: str,
+        sensor: str,
+        *,
+        source: str | None,
+        noise: str | None = None,
+        bias: str | None = None,
+        quantum: str | None = None,
+        dropout: str | None = None,
+    ) -> Observation:
+        """A `<sensor>` of the model, by name: its value is what `data.sensordata` holds after
+        `mj_forward` at the measured state (the state `Timing.latency_steps` before the control
+        instant), all its components (a `framepos` gives 3 columns). A position or velocity
+        sensor (`jointpos`, `framepos`, `gyro`, `velocimeter`, ...): an acceleration or force
+        sensor's value would depend on the control and solver at that instant, and is refused.
+
+        `noise`, `bias`, `quantum` and `dropout` name protocol parameters: the Gaussian noise's
+        standard deviation, a constant offset, the resolution readings are rounded to, and the
+        probability a reading is lost and the last one held (`ObservationModel`; the draws are
+        each episode's own, the same under every condition)."""
+        errors = _errors(noise=noise, bias=bias, quantum=quantum, dropout=dropout)
+        return cls(name, source, None, sensor_name=sensor, errors=errors)
+
+    @classmethod
+    def episode_value(
+        cls,
+        name: str,
+        parameter: str,
+        *,
+        source: str | None,
+        noise: str | None = None,
+        bias: str | None = None,
+        quantum: str | None = None,
+        dropout: str | None = None,
+    ) -> Observation:
         """A state parameter's value in each episode, as the robot is given it: a goal drawn
         per episode and applied to the model (a target's position) is invisible in the physics
         state, so a goal-conditioned policy reads it here. `source` says how a real robot
-        would know it ("the goal it is commanded", "motion capture"); None: privileged."""
-        return cls(name, source, None, 1, parameter)
+        would know it ("the goal it is commanded", "motion capture"); None: privileged.
+        `noise`, `bias`, `quantum`, `dropout`: as for `Observation.sensor` (a goal seen by a
+        camera pose estimate, with its noise)."""
+        errors = _errors(noise=noise, bias=bias, quantum=quantum, dropout=dropout)
+        return cls(name, source, None, 1, parameter, errors=errors)
 
     @classmethod
-    def joint_position(cls, name: str, joint: str, *, source: str | None) -> Observation:
+    def joint_position(
+        cls, name: str, joint: str, *, source: str | None, **errors: str | None
+    ) -> Observation:
+        """A joint's position (`qpos` at its address); `errors`: as for `Observation.sensor`."""
+
         def read(model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
             adr = model.jnt_qposadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
             column = STATE_QPOS + adr
             return lambda states: states[:, column : column + 1]
 
-        return cls(name, source, read)
+        return cls(name, source, read, errors=_errors(**errors))
 
     @classmethod
-    def joint_velocity(cls, name: str, joint: str, *, source: str | None) -> Observation:
+    def joint_velocity(
+        cls, name: str, joint: str, *, source: str | None, **errors: str | None
+    ) -> Observation:
+        """A joint's velocity (`qvel` at its address); `errors`: as for `Observation.sensor`."""
+
         def read(model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
             adr = model.jnt_dofadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
             column = STATE_QPOS + model.nq + adr
             return lambda states: states[:, column : column + 1]
 
-        return cls(name, source, read)
+        return cls(name, source, read, errors=_errors(**errors))
 
 
 @dataclass(frozen=True)
@@ -396,7 +452,9 @@ class Episodes:
       model: the nominal model of the condition.
       params: the condition's protocol parameters (defaults filled in).
       physics: (n, n_steps, nstate) mjSTATE_FULLPHYSICS after each step.
-      sensordata: (n, n_steps, nsensordata) sensor values after each step.
+      sensordata: (n, n_steps, nsensordata) the sensors each step recorded: `mj_step` computes
+        them before it integrates, so [:, j] are those of the state before step j + 1
+        (`physics[:, j - 1]`, the initial state's for j = 0).
       healthy: (n,) False where a MuJoCo warning froze the episode or it went non-finite.
       ctrl: (n, n_steps, nu) the ctrl applied before each step (open loop: one sequence for
         every episode, broadcast).
