@@ -354,6 +354,7 @@ def _check_privileged(
     task: Task,
     *,
     policy_tasks: Mapping[str, Task],
+    repo_root: Path,
     fail: Callable[[str, str], None],
 ) -> None:
     """The course's cheap test of a policy: every observation it reads has a real-world source,
@@ -367,7 +368,7 @@ def _check_privileged(
             used |= check_observations(reader, allowed)
         except TaskError as err:
             where = "task" if key == "task" else f"conditions.{key}.policy"
-            fail(where, str(err).replace(f"{Path.cwd()}/", ""))
+            fail(where, str(err).replace(f"{Path(repo_root).resolve()}/", ""))
     for name in allowed:
         if name not in used:
             fail(
@@ -446,7 +447,7 @@ def check_config(
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
     _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
     policy_tasks = _policy_tasks(config, task, repo_root=Path(repo_root), fail=fail)
-    _check_privileged(config, task, policy_tasks=policy_tasks, fail=fail)
+    _check_privileged(config, task, policy_tasks=policy_tasks, repo_root=Path(repo_root), fail=fail)
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
             fail(
@@ -532,7 +533,8 @@ def check_config(
                 )
             except PolicyFileError as err:  # a condition's policy file against its condition
                 (name,) = conditions
-                fail(f"conditions.{name}.policy", str(err).replace(f"{Path(repo_root)}/", ""))
+                relative = str(err).replace(f"{Path(repo_root).resolve()}/", "")
+                fail(f"conditions.{name}.policy", relative)
     except TaskError as err:
         fail("task", str(err))
     finally:

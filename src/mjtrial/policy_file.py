@@ -241,8 +241,9 @@ class OnnxPolicy:
     onnxruntime call per control instant (recurrent state included).
 
     Observations are normalized in float64, then cast to float32 for the graph; the action is
-    scaled in float64. A row whose action is not finite gets ctrl 0 from then on, and
-    `failed_episodes()` marks it (the engine's `NONFINITE_ACTION`).
+    scaled in float64 and clipped to each ctrllimited actuator's range (what MuJoCo applies, and
+    so what the recordings show), `raw` actions too. A row whose action is not finite gets
+    ctrl 0 from then on, and `failed_episodes()` marks it (the engine's `NONFINITE_ACTION`).
     """
 
     def __init__(
@@ -251,12 +252,12 @@ class OnnxPolicy:
         contract: Contract,
         *,
         columns: np.ndarray,
-        ctrl_range: np.ndarray | None,
+        ctrl_range: np.ndarray,
         nu: int,
     ) -> None:
         self.session, self.contract = session, contract
         self.columns = np.asarray(columns, dtype=np.int64)  # the ctrl column of each output
-        self.ctrl_range = ctrl_range  # (k, 2) for `ctrlrange` scaling, None for raw
+        self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
         self.nu = nu
         self.outputs = [contract.output, *(r.output for r in contract.recurrent)]
         self.state: dict[str, np.ndarray] = {}
@@ -282,9 +283,9 @@ class OnnxPolicy:
             self.state[r.input] = value
         action = answers[0].astype(np.float64)
         self.failed |= ~np.isfinite(action).all(axis=1)
-        if self.ctrl_range is not None:
-            low, high = self.ctrl_range.T
-            action = np.clip(low + (action + 1.0) / 2.0 * (high - low), low, high)
+        if self.contract.action_scale == "ctrlrange":
+            action = self.low + (action + 1.0) / 2.0 * (self.high - self.low)
+        action = np.clip(action, self.low, self.high)  # what MuJoCo applies, as the ctrl logged
         ctrl = np.zeros((len(x), self.nu))
         ctrl[:, self.columns] = action
         ctrl[self.failed] = 0.0
@@ -353,11 +354,9 @@ class PolicyFile:
                     "expected a ctrllimited actuator, or action_scale raw"
                 )
             columns.append(index)
-        ctrl_range = (
-            model.actuator_ctrlrange[columns].astype(np.float64)
-            if self.contract.action_scale == "ctrlrange"
-            else None
-        )
+        # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as given)
+        limited = model.actuator_ctrllimited[columns].astype(bool)[:, None]
+        ctrl_range = np.where(limited, model.actuator_ctrlrange[columns], [-np.inf, np.inf])
         return OnnxPolicy(
             self.session,
             self.contract,
