@@ -321,3 +321,27 @@ def test_a_policy_file_run_verifies_and_an_edited_contract_is_named(run, workdir
     stale = verify()
     assert stale.returncode != 0
     assert "encoder-lqr.yaml" in stale.stdout + stale.stderr
+
+
+def test_policy_check_reports_the_contract_a_nominal_episode_invariance_and_time(tmp_path, capsys):
+    from mjtrial.cli import main
+
+    task = str(REPO_ROOT / "tasks" / "cartpole_latency" / "task.py")
+    assert main(["policy", "check", str(_lqr_file(tmp_path)), "--task", task]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith(f"{tmp_path / 'encoder-lqr.onnx'}: contract ")
+    assert "  nominal episode: success" in out  # the task's own LQR balances the nominal state
+    assert "  batch invariance: 8 episodes alone and in one batch agree bit for bit" in out
+    assert out[5].startswith("  per call (median of 200): 1 row(s) ")
+    bad = write(tmp_path, "bad", tanh_mlp([2, 8, 1]), observations=["pole_rate", "pole_angle"])
+    assert main(["policy", "check", str(bad), "--task", task]) == 0
+    assert "  privileged observations: pole_rate (a config must allow each" in (
+        capsys.readouterr().out
+    )
+    period = ["--set", "control_period=0.02"]
+    assert main(["policy", "check", str(bad), "--task", task, *period]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"mjtrial policy check: {tmp_path / 'bad.yaml'}: control_period 0.01 s; expected the "
+        "task's, 0.02 s, under this condition\n"
+    )
