@@ -258,6 +258,7 @@ class OnnxPolicy:
         self.session, self.contract = session, contract
         self.columns = np.asarray(columns, dtype=np.int64)  # the ctrl column of each output
         self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
+        self.half_span = (self.high - self.low) / 2.0
         self.nu = nu
         self.outputs = [contract.output, *(r.output for r in contract.recurrent)]
         self.state: dict[str, np.ndarray] = {}
@@ -282,13 +283,17 @@ class OnnxPolicy:
         for r, value in zip(self.contract.recurrent, answers[1:], strict=True):
             self.state[r.input] = value
         action = answers[0].astype(np.float64)
-        self.failed |= ~np.isfinite(action).all(axis=1)
+        finite = np.isfinite(action)
+        if not finite.all():
+            self.failed |= ~finite.all(axis=1)
         if self.contract.action_scale == "ctrlrange":
-            action = self.low + (action + 1.0) / 2.0 * (self.high - self.low)
-        action = np.clip(action, self.low, self.high)  # what MuJoCo applies, as the ctrl logged
+            action = self.low + (action + 1.0) * self.half_span
+        # clipped as MuJoCo clamps a ctrllimited actuator: the ctrl logged is the ctrl applied
+        action = np.minimum(np.maximum(action, self.low), self.high)
         ctrl = np.zeros((len(x), self.nu))
         ctrl[:, self.columns] = action
-        ctrl[self.failed] = 0.0
+        if self.failed.any():
+            ctrl[self.failed] = 0.0
         return ctrl
 
     def failed_episodes(self) -> np.ndarray:
