@@ -14,6 +14,7 @@ cart-pole of `tasks/cartpole_latency/` under its defaults (3 s, a 10 ms control 
 
     python benchmarks/bench_policy_file.py                 # 200 episodes, 5 repeats
     python benchmarks/bench_policy_file.py --episodes 100 --repeats 3 --hidden 256
+    python benchmarks/bench_policy_file.py --batch-size 200     # the engine in larger batches
 
 It prints episodes per second of each, and the engine's speed over the loop's on 1 and 2
 threads: the median of the paired ratios over repeats (each repeat runs the loop and the engine
@@ -122,13 +123,13 @@ def plain_loop(bound: BoundTask, session, values, timing) -> int:
     return successes
 
 
-def engine(bound: BoundTask, values, nthread: int) -> int:
+def engine(bound: BoundTask, values, nthread: int, batch_size: int) -> int:
     """The pipeline's engine over the same episodes; returns the number of successes."""
     thresholds = {t.name: t.default for t in bound.task.thresholds}
-    return sum(
-        int(b.outcome["success"].sum())
-        for b in iter_batches(bound, values, CONDITION, thresholds=thresholds, nthread=nthread)
+    batches = iter_batches(
+        bound, values, CONDITION, thresholds=thresholds, nthread=nthread, batch_size=batch_size
     )
+    return sum(int(b.outcome["success"].sum()) for b in batches)
 
 
 def call_times(path: Path) -> None:
@@ -155,6 +156,12 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--hidden", type=int, default=64, help="width of the MLP's two layers")
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=BATCH_SIZE,
+        help="the engine's episodes per batch (default: the pipeline's)",
+    )
     args = parser.parse_args()
     task = load_task(TASK)
     folder = Path(tempfile.mkdtemp())
@@ -169,7 +176,7 @@ def main() -> None:
     print(
         f"{n} cart-pole episodes, {timing.n_controls} control instants each, latency "
         f"{CONDITION['latency'] * 1e3:.0f} ms; MLP 2-{args.hidden}-{args.hidden}-1 through "
-        f"onnxruntime {onnxruntime.__version__}; engine batches of {BATCH_SIZE}; "
+        f"onnxruntime {onnxruntime.__version__}; engine batches of {args.batch_size}; "
         f"{args.repeats} repeats"
     )
     call_times(path)
@@ -181,7 +188,9 @@ def main() -> None:
         for threads in (1, 2):
             runs = {
                 "loop": lambda: plain_loop(bound, policy.session, values, timing),
-                "engine": lambda t=threads: engine(bound, values, t if t > 1 else 0),
+                "engine": lambda t=threads: engine(
+                    bound, values, t if t > 1 else 0, args.batch_size
+                ),
             }
             order = ["loop", "engine"] if repeat % 2 == 0 else ["engine", "loop"]
             seconds = {}

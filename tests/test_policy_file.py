@@ -26,6 +26,7 @@ from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
 from mjtrial.engine import NONFINITE_ACTION, iter_batches
 from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
+from mjtrial.replay import replay_episode
 from mjtrial.task import BoundTask, load_task
 
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)
@@ -297,6 +298,15 @@ def test_a_policy_file_condition_runs_end_to_end_as_the_lqr_would(run, workdir):
     assert "policy_runtime" not in provenance.read_stamp(run / "rollouts" / "lqr.parquet")["extra"]
     summary = json.loads((run / "analysis" / "summary.json").read_text())
     assert summary["conditions"]["graph"]["policy"] == GRAPH
+    # replay re-simulates a policy file's episode as recorded, and its stamp names the file
+    row = next(r for r in graph_table.to_pylist() if not r["success"])
+    out = workdir / "replayed.rrd"
+    replay = replay_episode(
+        condition="graph", state_id=row["state_id"], output=out, repo_root=workdir
+    )
+    assert replay.outcome["failure_category"] == row["failure_category"]
+    assert replay.outcome["peak_angle"] == row["peak_angle"]
+    assert provenance.read_stamp(out)["inputs"]["policy"] == stamp["inputs"]["policy"]
 
 
 def _states_of(run: Path) -> dict[str, np.ndarray]:

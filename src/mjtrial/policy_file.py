@@ -29,16 +29,18 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jsonschema
 import mujoco
 import numpy as np
-import onnxruntime
 import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.task import ClosedLoop, Task, TaskError
+
+if TYPE_CHECKING:
+    import onnxruntime
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "policy.schema.yaml"
 FOLDER_CONTRACT = "policy.yaml"  # one contract for every file of a folder
@@ -133,6 +135,8 @@ def read_contract(onnx_file: Path) -> Contract:
 
 def runtime_settings() -> dict[str, Any]:
     """onnxruntime's version and the session settings, as the stamps record them."""
+    import onnxruntime  # here: only a run with a policy file pays its import (about 19 MB)
+
     return {"onnxruntime": onnxruntime.__version__, **SESSION_SETTINGS}
 
 
@@ -143,6 +147,8 @@ def file_sha256(path: Path) -> str:
 def open_session(onnx_file: Path) -> onnxruntime.InferenceSession:
     """An onnxruntime session with `SESSION_SETTINGS`; `PolicyFileError` if onnxruntime cannot
     read the file (an IR version newer than it reads is said with the version to export)."""
+    import onnxruntime  # here: only a run with a policy file pays its import (about 19 MB)
+
     options = onnxruntime.SessionOptions()
     options.intra_op_num_threads = SESSION_SETTINGS["intra_op_num_threads"]
     options.inter_op_num_threads = SESSION_SETTINGS["inter_op_num_threads"]

@@ -25,8 +25,10 @@ from mjtrial.recording import write_episode_recording
 from mjtrial.stages.rollout import (
     condition_batches,
     condition_parameters,
+    condition_policy_inputs,
     condition_task,
     episode_records,
+    policy_settings,
     read_state_values,
     recording_spec,
     rollout_columns,
@@ -210,9 +212,13 @@ def replay_episode(
             "states": layout.states,
             **model_inputs(model_file),
             **task_inputs(config["task"], repo_root=repo_root),
+            **condition_policy_inputs(slice_, repo_root=repo_root),
         },
         repo_dir=repo_root,
-        extra={"replay_of": {"condition": qualified, "state_id": state_id}},
+        extra={
+            "replay_of": {"condition": qualified, "state_id": state_id},
+            **(policy_settings(slice_) or {}),
+        },
     )
     [episode] = episode_records(bound.task, batch)
     write_episode_recording(
