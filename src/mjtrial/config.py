@@ -305,10 +305,13 @@ def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
     return []
 
 
-def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
-    """Read a YAML config file and check it (see `check_config`)."""
+def load_config(
+    path: str | Path = DEFAULT_CONFIG, *, repo_root: Path = REPO_ROOT
+) -> dict[str, Any]:
+    """Read a YAML config file and check it (see `check_config`) against the files of
+    `repo_root` (its task, model and policy files)."""
     config = read_config_file(path)
-    check_config(config, source=str(path))
+    check_config(config, source=str(path), repo_root=repo_root)
     return config
 
 

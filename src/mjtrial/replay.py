@@ -164,7 +164,7 @@ def replay_episode(
     """
     repo_root = Path.cwd() if repo_root is None else repo_root
     config_path = config_path or repo_root / CONFIG_FILE
-    config = load_config(config_path)
+    config = load_config(config_path, repo_root=repo_root)
     conditions = all_conditions(config)
     if condition not in conditions:
         raise KeyError(
