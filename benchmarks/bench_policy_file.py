@@ -91,18 +91,21 @@ def write_mlp(folder: Path, hidden: int) -> Path:
     return path
 
 
-def plain_loop(bound: BoundTask, session, values, timing) -> int:
-    """The per-episode loop around the session; returns the number of successes."""
+def plain_loop(bound: BoundTask, session, values, timing) -> tuple[int, np.ndarray]:
+    """The per-episode loop around the session; returns the number of successes and the final
+    states (n, nstate)."""
     model = bound.model
     task = bound.task
     pushes = task.controller.pushes(model, values)
     low, high = model.actuator_ctrlrange[0]
+    half_span = (high - low) / 2.0  # the contract's scaling, in the engine's arithmetic
     s = timing.steps_per_control
     delay = timing.latency_steps // s  # in control periods
     judged_from = timing.n_steps - round(1.0 / model.opt.timestep)
     n = len(next(iter(values.values())))
     scratch = mujoco.MjData(model)
     successes = 0
+    finals = np.empty((n, mujoco.mj_stateSize(model, FULLPHYSICS)))
     for i in range(n):
         m, state = bound.episode({k: float(v[i]) for k, v in values.items()}, scratch=scratch)
         d = mujoco.MjData(m)
@@ -111,7 +114,7 @@ def plain_loop(bound: BoundTask, session, values, timing) -> int:
         upright = True
         for k in range(timing.n_controls):
             (action,) = session.run(["action"], {"observations": measured[0][None].astype("f4")})
-            d.ctrl[0] = np.clip(low + (action[0, 0] + 1.0) / 2.0 * (high - low), low, high)
+            d.ctrl[0] = min(max(low + (float(action[0, 0]) + 1.0) * half_span, low), high)
             for j in range(k * s, (k + 1) * s):
                 pushed = pushes.start[i] <= j < pushes.stop[i]
                 d.xfrc_applied[pushes.body] = pushes.wrench[i] if pushed else 0.0
@@ -120,16 +123,21 @@ def plain_loop(bound: BoundTask, session, values, timing) -> int:
                     upright &= abs(d.qpos[1]) < UPRIGHT and abs(d.qpos[0]) < TRACK
             measured.append(d.qpos[:2].copy())
         successes += upright
-    return successes
+        mujoco.mj_getState(m, d, finals[i], FULLPHYSICS)
+    return successes, finals
 
 
-def engine(bound: BoundTask, values, nthread: int, batch_size: int) -> int:
-    """The pipeline's engine over the same episodes; returns the number of successes."""
+def engine(bound: BoundTask, values, nthread: int, batch_size: int) -> tuple[int, np.ndarray]:
+    """The pipeline's engine over the same episodes; returns the number of successes and the
+    final states (n, nstate)."""
     thresholds = {t.name: t.default for t in bound.task.thresholds}
-    batches = iter_batches(
-        bound, values, CONDITION, thresholds=thresholds, nthread=nthread, batch_size=batch_size
+    batches = list(
+        iter_batches(
+            bound, values, CONDITION, thresholds=thresholds, nthread=nthread, batch_size=batch_size
+        )
     )
-    return sum(int(b.outcome["success"].sum()) for b in batches)
+    finals = np.concatenate([b.episodes.physics[:, -1] for b in batches])
+    return sum(int(b.outcome["success"].sum()) for b in batches), finals
 
 
 def call_times(path: Path) -> None:
@@ -183,7 +191,7 @@ def main() -> None:
     loop_s: list[float] = []
     engine_s: dict[int, list[float]] = {1: [], 2: []}
     ratios: dict[int, list[float]] = {1: [], 2: []}
-    outcome: dict[str, int] = {}
+    outcome: dict[str, tuple[int, np.ndarray]] = {}
     for repeat in range(args.repeats):
         for threads in (1, 2):
             runs = {
@@ -201,7 +209,11 @@ def main() -> None:
             loop_s.append(seconds["loop"])
             engine_s[threads].append(seconds["engine"])
             ratios[threads].append(seconds["loop"] / seconds["engine"])
-    print(f"successes: loop {outcome['loop']}, engine {outcome['engine']} (of {n}; must be equal)")
+    same = np.array_equal(outcome["loop"][1], outcome["engine"][1])
+    print(
+        f"successes: loop {outcome['loop'][0]}, engine {outcome['engine'][0]} (of {n}); final "
+        f"states {'equal bit for bit' if same else 'DIFFER'} (must be equal)"
+    )
     print(f"plain per-episode loop:   {n / statistics.median(loop_s):8.0f} episodes/s")
     for threads in (1, 2):
         r = ratios[threads]

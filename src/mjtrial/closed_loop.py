@@ -58,13 +58,12 @@ class BatchPolicy(Protocol):
         """(n_episodes, n_observations) -> controls (n_episodes, nu)."""
 
 
-# A policy may judge its own actions: one with a `failed_episodes()` method ((n_episodes,) bool
-# since its reset, as a policy file's non-finite actions: `mjtrial.policy_file.OnnxPolicy`)
-# has those episodes marked in `ClosedLoopBatch.failed_action` instead of stopping the run.
-
-
 def failed_episodes(policy: BatchPolicy, n: int) -> np.ndarray | None:
-    """(n,) the episodes the policy marked failed since its reset, or None if it marks none."""
+    """(n,) the episodes the policy marked failed since its reset, or None if it marks none.
+
+    A policy may judge its own actions: one with a `failed_episodes()` method ((n_episodes,)
+    bool, as a policy file marks its non-finite actions: `mjtrial.policy_file.OnnxPolicy`) has
+    those episodes failed (`ClosedLoopBatch.failed_action`) instead of the run stopped."""
     marked = getattr(policy, "failed_episodes", None)
     return None if marked is None else np.array(marked(), dtype=bool).reshape(n)
 
