@@ -24,10 +24,10 @@ from policy_graphs import encoder_lqr, sqrt_of_angle, tanh_mlp, write
 
 from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
-from mjtrial.engine import NONFINITE_ACTION, iter_batches
+from mjtrial.engine import iter_batches
 from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
 from mjtrial.replay import replay_episode
-from mjtrial.task import BoundTask, load_task
+from mjtrial.task import NONFINITE_ACTION, BoundTask, load_task
 
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)
 PERIOD = 0.01  # s, the cart-pole's control period
