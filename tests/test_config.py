@@ -183,10 +183,11 @@ def test_duplicate_key_is_named_with_its_line(tmp_path):
 # The schema of conditions, thresholds, a sweep's parameter and the bands is the task's.
 CARTPOLE_SOURCE = "config/cartpole_latency.yaml"
 CARTPOLE = yaml.safe_load((REPO_ROOT / CARTPOLE_SOURCE).read_text())
-# a condition's keys: the task's protocol parameters and `model` (its edits of the model)
+# a condition's keys: the task's protocol parameters, `model` (its edits of the model) and
+# `policy` (a policy file)
 CARTPOLE_KEYS = (
     "['angle_gain_scale', 'cart_gain_scale', 'cart_rate_gain_scale', 'control_period', "
-    "'duration', 'latency', 'model', 'rate_gain_scale']"
+    "'duration', 'latency', 'model', 'policy', 'rate_gain_scale']"
 )
 
 
@@ -208,7 +209,7 @@ def test_the_reacher_configs_are_valid(source):
             SOURCE,
             lambda c: c["conditions"]["fast"].update(latency=0.02),
             "conditions.fast.latency: unknown key; expected one of ['close_time', "
-            "'gripper_closed', 'hold_time', 'lift_time', 'model', 'pre_close_time', "
+            "'gripper_closed', 'hold_time', 'lift_time', 'model', 'policy', 'pre_close_time', "
             "'settle_time']",
         ),
         (

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from mjtrial import stats
-from mjtrial.conditions import MODEL_EDITS
+from mjtrial.conditions import MODEL_EDITS, POLICY
 from mjtrial.task import UNHEALTHY
 
 VERDICT_SURVIVES = "survives"
@@ -44,8 +44,9 @@ RESULT_KEYS = ("n", "successes", "rate", "wilson_low", "wilson_high", "unhealthy
 
 def condition_settings(record: Mapping[str, Any]) -> dict[str, Any]:
     """The protocol parameters a condition's summary record carries, in config order (its
-    edits of the model, if any, are under `model`: `mjtrial.conditions.MODEL_EDITS`)."""
-    return {k: v for k, v in record.items() if k not in (*RESULT_KEYS, MODEL_EDITS)}
+    edits of the model, if any, are under `model`: `mjtrial.conditions.MODEL_EDITS`; its policy
+    file under `policy`: `POLICY`)."""
+    return {k: v for k, v in record.items() if k not in (*RESULT_KEYS, MODEL_EDITS, POLICY)}
 
 
 def band_labels(edges: Sequence[float]) -> list[str]:

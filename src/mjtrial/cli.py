@@ -312,6 +312,32 @@ def _new_task(args: argparse.Namespace) -> int:
     return 0
 
 
+def _policy_check(args: argparse.Namespace) -> int:
+    # imported here: onnxruntime's import would slow every other command
+    from mjtrial.policy_check import check_policy_file
+    from mjtrial.task import TaskError, load_task
+
+    condition = {}
+    for item in args.set or []:
+        name, _, value = item.partition("=")
+        try:
+            condition[name] = float(value)
+        except ValueError:
+            print(f"mjtrial policy check: --set {item}: expected NAME=NUMBER", file=sys.stderr)
+            return 2
+    try:
+        task = load_task(args.task, repo_root=Path("."))
+        unknown = sorted(set(condition) - {p.name for p in task.protocol_parameters})
+        if unknown:
+            raise TaskError(f"{args.task}: --set {unknown[0]}: not a protocol parameter")
+        found = check_policy_file(args.file, task, condition=condition)
+    except TaskError as err:  # PolicyFileError included: one line naming the file
+        print(f"mjtrial policy check: {err}", file=sys.stderr)
+        return 2
+    print("\n".join(found.lines()))
+    return 0 if found.invariant else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -411,6 +437,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("name", help="the task's name: lower-case letters, digits and _")
     p.add_argument("--repo-root", help="the repository to write into (default: .)")
     p.set_defaults(run=_new_task)
+    p = sub.add_parser("policy", help="policy files (an ONNX graph with its contract)")
+    policy = p.add_subparsers(dest="policy_command", required=True)
+    p = policy.add_parser(
+        "check",
+        help="a policy file against a task: its contract against the task and the graph, a "
+        "nominal episode, batch invariance on a few states, the time per call",
+    )
+    p.add_argument("file", help="the .onnx file (its contract: <file>.yaml or policy.yaml)")
+    p.add_argument("--task", required=True, help="the task: a task.py path or an installed name")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="a protocol parameter of the condition (default: the task's defaults)",
+    )
+    p.set_defaults(run=_policy_check)
     args = parser.parse_args(argv)
     return args.run(args)
 

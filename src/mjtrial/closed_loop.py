@@ -68,6 +68,16 @@ class BatchPolicy(Protocol):
         """(n_episodes, n_observations) -> controls (n_episodes, nu)."""
 
 
+def failed_episodes(policy: BatchPolicy, n: int) -> np.ndarray | None:
+    """(n,) the episodes the policy marked failed since its reset, or None if it marks none.
+
+    A policy may judge its own actions: one with a `failed_episodes()` method ((n_episodes,)
+    bool, as a policy file marks its non-finite actions: `mjtrial.policy_file.OnnxPolicy`) has
+    those episodes failed (`ClosedLoopBatch.failed_action`) instead of the run stopped."""
+    marked = getattr(policy, "failed_episodes", None)
+    return None if marked is None else np.array(marked(), dtype=bool).reshape(n)
+
+
 class PolicyError(ValueError):
     """The policy returned something the engine cannot apply (shape, non-finite values)."""
 
@@ -168,12 +178,15 @@ class ClosedLoopBatch:
       ctrl: (n_episodes, n_controls, nu) the controls the policy chose at each instant.
       warnings: (mjNWARNING,) warning counters of a `reference_episode` (None from the engine,
         which, like `mujoco.rollout`, reports only the frozen state).
+      failed_action: (n_episodes,) True where the policy marked its own action failed
+        (`failed_episodes`), or None for a policy that marks none.
     """
 
     physics: np.ndarray
     sensordata: np.ndarray
     ctrl: np.ndarray
     warnings: np.ndarray | None = None
+    failed_action: np.ndarray | None = None
 
 
 def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
@@ -271,9 +284,12 @@ def run_batch(
         physics[:, k * s : (k + 1) * s] = step_states[:, :s]
         sensordata[:, k * s : (k + 1) * s] = step_sensors[:, :s]
         state = np.ascontiguousarray(step_states[:, s - 1])
+    failed = failed_episodes(policy, n)  # before the replay resets the policy
     if observed is not None:
         check_replayed(policy, observed, ctrl_log[:, :replayed])
-    return ClosedLoopBatch(physics=physics, sensordata=sensordata, ctrl=ctrl_log)
+    return ClosedLoopBatch(
+        physics=physics, sensordata=sensordata, ctrl=ctrl_log, failed_action=failed
+    )
 
 
 def reference_episode(
@@ -328,6 +344,7 @@ def reference_episode(
         sensordata=np.stack(sensors).reshape(1, len(sensors), m.nsensordata),
         ctrl=ctrl_log[None],
         warnings=np.array([w.number for w in d.warning]),
+        failed_action=failed_episodes(policy, 1),
     )
 
 

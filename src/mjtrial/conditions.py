@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from typing import Any
 
 MODEL_EDITS = "model"  # a condition's edits of the model, beside its protocol parameters
+POLICY = "policy"  # a condition's policy file (`mjtrial.policy_file`), replacing the task's
 
 
 def model_edits(condition: Mapping[str, Any]) -> dict[str, Any]:
@@ -20,11 +21,21 @@ def model_edits(condition: Mapping[str, Any]) -> dict[str, Any]:
     return dict(condition.get(MODEL_EDITS) or {})
 
 
+def policy_path(condition: Mapping[str, Any]) -> str | None:
+    """The policy file a condition runs instead of the task's policy (relative to the
+    repository), or None."""
+    return condition.get(POLICY)
+
+
 def condition_record(task: Any, condition: Mapping[str, Any]) -> dict[str, Any]:
     """What a summary or a report records of a condition: its protocol parameters as numbers
     (`Task.condition_values`), and its edits of the model where it has any."""
-    edits = model_edits(condition)
-    return {**task.condition_values(condition), **({MODEL_EDITS: edits} if edits else {})}
+    edits, policy = model_edits(condition), policy_path(condition)
+    return {
+        **task.condition_values(condition),
+        **({MODEL_EDITS: edits} if edits else {}),
+        **({POLICY: policy} if policy else {}),
+    }
 
 
 def sweep_base(config: Mapping[str, Any]) -> str:
@@ -48,7 +59,7 @@ def sweep_conditions(config: Mapping[str, Any]) -> dict[float, str]:
 
 def _same(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
     return a.keys() == b.keys() and all(
-        a[k] == b[k] if k == MODEL_EDITS else float(a[k]) == float(b[k]) for k in a
+        a[k] == b[k] if k in (MODEL_EDITS, POLICY) else float(a[k]) == float(b[k]) for k in a
     )
 
 

@@ -19,10 +19,11 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, budget
-from mjtrial.conditions import all_conditions, model_edits, sweep_base
+from mjtrial.conditions import all_conditions, model_edits, policy_path, sweep_base
 from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.physics import ModelError, load_model
+from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
 from mjtrial.studies.variants import nominal_model_hash, variant_model
@@ -304,10 +305,13 @@ def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
     return []
 
 
-def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
-    """Read a YAML config file and check it (see `check_config`)."""
+def load_config(
+    path: str | Path = DEFAULT_CONFIG, *, repo_root: Path = REPO_ROOT
+) -> dict[str, Any]:
+    """Read a YAML config file and check it (see `check_config`) against the files of
+    `repo_root` (its task, model and policy files)."""
     config = read_config_file(path)
-    check_config(config, source=str(path))
+    check_config(config, source=str(path), repo_root=repo_root)
     return config
 
 
@@ -325,17 +329,49 @@ def _check_task_model(
         fail("task", f"its model is {shown}; expected the config's model {config['model']}")
 
 
+def _policy_tasks(
+    config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
+) -> dict[str, Task]:
+    """The task each condition that names a policy file runs (`policy_file.policy_task`), the
+    file and its contract checked against the task and the graph: one line naming the key and
+    the file otherwise."""
+    out = {}
+    root = Path(repo_root).resolve()
+    for name, condition in all_conditions(config).items():
+        policy = policy_path(condition)
+        if not policy:
+            continue
+        key = f"conditions.{name}.policy"
+        path = (root / policy).resolve()
+        if not path.is_relative_to(root):
+            fail(key, f"expected a file inside the repository, got {policy!r}")
+        try:
+            out[name] = policy_task(task, load_policy_file(path, task))
+        except PolicyFileError as err:
+            fail(key, str(err).replace(f"{root}/", ""))
+    return out
+
+
 def _check_privileged(
-    config: Mapping[str, Any], task: Task, *, fail: Callable[[str, str], None]
+    config: Mapping[str, Any],
+    task: Task,
+    *,
+    policy_tasks: Mapping[str, Task],
+    repo_root: Path,
+    fail: Callable[[str, str], None],
 ) -> None:
     """The course's cheap test of a policy: every observation it reads has a real-world source,
     or is allowed, with a reason, in `privileged_observations`; an allowance is for a
-    privileged observation the policy reads."""
+    privileged observation a policy reads (the task's, or a condition's policy file's)."""
     allowed = config.get("privileged_observations") or {}
-    try:
-        used = check_observations(task, allowed)
-    except TaskError as err:
-        fail("task", str(err))
+    used: dict[str, str] = {}
+    own = len(policy_tasks) < len(all_conditions(config))  # a condition runs the task's policy
+    for key, reader in [*([("task", task)] if own else []), *policy_tasks.items()]:
+        try:
+            used |= check_observations(reader, allowed)
+        except TaskError as err:
+            where = "task" if key == "task" else f"conditions.{key}.policy"
+            fail(where, str(err).replace(f"{Path(repo_root).resolve()}/", ""))
     for name in allowed:
         if name not in used:
             fail(
@@ -413,7 +449,8 @@ def check_config(
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
     _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
-    _check_privileged(config, task, fail=fail)
+    policy_tasks = _policy_tasks(config, task, repo_root=Path(repo_root), fail=fail)
+    _check_privileged(config, task, policy_tasks=policy_tasks, repo_root=Path(repo_root), fail=fail)
     for name, (low, high) in config["states"]["ranges"].items():
         if not low < high:
             fail(
@@ -469,7 +506,7 @@ def check_config(
                 "stamps record them and mjtrial verify can check them",
             )
     rate_hz = float(config["recording"]["rate_hz"])
-    groups = _conditions_by_model(all_conditions(config), bound, model_file, fail)
+    groups = _conditions_by_model(all_conditions(config), bound, model_file, policy_tasks, fail)
     try:
         problems = [
             problem
@@ -490,12 +527,17 @@ def check_config(
     mujoco.set_mju_user_warning(lambda _: None)
     try:
         for on_model, conditions in groups:
-            run_task_code(
-                on_model,
-                conditions,
-                thresholds=given,
-                allowed_privileged=config.get("privileged_observations") or {},
-            )
+            try:
+                run_task_code(
+                    on_model,
+                    conditions,
+                    thresholds=given,
+                    allowed_privileged=config.get("privileged_observations") or {},
+                )
+            except PolicyFileError as err:  # a condition's policy file against its condition
+                (name,) = conditions
+                relative = str(err).replace(f"{Path(repo_root).resolve()}/", "")
+                fail(f"conditions.{name}.policy", relative)
     except TaskError as err:
         fail("task", str(err))
     finally:
@@ -512,17 +554,23 @@ def _conditions_by_model(
     conditions: Mapping[str, Mapping[str, Any]],
     bound: BoundTask,
     model_file: Path,
+    policy_tasks: Mapping[str, Task],
     fail: Callable[[str, str], None],
 ) -> list[tuple[BoundTask, dict[str, Mapping[str, Any]]]]:
-    """The conditions with the model each runs on: those without edits on the committed model
-    (`bound`), each with `model` edits on its own edited model, the edits checked against the
-    model (one line naming the key: an unknown element or attribute, a wrong value)."""
-    plain = {n: c for n, c in conditions.items() if not model_edits(c)}
+    """The conditions with the model and task each runs on: those without edits or a policy
+    file on the committed model (`bound`), each with `model` edits on its own edited model, the
+    edits checked against the model (one line naming the key: an unknown element or attribute,
+    a wrong value), each with a policy file as its own task (`policy_tasks`)."""
+    plain = {n: c for n, c in conditions.items() if not model_edits(c) and n not in policy_tasks}
     groups = [(bound, plain)] if plain else []
     for name, condition in conditions.items():
-        if not model_edits(condition):
+        if name in plain:
             continue
         key = f"conditions.{name}.model"
+        task = policy_tasks.get(name, bound.task)
+        if not model_edits(condition):
+            groups.append((BoundTask.of(task, bound.model), {name: condition}))
+            continue
         try:
             model, _ = variant_model(
                 model_file, {}, key_prefix=key, then=[(model_edits(condition), key)]
@@ -531,7 +579,7 @@ def _conditions_by_model(
             named, _, expectation = str(err).partition(": ")
             fail(*((named, expectation) if named.startswith(key) else (key, str(err))))
         try:
-            groups.append((BoundTask.of(bound.task, model), {name: condition}))
+            groups.append((BoundTask.of(task, model), {name: condition}))
         except TaskError as err:
             fail(key, str(err))
     return groups

@@ -23,6 +23,7 @@ from mujoco import rollout
 from mjtrial import closed_loop
 from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 from mjtrial.task import (
+    NONFINITE_ACTION,
     UNHEALTHY,
     BoundTask,
     ClosedLoop,
@@ -68,9 +69,17 @@ def open_loop_warnings(model: mujoco.MjModel, initial: np.ndarray, ctrl: np.ndar
     return warning_names(np.array([w.number for w in data.warning]))
 
 
-def classify(bound: BoundTask, success: np.ndarray, healthy_rows: np.ndarray, measures, thresholds):
-    """Each failed episode's category (None for a success): unhealthy first, then the task's
-    categories in order, the first that applies; `UNCLASSIFIED` when none does."""
+def classify(
+    bound: BoundTask,
+    success: np.ndarray,
+    healthy_rows: np.ndarray,
+    measures,
+    thresholds,
+    failed_action: np.ndarray | None = None,
+):
+    """Each failed episode's category (None for a success): unhealthy first, then
+    `NONFINITE_ACTION` where the policy's action went non-finite (`failed_action`), then the
+    task's categories in order, the first that applies; `UNCLASSIFIED` when none does."""
     category = np.full(success.shape, None, dtype=object)
     task = bound.task
     tests = [
@@ -83,6 +92,9 @@ def classify(bound: BoundTask, success: np.ndarray, healthy_rows: np.ndarray, me
     for i in np.flatnonzero(~success):
         if not healthy_rows[i]:
             category[i] = UNHEALTHY
+            continue
+        if failed_action is not None and failed_action[i]:
+            category[i] = NONFINITE_ACTION
             continue
         category[i] = next((name for name, hit in tests if hit[i]), UNCLASSIFIED)
     return category
@@ -162,6 +174,7 @@ def iter_batches(
             initial_states = np.stack(initial)
             if isinstance(controller, OpenLoop):
                 physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
+                failed_action = None
                 applied = np.broadcast_to(ctrl, (size, *ctrl.shape))
             else:
                 pushes = (
@@ -187,8 +200,10 @@ def iter_batches(
                         pushes=pushes,
                     )
                 except closed_loop.PolicyError as err:
-                    raise TaskError(f"{task.source or task.name}: {err}") from None
+                    where = controller.source or task.source or task.name
+                    raise TaskError(f"{where}: {err}") from None
                 physics, sensordata = result.physics, result.sensordata
+                failed_action = result.failed_action
                 applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
             stopped, broken = halted(physics), nonfinite(physics)
             ok = ~stopped & ~broken
@@ -212,6 +227,8 @@ def iter_batches(
             success = call(task, "success", task.success, episodes)
             expect_rows(task, "success", success, size, dtype=bool)
             success = np.asarray(success, dtype=bool) & ok
+            if failed_action is not None:
+                success &= ~failed_action
             warning = np.full(size, "", dtype=object)
             for i in np.flatnonzero(~ok):
                 if isinstance(controller, OpenLoop):
@@ -239,6 +256,8 @@ def iter_batches(
                 "steps_simulated": steps_simulated(physics),
                 "nonfinite": broken,
                 "warning": warning,
-                "failure_category": classify(bound, success, ok, measures, thresholds),
+                "failure_category": classify(
+                    bound, success, ok, measures, thresholds, failed_action
+                ),
             }
             yield Batch(rows, episodes, outcome)

@@ -25,8 +25,10 @@ from mjtrial.recording import write_episode_recording
 from mjtrial.stages.rollout import (
     condition_batches,
     condition_parameters,
+    condition_policy_inputs,
     condition_task,
     episode_records,
+    policy_settings,
     read_state_values,
     recording_spec,
     rollout_columns,
@@ -162,7 +164,7 @@ def replay_episode(
     """
     repo_root = Path.cwd() if repo_root is None else repo_root
     config_path = config_path or repo_root / CONFIG_FILE
-    config = load_config(config_path)
+    config = load_config(config_path, repo_root=repo_root)
     conditions = all_conditions(config)
     if condition not in conditions:
         raise KeyError(
@@ -210,9 +212,13 @@ def replay_episode(
             "states": layout.states,
             **model_inputs(model_file),
             **task_inputs(config["task"], repo_root=repo_root),
+            **condition_policy_inputs(slice_, repo_root=repo_root),
         },
         repo_dir=repo_root,
-        extra={"replay_of": {"condition": qualified, "state_id": state_id}},
+        extra={
+            "replay_of": {"condition": qualified, "state_id": state_id},
+            **(policy_settings(slice_) or {}),
+        },
     )
     [episode] = episode_records(bound.task, batch)
     write_episode_recording(

@@ -38,17 +38,18 @@ def check_observations(task: Task, allowed: Mapping[str, str]) -> dict[str, str]
     if not isinstance(controller, ClosedLoop):
         return {}
     declared = {o.name: o for o in task.observations}
+    where = controller.source or _where(task)  # a policy file's contract names its observations
     used: dict[str, str] = {}
     for name in controller.observations:
         if name not in declared:
             raise TaskError(
-                f"{_where(task)}: the policy reads observation {name!r}, which is not declared "
+                f"{where}: the policy reads observation {name!r}, which is not declared "
                 f"in observations (declared: {sorted(declared)})"
             )
         if declared[name].source is None:
             if name not in allowed:
                 raise TaskError(
-                    f"{_where(task)}: the policy reads {name!r}, a privileged observation (no "
+                    f"{where}: the policy reads {name!r}, a privileged observation (no "
                     "real-world source); give it its sensor, or allow it in the config's "
                     f"privileged_observations with a reason"
                 )
@@ -95,7 +96,7 @@ def run_task_code(
             try:
                 check_batch_independence(policy, probe)
             except PolicyError as err:
-                raise TaskError(f"{_where(task)}: {err}") from None
+                raise TaskError(f"{controller.source or _where(task)}: {err}") from None
         try:
             batch = next(
                 iter_batches(bound, nominal_values(task), condition, thresholds=thresholds)

@@ -2,7 +2,12 @@ import re
 import sys
 from pathlib import Path
 
-from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.conditions import (
+    all_conditions,
+    policy_path,
+    sweep_conditions,
+    variant_names,
+)
 from mjtrial.layout import (
     FIGURES,
     NOMINAL,
@@ -12,6 +17,7 @@ from mjtrial.layout import (
     shard_ids,
     shard_range,
 )
+from mjtrial.policy_file import contract_path
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
@@ -175,6 +181,18 @@ def task_content(wildcards=None):
     if not reference.endswith(".py"):
         return reference
     return ",".join(file_sha256(p) for p in task_files(Path(reference)))
+
+
+def policy_files(wildcards):
+    """The condition's policy file and its contract (`conditions.<name>.policy`), or none: the
+    rollout's inputs, so that editing either reruns the condition."""
+    policy = policy_path(all_conditions(config)[wildcards.condition])
+    return [] if policy is None else [policy, str(contract_path(Path(policy)))]
+
+
+def policy_content(wildcards):
+    """Content of the condition's policy files, so a `touch` reruns nothing."""
+    return ",".join(file_sha256(p) for p in policy_files(wildcards))
 
 
 def per_condition(path_of):

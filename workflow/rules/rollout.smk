@@ -7,6 +7,7 @@ rule rollout:
     input:
         states=LAYOUT.states,
         model=config["model"],
+        policy=policy_files,
     output:
         **shard_recording_output(LAYOUT.shard_recordings("{condition}", "{shard}")),
         table=LAYOUT.shard_table("{condition}", "{shard}"),
@@ -24,6 +25,7 @@ rule rollout:
         # its recordings folder: one recording nothing removes an earlier run's
         recordings=shard_recordings_of,
         model_sha256=model_content,
+        policy_sha256=policy_content,
         code=stage_code_hash("rollout"),
     script:
         "../scripts/rollout.py"
@@ -33,6 +35,7 @@ rule gather:
     input:
         shards=shard_tables,
         model=config["model"],
+        policy=policy_files,
     output:
         table=report(
             LAYOUT.rollout_table("{condition}"),
@@ -47,6 +50,7 @@ rule gather:
     params:
         slice=rollout_slice,
         model_sha256=model_content,
+        policy_sha256=policy_content,
         code=stage_code_hash("gather"),
     run:
         run_script("gather", input, output, params, wildcards, threads, log, rule)

@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from mjtrial.analysis import condition_settings
-from mjtrial.conditions import MODEL_EDITS
+from mjtrial.conditions import MODEL_EDITS, POLICY
 from mjtrial.studies.variants import describe_edits
 from mjtrial.task import Task
 
@@ -20,12 +20,14 @@ def band_parameter(parameter: str, task: Task) -> tuple[str, str]:
 
 
 def setting(record: Mapping[str, Any], task: Task) -> str:
-    """A condition's protocol parameters from its summary record, then its edits of the model:
-    `push_time 0.25 s`, `latency 0.02 s, joint hinge frictionloss 0.2`."""
-    edits = record.get(MODEL_EDITS)
+    """A condition's protocol parameters from its summary record, then its edits of the model
+    and its policy file: `push_time 0.25 s`, `latency 0.02 s, joint hinge frictionloss 0.2`,
+    `latency 0 s, policy policies/mlp/seed-0.onnx`."""
+    edits, policy = record.get(MODEL_EDITS), record.get(POLICY)
     return ", ".join(
         [f"{k} {v:g} {task.unit_of(k)}".rstrip() for k, v in condition_settings(record).items()]
         + ([describe_edits(edits)] if edits else [])
+        + ([f"policy {policy}"] if policy else [])
     )
 
 

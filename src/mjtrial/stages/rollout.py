@@ -15,9 +15,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, atomic, engine, provenance, recording
-from mjtrial.conditions import model_edits
+from mjtrial.conditions import model_edits, policy_path
 from mjtrial.engine import BATCH_SIZE
 from mjtrial.physics import load_model
+from mjtrial.policy_file import load_policy_file, policy_inputs, policy_task, runtime_settings
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
@@ -115,9 +116,27 @@ def condition_task(
     condition_slice: Mapping[str, Any], model_file: Path, *, repo_root: Path = REPO_ROOT
 ) -> BoundTask:
     """The task a condition runs, on its model: the committed one, edited by the slice's
-    variant, then by the condition's own model edits (`conditions.<name>.model`)."""
+    variant, then by the condition's own model edits (`conditions.<name>.model`); with its
+    policy file as the policy where it names one (`conditions.<name>.policy`)."""
     task = load_task(condition_slice["task"], repo_root=repo_root)
+    policy = policy_path(condition_slice)
+    if policy:
+        task = policy_task(task, load_policy_file(Path(repo_root) / policy, task))
     return BoundTask.of(task, condition_model(condition_slice, model_file))
+
+
+def condition_policy_inputs(
+    condition_slice: Mapping[str, Any], *, repo_root: Path = REPO_ROOT
+) -> dict[str, Any]:
+    """A stamp's record of the condition's policy file (graph and contract), or {}."""
+    policy = policy_path(condition_slice)
+    return policy_inputs([Path(repo_root) / policy] if policy else [])
+
+
+def policy_settings(condition_slice: Mapping[str, Any]) -> dict[str, Any] | None:
+    """What a stamp records of how the condition's policy file ran (onnxruntime's version and
+    session settings), or None for the task's own policy."""
+    return {"policy_runtime": runtime_settings()} if policy_path(condition_slice) else None
 
 
 def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> mujoco.MjModel:
@@ -271,9 +290,16 @@ def run_shard(
         "states": states_path,
         **model_inputs(model_file),
         **task_inputs(condition_slice["task"], repo_root=repo_root),
+        **condition_policy_inputs(condition_slice, repo_root=repo_root),
         **(extra_inputs or {}),  # a benchmark's evaluation: the parameter file it ran
     }
-    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
+    stamp = make_stage_stamp(
+        rule,
+        dict(condition_slice),
+        inputs,
+        repo_root=repo_root,
+        extra=policy_settings(condition_slice),
+    )
     columns: dict[str, list[np.ndarray]] = {c: [] for c in rollout_columns(task)}
     progress = Progress(f"{rule}", total=stop - first)
 
@@ -348,8 +374,15 @@ def gather_condition(
         "shards": list(shard_tables),
         **model_inputs(model_file),
         **task_inputs(condition_slice["task"], repo_root=repo_root),
+        **condition_policy_inputs(condition_slice, repo_root=repo_root),
     }
-    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
+    stamp = make_stage_stamp(
+        rule,
+        dict(condition_slice),
+        inputs,
+        repo_root=repo_root,
+        extra=policy_settings(condition_slice),
+    )
     provenance.write_parquet(table, output_table, stamp)
     provenance.write_json(nominal, output_nominal, stamp)
     log.info(

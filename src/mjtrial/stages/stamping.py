@@ -141,8 +141,10 @@ def make_stage_stamp(
     *,
     seeds: Mapping[str, int] | None = None,
     repo_root: Path = REPO_ROOT,
+    extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`."""
+    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`; `extra`:
+    what else the stage records (how a policy file ran)."""
     stage = rule.split(":")[0]
     return provenance.make_stamp(
         rule=rule,
@@ -150,5 +152,9 @@ def make_stage_stamp(
         inputs=inputs,
         seeds=seeds,
         repo_dir=repo_root,
-        extra={"code_sha256": stage_code_hash(stage), "code": stage_code(stage)},
+        extra={
+            "code_sha256": stage_code_hash(stage),
+            "code": stage_code(stage),
+            **(extra or {}),
+        },
     )

@@ -18,6 +18,8 @@ from mjtrial.physics import STATE_QPOS
 from mjtrial.task.observation_model import ObservationModel
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
+# A policy file's action went NaN or infinite (`mjtrial.policy_file`): control stopped.
+NONFINITE_ACTION = "non-finite action"
 
 
 class TaskError(ValueError):
@@ -359,12 +361,15 @@ class ClosedLoop:
       timing: `timing(model, params)`: control period, episode length, sensing latency.
       pushes: `pushes(model, values)`, the wrench pulse of each episode from the states'
         `DISTURBANCE` columns (`values[name]` is an array over the batch), or None.
+      source: the file the policy and its observations come from when it is not the task file
+        (a policy file's contract): errors about them name it.
     """
 
     policy: Callable[[mujoco.MjModel, Mapping[str, float]], BatchPolicy]
     observations: tuple[str, ...]
     timing: Callable[[mujoco.MjModel, Mapping[str, float]], Timing]
     pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
+    source: Path | None = None
 
 
 SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]

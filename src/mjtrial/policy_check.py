@@ -1,0 +1,109 @@
+"""`mjtrial policy check FILE --task T`: a policy file against a task before any experiment
+names it: the contract against the task and the graph, a nominal episode, batch invariance on a
+few states (each episode alone against all in one batch, bit for bit) and the time per call."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mjtrial.engine import iter_batches
+from mjtrial.policy_file import PolicyFile, load_policy_file, policy_task
+from mjtrial.task import BoundTask, Task
+from mjtrial.task_checks import nominal_values
+
+INVARIANCE_STATES = 8  # episodes run together and each alone
+TIMED_CALLS = 200  # calls per timed batch size (the median is reported)
+TIMED_BATCHES = (1, 16)  # a reference episode's batch, and the engine's (`engine.BATCH_SIZE`)
+
+
+@dataclass(frozen=True)
+class PolicyCheck:
+    """What `check_policy_file` found.
+
+    Attributes:
+      policy: the policy file, checked against the task and the graph.
+      privileged: the privileged observations it reads (a config must allow each).
+      nominal: the nominal episode's outcome: "success" or its failure category.
+      invariant: every episode the same bits alone as in a batch of `INVARIANCE_STATES`.
+      call_seconds: batch size -> median seconds per call.
+    """
+
+    policy: PolicyFile
+    privileged: tuple[str, ...]
+    nominal: str
+    invariant: bool
+    call_seconds: Mapping[int, float]
+
+    def lines(self) -> list[str]:
+        """The check's report, one fact a line."""
+        c = self.policy.contract
+        times = ", ".join(f"{n} row(s) {s * 1e6:.0f} µs" for n, s in self.call_seconds.items())
+        settings = self.policy.settings
+        return [
+            f"{self.policy.path}: contract {c.source}, sha256 {self.policy.sha256}",
+            f"  task {c.task}: observations {', '.join(c.observations)}; actuators "
+            f"{', '.join(c.actuators)} ({c.action_scale}); control period {c.control_period:g} s",
+            "  privileged observations: "
+            + (
+                f"{', '.join(self.privileged)} (a config must allow each, with a reason)"
+                if self.privileged
+                else "none"
+            ),
+            f"  nominal episode: {self.nominal}",
+            f"  batch invariance: {INVARIANCE_STATES} episodes alone and in one batch "
+            + ("agree bit for bit" if self.invariant else "DIFFER: results would depend on batch"),
+            f"  per call (median of {TIMED_CALLS}): {times}",
+            f"  onnxruntime {settings['onnxruntime']}, {settings['intra_op_num_threads']} thread, "
+            f"{settings['execution_mode']}, {settings['graph_optimization_level']}",
+        ]
+
+
+def _outcomes(bound: BoundTask, values, condition, thresholds, *, batch_size: int):
+    batches = iter_batches(bound, values, condition, thresholds=thresholds, batch_size=batch_size)
+    return [(b.episodes.physics, b.outcome["failure_category"]) for b in batches]
+
+
+def check_policy_file(
+    path: str | Path, task: Task, *, condition: Mapping[str, float] | None = None
+) -> PolicyCheck:
+    """Check a policy file against a task (see the module's docstring) under `condition` (the
+    task's defaults if None). Raises `PolicyFileError` or `TaskError` (one line) where the
+    contract, the graph or the task's code refuse it."""
+    policy = load_policy_file(path, task)
+    bound = BoundTask.of(policy_task(task, policy))
+    condition = dict(condition or {})
+    thresholds = {t.name: t.default for t in task.thresholds}
+    declared = {o.name: o for o in task.observations}
+    privileged = tuple(n for n in policy.observations if declared[n].source is None)
+    ((_, category),) = _outcomes(bound, nominal_values(task), condition, thresholds, batch_size=1)
+    rng = np.random.default_rng(0)
+    values = {p.name: rng.uniform(p.low, p.high, INVARIANCE_STATES) for p in task.state_parameters}
+    together = _outcomes(bound, values, condition, thresholds, batch_size=INVARIANCE_STATES)
+    alone = _outcomes(bound, values, condition, thresholds, batch_size=1)
+    invariant = np.array_equal(
+        together[0][0], np.concatenate([physics for physics, _ in alone]), equal_nan=True
+    )
+    batch_policy = policy.policy(bound.model, task.parameters(condition))
+    width = sum(declared[n].size for n in policy.observations)
+    call_seconds = {}
+    for n in TIMED_BATCHES:
+        rows = rng.normal(size=(n, width))
+        batch_policy.reset(n)
+        spent = []
+        for _ in range(TIMED_CALLS):
+            start = time.perf_counter()
+            batch_policy(rows)
+            spent.append(time.perf_counter() - start)
+        call_seconds[n] = float(np.median(spent))
+    return PolicyCheck(
+        policy=policy,
+        privileged=privileged,
+        nominal="success" if category[0] is None else f"failed ({category[0]})",
+        invariant=invariant,
+        call_seconds=call_seconds,
+    )

@@ -1,0 +1,437 @@
+"""Trained policies from files: an ONNX graph with a small YAML contract, run by onnxruntime on
+the closed-loop engine's batches.
+
+The contract (`workflow/schemas/policy.schema.yaml`) is `<file>.yaml` beside `<file>.onnx`, else
+`policy.yaml` in the same folder. It names the task's observations that feed the graph (so the
+privileged-observation check applies to them as to any policy), the actuators its output drives
+and how (`ctrlrange`: [-1, 1] onto each actuator's range; `raw`), the control period it was
+trained at, an optional normalization and an optional recurrent state. Everything is checked
+against the task and the graph before any rollout: each mismatch is one line naming the file.
+
+Determinism: the project promises that an episode's outcome does not depend on its batch or on
+thread counts, and that two runs agree bit for bit; onnxruntime promises neither in general.
+A session here runs on one thread, sequentially, on the CPU provider (`SESSION_SETTINGS`, recorded
+in the stamps); with these settings the networks tested gave every row the same bits alone as in
+any batch (tests/test_policy_file.py), and the engine replays every batch's first instants in
+other batches (`closed_loop.check_replayed`), so a network for which that fails stops the run
+with one line instead of giving batch-dependent results.
+
+A non-finite action is a failure of the episode, not an error of the run: from the first
+control instant whose action has a NaN or an infinity, the episode gets ctrl 0 (control stops)
+and its failure category is `NONFINITE_ACTION`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import jsonschema
+import mujoco
+import numpy as np
+import yaml
+
+from mjtrial import REPO_ROOT
+from mjtrial.task import ClosedLoop, Task, TaskError
+
+if TYPE_CHECKING:
+    import onnxruntime
+
+SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "policy.schema.yaml"
+FOLDER_CONTRACT = "policy.yaml"  # one contract for every file of a folder
+# What a session runs with: one thread and sequential execution, so that no reduction is split
+# by a thread count, and the CPU provider only. Measured (onnxruntime 1.31.1, this project's
+# 2-core machine, tanh MLPs 2-64-64-1, 12-256-256-6, 40-512-512-512-12): every slice of 1 to 199
+# rows gave the rows of one batch of 200 bit for bit, with graph optimizations on and off and on
+# 1 and 2 threads; a second thread made no call faster (16 rows: 9-134 µs either way), so one
+# costs nothing here. Optimizations stay on (onnxruntime's default): off cost up to 20 % more per
+# call. Whole batches, not row by row: 16 rows in one call cost about what 1 row does.
+SESSION_SETTINGS: dict[str, Any] = {
+    "providers": ["CPUExecutionProvider"],
+    "intra_op_num_threads": 1,
+    "inter_op_num_threads": 1,
+    "execution_mode": "ORT_SEQUENTIAL",
+    "graph_optimization_level": "ORT_ENABLE_ALL",
+}
+_FLOAT32 = "tensor(float)"
+_IR_TOO_NEW = re.compile(r"Unsupported model IR version: (\d+), max supported IR version: (\d+)")
+
+
+class PolicyFileError(TaskError):
+    """A policy file or its contract that does not fit the task or the graph (one line)."""
+
+
+@dataclass(frozen=True)
+class Recurrent:
+    """State carried between control instants: fed to `input`, read back from `output`."""
+
+    input: str
+    output: str
+    size: int
+
+
+@dataclass(frozen=True)
+class Contract:
+    """A policy file's contract, as read (see the module's docstring)."""
+
+    source: Path  # the contract's own file
+    task: str
+    observations: tuple[str, ...]
+    input: str
+    output: str
+    actuators: tuple[str, ...]
+    action_scale: str
+    control_period: float
+    mean: np.ndarray | None = None  # (n_columns,) normalization, or None
+    std: np.ndarray | None = None
+    recurrent: tuple[Recurrent, ...] = ()
+    producer: str = ""
+
+
+def contract_path(onnx_file: Path) -> Path:
+    """The contract of a policy file: `<file>.yaml` beside it, else the folder's `policy.yaml`."""
+    own = onnx_file.with_suffix(".yaml")
+    return own if own.is_file() else onnx_file.with_name(FOLDER_CONTRACT)
+
+
+def read_contract(onnx_file: Path) -> Contract:
+    """The contract of `onnx_file`, validated against its schema; `PolicyFileError` (one line
+    naming the contract file and the key) otherwise."""
+    path = contract_path(onnx_file)
+    if not path.is_file():
+        raise PolicyFileError(
+            f"{onnx_file}: no contract; expected {onnx_file.with_suffix('.yaml').name} beside it "
+            f"or {FOLDER_CONTRACT} in its folder"
+        )
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise PolicyFileError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    error = jsonschema.exceptions.best_match(
+        jsonschema.Draft202012Validator(schema).iter_errors(raw)
+    )
+    if error is not None:
+        key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
+        raise PolicyFileError(f"{path}: {key}: {error.message}")
+    norm = raw.get("normalization")
+    return Contract(
+        source=path,
+        task=raw["task"],
+        observations=tuple(raw["observations"]),
+        input=raw["input"],
+        output=raw["output"],
+        actuators=tuple(raw["actuators"]),
+        action_scale=raw["action_scale"],
+        control_period=float(raw["control_period"]),
+        mean=None if norm is None else np.asarray(norm["mean"], dtype=np.float64),
+        std=None if norm is None else np.asarray(norm["std"], dtype=np.float64),
+        recurrent=tuple(Recurrent(**r) for r in raw.get("recurrent") or ()),
+        producer=raw.get("producer", ""),
+    )
+
+
+def runtime_settings() -> dict[str, Any]:
+    """onnxruntime's version and the session settings, as the stamps record them."""
+    import onnxruntime  # here: only a run with a policy file pays its import (about 19 MB)
+
+    return {"onnxruntime": onnxruntime.__version__, **SESSION_SETTINGS}
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def open_session(onnx_file: Path) -> onnxruntime.InferenceSession:
+    """An onnxruntime session with `SESSION_SETTINGS`; `PolicyFileError` if onnxruntime cannot
+    read the file (an IR version newer than it reads is said with the version to export)."""
+    import onnxruntime  # here: only a run with a policy file pays its import (about 19 MB)
+
+    options = onnxruntime.SessionOptions()
+    options.intra_op_num_threads = SESSION_SETTINGS["intra_op_num_threads"]
+    options.inter_op_num_threads = SESSION_SETTINGS["inter_op_num_threads"]
+    options.execution_mode = getattr(onnxruntime.ExecutionMode, SESSION_SETTINGS["execution_mode"])
+    options.graph_optimization_level = getattr(
+        onnxruntime.GraphOptimizationLevel, SESSION_SETTINGS["graph_optimization_level"]
+    )
+    options.log_severity_level = 3  # errors only: warnings would go to every job's log
+    try:
+        return onnxruntime.InferenceSession(
+            str(onnx_file), sess_options=options, providers=SESSION_SETTINGS["providers"]
+        )
+    except Exception as err:  # noqa: BLE001 - onnxruntime raises its own classes
+        too_new = _IR_TOO_NEW.search(str(err))
+        if too_new:
+            version, most = too_new.groups()
+            raise PolicyFileError(
+                f"{onnx_file}: IR version {version}, newer than onnxruntime "
+                f"{onnxruntime.__version__} reads (at most {most}); export with an IR version "
+                f"<= {most}, e.g. onnx.helper.make_model(..., ir_version=10)"
+            ) from None
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise PolicyFileError(f"{onnx_file}: onnxruntime cannot load it: {first}") from None
+
+
+def _check_tensor(where: Path, kind: str, arg: Any, width: int, what: str) -> None:
+    """A graph input or output of shape (batch, width), float32, its batch dimension dynamic."""
+    shape = list(arg.shape)
+    if arg.type != _FLOAT32:
+        raise PolicyFileError(
+            f"{where}: graph {kind} {arg.name!r} is {arg.type}; expected float32 (tensor(float))"
+        )
+    if len(shape) != 2:
+        raise PolicyFileError(
+            f"{where}: graph {kind} {arg.name!r} has shape {shape}; expected (batch, {width})"
+        )
+    if isinstance(shape[0], int):
+        raise PolicyFileError(
+            f"{where}: graph {kind} {arg.name!r} has a fixed batch dimension {shape[0]}; "
+            "expected a dynamic one (a symbolic dim such as 'batch')"
+        )
+    if isinstance(shape[1], int) and shape[1] != width:
+        raise PolicyFileError(
+            f"{where}: graph {kind} {arg.name!r} has {shape[1]} columns; expected {width} ({what})"
+        )
+
+
+def check_graph(
+    contract: Contract, session: onnxruntime.InferenceSession, onnx_file: Path, n_columns: int
+) -> None:
+    """The graph's inputs and outputs against the contract: names, shapes, dtypes, a dynamic
+    batch dimension; then a zero batch of two rows run through it for the shapes a graph leaves
+    symbolic."""
+    inputs = {a.name: a for a in session.get_inputs()}
+    outputs = {a.name: a for a in session.get_outputs()}
+    fed = {contract.input: (n_columns, f"the {n_columns} observation column(s)")}
+    read = {contract.output: (len(contract.actuators), "one per actuator of the contract")}
+    for r in contract.recurrent:
+        fed[r.input] = read[r.output] = (r.size, "the recurrent state's size")
+    for name, (width, what) in fed.items():
+        if name not in inputs:
+            raise PolicyFileError(
+                f"{contract.source}: input {name!r} is not an input of {onnx_file} "
+                f"(its inputs: {sorted(inputs)})"
+            )
+        _check_tensor(onnx_file, "input", inputs[name], width, what)
+    unfed = sorted(set(inputs) - set(fed))
+    if unfed:
+        raise PolicyFileError(
+            f"{contract.source}: {onnx_file} has input(s) {unfed} that the contract does not feed; "
+            "expected them as its input or a recurrent state's input"
+        )
+    for name, (width, what) in read.items():
+        if name not in outputs:
+            raise PolicyFileError(
+                f"{contract.source}: output {name!r} is not an output of {onnx_file} "
+                f"(its outputs: {sorted(outputs)})"
+            )
+        _check_tensor(onnx_file, "output", outputs[name], width, what)
+    feeds = {name: np.zeros((2, width), dtype=np.float32) for name, (width, _) in fed.items()}
+    try:
+        answers = session.run(list(read), feeds)
+    except Exception as err:  # noqa: BLE001 - onnxruntime raises its own classes
+        first = str(err).strip().splitlines()[0]
+        raise PolicyFileError(f"{onnx_file}: a batch of 2 zero rows failed: {first}") from None
+    for (name, (width, what)), value in zip(read.items(), answers, strict=True):
+        if value.shape != (2, width) or value.dtype != np.float32:
+            raise PolicyFileError(
+                f"{onnx_file}: output {name!r} of a batch of 2 rows has shape {value.shape} "
+                f"and dtype {value.dtype}; expected (2, {width}) float32 ({what})"
+            )
+
+
+class OnnxPolicy:
+    """A `closed_loop.BatchPolicy` running a policy file's graph on the whole batch, one
+    onnxruntime call per control instant (recurrent state included).
+
+    Observations are normalized in float64, then cast to float32 for the graph; the action is
+    scaled in float64 and clipped to each ctrllimited actuator's range (what MuJoCo applies, and
+    so what the recordings show), `raw` actions too. A row whose action is not finite gets
+    ctrl 0 from then on, and `failed_episodes()` marks it (the engine's `NONFINITE_ACTION`).
+    """
+
+    def __init__(
+        self,
+        session: onnxruntime.InferenceSession,
+        contract: Contract,
+        *,
+        columns: np.ndarray,
+        ctrl_range: np.ndarray,
+        nu: int,
+    ) -> None:
+        self.session, self.contract = session, contract
+        self.columns = np.asarray(columns, dtype=np.int64)  # the ctrl column of each output
+        self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
+        self.half_span = (self.high - self.low) / 2.0
+        self.nu = nu
+        self.outputs = [contract.output, *(r.output for r in contract.recurrent)]
+        self.state: dict[str, np.ndarray] = {}
+        self.failed = np.zeros(0, dtype=bool)
+
+    def reset(self, n_episodes: int) -> None:
+        self.state = {
+            r.input: np.zeros((n_episodes, r.size), dtype=np.float32)
+            for r in self.contract.recurrent
+        }
+        self.failed = np.zeros(n_episodes, dtype=bool)
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        x = np.asarray(observations, dtype=np.float64)
+        if len(x) != len(self.failed):
+            raise ValueError(f"expected {len(self.failed)} rows (the reset's), got {len(x)}")
+        if self.contract.mean is not None:
+            x = (x - self.contract.mean) / self.contract.std
+        answers = self.session.run(
+            self.outputs, {self.contract.input: x.astype(np.float32), **self.state}
+        )
+        for r, value in zip(self.contract.recurrent, answers[1:], strict=True):
+            self.state[r.input] = value
+        action = answers[0].astype(np.float64)
+        finite = np.isfinite(action)
+        if not finite.all():
+            self.failed |= ~finite.all(axis=1)
+        if self.contract.action_scale == "ctrlrange":
+            action = self.low + (action + 1.0) * self.half_span
+        # clipped as MuJoCo clamps a ctrllimited actuator: the ctrl logged is the ctrl applied
+        action = np.minimum(np.maximum(action, self.low), self.high)
+        ctrl = np.zeros((len(x), self.nu))
+        ctrl[:, self.columns] = action
+        if self.failed.any():
+            ctrl[self.failed] = 0.0
+        return ctrl
+
+    def failed_episodes(self) -> np.ndarray:
+        """(n_episodes,) True where an action was non-finite since the reset."""
+        return self.failed.copy()
+
+
+@dataclass(frozen=True)
+class PolicyFile:
+    """A policy file checked against a task: what a condition that names it runs.
+
+    Attributes:
+      path: the `.onnx` file.
+      contract: its contract, as read.
+      sha256: the `.onnx` file's sha256 (the contract's is `contract_sha256`).
+      observations: the task's observations it reads, in input order.
+      settings: onnxruntime's version and the session settings, as the stamps record them.
+    """
+
+    path: Path
+    contract: Contract
+    sha256: str
+    contract_sha256: str
+    task: Task
+    session: onnxruntime.InferenceSession = dataclasses.field(repr=False, compare=False)
+
+    @property
+    def observations(self) -> tuple[str, ...]:
+        return self.contract.observations
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        return runtime_settings()
+
+    @property
+    def files(self) -> list[Path]:
+        """The files it is made of (graph, contract): the inputs of a stamp that used it."""
+        return [self.path, self.contract.source]
+
+    def policy(self, model: mujoco.MjModel, params: Mapping[str, float]) -> OnnxPolicy:
+        """The batch policy under a condition: its actuators and control period checked
+        against the model and the task's timing (`PolicyFileError`, one line)."""
+        where = self.contract.source
+        timing = self.task.controller.timing(model, params)
+        period = timing.steps_per_control * model.opt.timestep
+        if abs(period - self.contract.control_period) > 1e-9:
+            raise PolicyFileError(
+                f"{where}: control_period {self.contract.control_period:g} s; expected the "
+                f"task's, {period:g} s, under this condition"
+            )
+        columns = []
+        for name in self.contract.actuators:
+            index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+            if index < 0:
+                names = [model.actuator(i).name for i in range(model.nu)]
+                raise PolicyFileError(
+                    f"{where}: actuators: {name!r} is not an actuator of the model (its "
+                    f"actuators: {names})"
+                )
+            if self.contract.action_scale == "ctrlrange" and not model.actuator_ctrllimited[index]:
+                raise PolicyFileError(
+                    f"{where}: action_scale ctrlrange: actuator {name!r} has no ctrlrange; "
+                    "expected a ctrllimited actuator, or action_scale raw"
+                )
+            columns.append(index)
+        # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as given)
+        limited = model.actuator_ctrllimited[columns].astype(bool)[:, None]
+        ctrl_range = np.where(limited, model.actuator_ctrlrange[columns], [-np.inf, np.inf])
+        return OnnxPolicy(
+            self.session,
+            self.contract,
+            columns=np.array(columns),
+            ctrl_range=ctrl_range,
+            nu=model.nu,
+        )
+
+
+def load_policy_file(path: str | Path, task: Task) -> PolicyFile:
+    """A policy file and its contract, checked against the task (its name, its declared
+    observations, a closed-loop controller) and against the graph (names, shapes, dtypes, a
+    dynamic batch dimension). Raises `PolicyFileError`, one line naming the file."""
+    path = Path(path)
+    if path.suffix != ".onnx" or not path.is_file():
+        raise PolicyFileError(f"{path}: expected an existing .onnx file")
+    contract = read_contract(path)
+    where = contract.source
+    if not isinstance(task.controller, ClosedLoop):
+        raise PolicyFileError(
+            f"{where}: task {task.name!r} is open loop; expected a closed-loop task"
+        )
+    if contract.task != task.name:
+        raise PolicyFileError(f"{where}: task {contract.task!r}; expected {task.name!r}")
+    declared = {o.name: o for o in task.observations}
+    for name in contract.observations:
+        if name not in declared:
+            raise PolicyFileError(
+                f"{where}: observations: {name!r} is not an observation of task {task.name!r} "
+                f"(declared: {sorted(declared)})"
+            )
+    n_columns = sum(declared[name].size for name in contract.observations)
+    for key in ("mean", "std"):
+        values = getattr(contract, key)
+        if values is not None and values.shape != (n_columns,):
+            raise PolicyFileError(
+                f"{where}: normalization.{key}: {len(values)} numbers; expected {n_columns}, "
+                "one per observation column"
+            )
+    session = open_session(path)
+    check_graph(contract, session, path, n_columns)
+    return PolicyFile(path, contract, file_sha256(path), file_sha256(where), task, session)
+
+
+def policy_task(task: Task, policy_file: PolicyFile) -> Task:
+    """The task with the policy file as its controller's policy, reading the contract's
+    observations (the task's timing and pushes unchanged)."""
+    controller = task.controller
+    assert isinstance(controller, ClosedLoop)  # load_policy_file checked it
+    return dataclasses.replace(
+        task,
+        controller=dataclasses.replace(
+            controller,
+            policy=policy_file.policy,
+            observations=policy_file.observations,
+            source=policy_file.contract.source,
+        ),
+    )
+
+
+def policy_inputs(paths: Sequence[str | Path]) -> dict[str, Any]:
+    """A stamp's record of the policy files a stage ran: each graph with its contract."""
+    files = [f for p in paths for f in (Path(p), contract_path(Path(p)))]
+    return {"policy": files} if files else {}
