@@ -181,11 +181,14 @@ def export(weights: list[np.ndarray], path: Path, *, period: float, seed: int) -
     onnx.save(model, str(path))
 
 
-def train_and_export(seed: int, budget: int, out: Path) -> dict:
+def train_and_export(seed: int, budget: int, out: Path, checked: bool = True) -> dict:
     start = time.perf_counter()
     weights, record = train(seed, budget=budget)
     period = cartpole.bound_task().task.parameters(cartpole.benchmark_condition())["control_period"]
     export(weights, out / f"seed-{seed}.onnx", period=period, seed=seed)
+    if not checked:
+        print(f"seed {seed}: {time.perf_counter() - start:.1f} s", flush=True)
+        return record
     record.update(
         cartpole.check_export(
             out / f"seed-{seed}.onnx",
@@ -208,28 +211,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget", type=int, default=BUDGET, help="episodes per seed")
     parser.add_argument("--out", type=Path, default=FOLDER, help="folder of the files")
     parser.add_argument("--jobs", type=int, default=1, help="seeds trained at once")
+    parser.add_argument("--no-check", action="store_true", help="skip the onnxruntime check")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
-        records = list(
-            pool.map(
-                train_and_export,
-                args.seeds,
-                [args.budget] * len(args.seeds),
-                [args.out] * len(args.seeds),
-            )
-        )
+    n = len(args.seeds)
+    work = (args.seeds, [args.budget] * n, [args.out] * n, [not args.no_check] * n)
+    if args.jobs == 1:
+        records = list(map(train_and_export, *work))
+    else:
+        with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
+            records = list(pool.map(train_and_export, *work))
     period = cartpole.bound_task().task.parameters(cartpole.benchmark_condition())["control_period"]
     cartpole.write_contract(
         args.out,
         period=period,
         producer=(
-            "policies/cartpole_mlp/train.py: a 4-8-1 tanh MLP on encoder finite differences, "
-            "CMA-ES (pycma) over its weights on the development states (seed 7) at 20 ms "
-            "latency, one file per training seed; exported with onnx"
+            f"policies/cartpole_mlp/train.py: a 4-{HIDDEN}-1 tanh MLP on encoder finite "
+            f"differences, CMA-ES (pycma) over its weights on {cartpole.trained_on()}, one "
+            "file per training seed; exported with onnx"
         ),
     )
-    (args.out / "training.json").write_text(json.dumps(records, indent=1) + "\n")
+    if not args.no_check:
+        (args.out / "training.json").write_text(json.dumps(records, indent=1) + "\n")
     return 0
 
 
