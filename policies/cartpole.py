@@ -65,6 +65,12 @@ def development_states() -> dict[str, np.ndarray]:
     return {c: table.column(c).to_numpy() for c in table.column_names if c != "state_id"}
 
 
+def control_period() -> float:
+    """The task's control period under the benchmark's condition, s: what the policies are
+    trained at (their graphs' finite differences divide by it)."""
+    return float(bound_task().task.parameters(benchmark_condition())["control_period"])
+
+
 def task_module() -> ModuleType:
     """The task file as a module: its design constants (the LQR's gain, the track's length)."""
     path = REPO_ROOT / "tasks" / TASK_NAME / "task.py"
@@ -284,6 +290,20 @@ def check_export(
         "outcomes_differing": int((exported_success != trained_success).sum()),
         "largest_ctrl_difference": float(f"{largest:.3g}"),
     }
+
+
+def trained_on() -> str:
+    """Where a producer trained, for its contract's `producer` text."""
+    latency = benchmark_condition()["latency"]
+    seed = experiment()["states"]["development_seed"]
+    return f"the development states (seed {seed}) at {latency * 1000:g} ms latency"
+
+
+def versions(*packages: str) -> str:
+    """`name version, ...` of the packages a producer used, for its contract's `producer`."""
+    import importlib.metadata
+
+    return ", ".join(f"{p} {importlib.metadata.version(p)}" for p in packages)
 
 
 def write_contract(folder: Path, *, period: float, producer: str) -> None:

@@ -120,8 +120,19 @@ def export(regressor, path: Path, *, period: float, seed: int) -> None:
         producer_name="policies/cartpole_bc/train.py",
         producer_version=f"skl2onnx {skl2onnx.__version__}",
     )
-    for output in model.graph.output:  # skl2onnx leaves the batch dimension unnamed
+    # the action first, as in every shipped file; skl2onnx leaves its batch dimension unnamed
+    outputs = {o.name: onnx.ValueInfoProto() for o in model.graph.output}
+    for o in model.graph.output:
+        outputs[o.name].CopyFrom(o)
+    outputs = [outputs[cartpole.OUTPUT], outputs[cartpole.MEMORY_OUT]]
+    del model.graph.output[:]
+    model.graph.output.extend(outputs)
+    for output in model.graph.output:
         output.type.tensor_type.shape.dim[0].dim_param = "batch"
+    # merge_models lists the opset of each part: one entry per domain, as the checker expects
+    opsets = {(o.domain, o.version): o for o in model.opset_import}
+    del model.opset_import[:]
+    model.opset_import.extend(opsets.values())
     onnx.checker.check_model(model, full_check=True)
     onnx.save(model, str(path))
 
@@ -155,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     features, actions, summary = demonstrations()
-    period = cartpole.bound_task().task.parameters(cartpole.benchmark_condition())["control_period"]
+    period = cartpole.control_period()
     print(f"demonstrations: {summary} ({time.perf_counter() - start:.1f} s)", flush=True)
     records = []
     for seed in args.seeds:
@@ -164,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         export(regressor, args.out / f"seed-{seed}.onnx", period=period, seed=seed)
         record = {
             "seed": seed,
-            "network": "4-16-1 tanh",
+            "network": f"4-{HIDDEN[0]}-1 tanh",
             "epochs": int(regressor.n_iter_),
             "final_loss": round(float(regressor.loss_), 8),
         }
@@ -181,9 +192,10 @@ def main(argv: list[str] | None = None) -> int:
         period=period,
         producer=(
             "policies/cartpole_bc/train.py: behaviour cloning of the designed LQR (its "
-            "controls on the development states, seed 7, at 20 ms latency) by scikit-learn's "
-            "MLPRegressor, 4-16-1 tanh on encoder finite differences, one file per random_state; "
-            "exported by skl2onnx and wrapped with onnx.compose"
+            f"controls on {cartpole.trained_on()}) by scikit-learn's MLPRegressor, "
+            f"4-{HIDDEN[0]}-1 tanh on encoder finite differences, one file per random_state; "
+            "exported by skl2onnx and wrapped with onnx.compose "
+            f"({cartpole.versions('scikit-learn', 'skl2onnx', 'onnx', 'mujoco')})"
         ),
     )
     if not args.no_check:

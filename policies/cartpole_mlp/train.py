@@ -11,7 +11,8 @@ the best distinct candidates judged on every development state, the best rate ch
 success rate on 16 states is flat for a network that balances nothing yet, so a candidate's
 score adds half the mean fraction of its episodes before the pole fell or the cart left the
 track. Episodes run in mjtrial's engine; the network's forward pass is float64 numpy, row by
-row, and the exported graph computes it in float32 (`--check` compares the two).
+row, and the exported graph computes it in float32 (each file is then run through
+onnxruntime on every development state and compared: `training.json`).
 
 Deterministic: the same seed and budget write the same bytes (on the same platform).
 """
@@ -88,7 +89,7 @@ def train(seed: int, *, budget: int, hidden: int = HIDDEN) -> tuple[list[np.ndar
 
     bound = cartpole.bound_task()
     values = cartpole.development_states()
-    period = bound.task.parameters(cartpole.benchmark_condition())["control_period"]
+    period = cartpole.control_period()
     n_dev = len(next(iter(values.values())))
     dim = sum(math.prod(s) for s in sizes(hidden))
     search_rng, states_rng = (
@@ -184,7 +185,7 @@ def export(weights: list[np.ndarray], path: Path, *, period: float, seed: int) -
 def train_and_export(seed: int, budget: int, out: Path, checked: bool = True) -> dict:
     start = time.perf_counter()
     weights, record = train(seed, budget=budget)
-    period = cartpole.bound_task().task.parameters(cartpole.benchmark_condition())["control_period"]
+    period = cartpole.control_period()
     export(weights, out / f"seed-{seed}.onnx", period=period, seed=seed)
     if not checked:
         print(f"seed {seed}: {time.perf_counter() - start:.1f} s", flush=True)
@@ -221,14 +222,15 @@ def main(argv: list[str] | None = None) -> int:
     else:
         with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
             records = list(pool.map(train_and_export, *work))
-    period = cartpole.bound_task().task.parameters(cartpole.benchmark_condition())["control_period"]
+    period = cartpole.control_period()
     cartpole.write_contract(
         args.out,
         period=period,
         producer=(
             f"policies/cartpole_mlp/train.py: a 4-{HIDDEN}-1 tanh MLP on encoder finite "
             f"differences, CMA-ES (pycma) over its weights on {cartpole.trained_on()}, one "
-            "file per training seed; exported with onnx"
+            "file per training seed; exported with onnx "
+            f"({cartpole.versions('cma', 'onnx', 'mujoco')})"
         ),
     )
     if not args.no_check:
