@@ -16,9 +16,13 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
+from mjtrial.conditions import condition_record
 from mjtrial.config import ConfigError, check_config
 from mjtrial.physics import compiled_sha256
-from mjtrial.studies.variants import describe_edits, variant_model
+from mjtrial.report.labels import setting
+from mjtrial.stages.manifest import condition_edits
+from mjtrial.studies.variants import variant_model
+from mjtrial.task import load_task
 
 REACHER = REPO_ROOT / "tasks" / "reacher_goal"
 DEFAULT_EDITS = {
@@ -163,7 +167,15 @@ def test_a_bad_default_edit_is_one_line_naming_the_file_and_key(edits, message):
     assert "\n" not in str(caught.value)
 
 
-def test_the_report_says_what_a_default_edit_changed():
-    assert describe_edits(DEFAULT_EDITS) == (
+def test_the_manifest_and_report_say_what_a_default_edit_changed():
+    config = _reacher_config()
+    config["conditions"]["damping_x3"]["model"] = DEFAULT_EDITS
+    record = condition_record(load_task(config["task"]), config["conditions"]["damping_x3"])
+    assert record["model"] == DEFAULT_EDITS  # the summary's record of the condition
+    assert setting(record, load_task(config["task"])).endswith(
         "default main joint damping 0.03 0 0; default main actuator gear 0.1 0 0 0 0 0"
-    )
+    )  # the report's conditions table
+    edits = condition_edits(config, REPO_ROOT / config["model"])  # the manifest's
+    assert edits["damping_x3"]["edits"] == DEFAULT_EDITS
+    expected = variant_model(REACHER / "reacher.xml", DEFAULT_EDITS)[1]
+    assert edits["damping_x3"]["compiled_sha256"] == expected
