@@ -78,6 +78,7 @@ else:
     include: "workflow/rules/report.smk"
     include: "workflow/rules/seal.smk"
     include: "workflow/rules/studies.smk"
+    include: "workflow/rules/pilot.smk"
     include: "workflow/rules/crate.smk"
 
     report: "workflow/report/workflow.rst"

@@ -20,7 +20,7 @@ from conftest import REPO_ROOT
 from test_pipeline import planned_jobs
 
 from mjtrial import codehash
-from mjtrial.layout import BENCHMARK_STAGES, STAGES
+from mjtrial.layout import BENCHMARK_STAGES, PILOT_STAGES, STAGES
 from mjtrial.stages.stamping import stage_code
 
 
@@ -113,6 +113,7 @@ DOWNSTREAM = {  # within the built-in experiment, what `snakemake -c2` plans
     "sensitivity": set(),  # the studies' stages are not part of `snakemake -c2`
     "dose_response": set(),
     **{stage: set() for stage in BENCHMARK_STAGES},  # nor a benchmark's
+    **{stage: set() for stage in PILOT_STAGES},  # nor the pilot's (`snakemake -c2 pilot`)
 }
 
 
@@ -148,7 +149,7 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
     with open(workdir / "src" / "mjtrial" / "stats.py", "a") as f:
         f.write("\n# an edit\n")
 
-    built_in = importing - {"sensitivity", "dose_response", *BENCHMARK_STAGES}
+    built_in = importing - {"sensitivity", "dose_response", *BENCHMARK_STAGES, *PILOT_STAGES}
     expected = built_in | {d for s in built_in for d in DOWNSTREAM[s]}
     jobs = planned_jobs(workdir, env=env)
     assert set(jobs) - {"all"} == expected

@@ -16,11 +16,14 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.physics import ModelError, compiled_sha256, load_model, load_spec
 from mjtrial.provenance.model_closure import model_closure
+from mjtrial.stages.rollout import run_shard
+from mjtrial.stages.states import build_states
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
@@ -147,3 +150,82 @@ def test_an_unedited_variant_is_the_committed_model_bit_for_bit():
     for name in ("body_iquat", "geom_quat", "body_quat", "geom_size", "dof_armature"):
         np.testing.assert_array_equal(getattr(model, name), getattr(committed, name))
     assert digest == nominal_model_hash(CARTPOLE) == compiled_sha256(committed)
+
+
+def test_a_vendor_layout_with_a_meshdir_runs_through_the_pipeline(tmp_path, monkeypatch):
+    """A task on a scene whose `meshdir` names a mesh folder below it and whose arm file, in a
+    sub-folder, includes the file declaring the mesh: its states and a rollout shard (recorded,
+    mesh drawn) are built from relative paths, as Snakemake's jobs run, and each episode ends
+    where a plain `mj_step` loop on MuJoCo's own load of the full path ends it."""
+    task = tmp_path / "tasks" / "push"
+    (task / "arm").mkdir(parents=True)
+    _tetrahedron_stl(task / "arm" / "meshes" / "block.stl")
+    (task / "scene.xml").write_text(
+        '<mujoco model="push">\n  <compiler meshdir="arm/meshes"/>\n'
+        '  <include file="arm/arm.xml"/>\n'
+        '  <worldbody><geom name="floor" type="plane" size="1 1 0.1"/></worldbody>\n</mujoco>\n'
+    )
+    (task / "arm" / "arm.xml").write_text(
+        '<mujoco>\n  <include file="common.xml"/>\n  <worldbody>\n'
+        '    <body name="block" pos="0 0 0.2">\n'
+        '      <joint name="block_slide" type="slide" axis="1 0 0" damping="2"/>\n'
+        '      <geom type="mesh" mesh="block" mass="1" contype="0" conaffinity="0"/>\n'
+        "    </body>\n  </worldbody>\n"
+        '  <actuator><motor name="pusher" joint="block_slide" ctrlrange="-10 10"/></actuator>\n'
+        "</mujoco>\n"
+    )
+    (task / "arm" / "common.xml").write_text(
+        '<mujoco>\n  <asset><mesh name="block" file="block.stl"/></asset>\n</mujoco>\n'
+    )
+    template = REPO_ROOT / "src" / "mjtrial" / "templates" / "new_task" / "task.py"
+    (task / "task.py").write_text(
+        template.read_text().replace('model="model.xml"', 'model="scene.xml"')
+    )
+    monkeypatch.chdir(tmp_path)
+    states = Path("results/push/states.parquet")
+    table = Path("results/push/rollouts/firm/shard-00000.parquet")
+    reference = "tasks/push/task.py"
+    build_states(
+        states_slice={
+            "n": 3,
+            "seed": 1,
+            "development_seed": 2,
+            "ranges": {"mass": [0.5, 3.0], "start": [-0.05, 0.05]},
+            "task": reference,
+        },
+        output=states,
+        repo_root=tmp_path,
+    )
+    condition = {"push_force": 2.0, "push_time": 0.5}
+    rows = run_shard(
+        condition_slice={
+            "condition": "firm",
+            "task": reference,
+            **condition,
+            "failure_taxonomy": {},
+            "recording": {"rate_hz": 20, "episodes": "all"},
+        },
+        states_path=states,
+        model_file=Path("tasks/push/scene.xml"),
+        first=0,
+        stop=3,
+        output_table=table,
+        output_recording=table.with_suffix(""),
+        nthread=1,
+        rule="rollout:firm#00000",
+        repo_root=tmp_path,
+    ).to_pylist()
+    assert len(list(table.with_suffix("").glob("*.rrd"))) == 3
+    model = mujoco.MjModel.from_xml_path(str(task / "scene.xml"))
+    assert model.nmesh == 1
+    for state, row in zip(pq.read_table(states).to_pylist(), rows, strict=True):
+        m = mujoco.MjModel.from_xml_path(str(task / "scene.xml"))
+        d = mujoco.MjData(m)
+        m.body_mass[m.body("block").id] = state["mass"]
+        mujoco.mj_setConst(m, d)
+        mujoco.mj_resetData(m, d)
+        d.qpos[0] += state["start"]
+        for step in range(round(3.0 / m.opt.timestep)):  # the template's 3 s episode
+            d.ctrl[0] = condition["push_force"] if step < round(0.5 / m.opt.timestep) else 0.0
+            mujoco.mj_step(m, d)
+        assert row["final_position"] == d.qpos[0]

@@ -152,15 +152,6 @@ def test_poses_match_mujoco_for_all_joint_types() -> None:
     _assert_poses_compose_to_mujocos(model, qpos)
 
 
-def test_mocap_bodies_are_refused() -> None:
-    model = mujoco.MjModel.from_xml_string(
-        '<mujoco><worldbody><body name="m" mocap="true"><geom size="0.1"/></body>'
-        "</worldbody></mujoco>"
-    )
-    with pytest.raises(ValueError, match="mocap"):
-        BodyPoses(model)
-
-
 def test_logged_steps() -> None:
     np.testing.assert_array_equal(logged_steps(4, 1), [0, 1, 2, 3])
     np.testing.assert_array_equal(logged_steps(10, 5), [4, 9])

@@ -88,6 +88,10 @@ STAGES: dict[str, Stage] = {
         Stage("sensitivity", "study"),
         Stage("dose_response", "study"),
         Stage("crate", "crate"),
+        # the pilot: the design's conditions on the development states (`snakemake -c2 pilot`)
+        Stage("pilot", "pilot_rollout"),
+        Stage("pilot_gather", "pilot_gather"),
+        Stage("pilot_summary", "pilot_summary"),
         Stage("train", "train"),  # a benchmark's tuning of one method, task and seed
         Stage("evaluate", "evaluate"),  # its parameters on a shard of the evaluation states
         Stage("evaluate_gather", "evaluate_gather"),  # the shards' rows in one table
@@ -98,6 +102,11 @@ STAGES: dict[str, Stage] = {
     )
 }
 
+
+# The stages whose stamp's qualifier is a condition (`rollout:<variant>/<condition>#<shard>`).
+CONDITION_STAGES = ("rollout", "gather", "pilot", "pilot_gather")
+# The pilot's stages: never part of `snakemake -c2`, never read by the evaluation.
+PILOT_STAGES = ("pilot", "pilot_gather", "pilot_summary")
 
 # The stages only a benchmark runs (`workflow/rules/benchmark.smk`); it also runs `states`.
 BENCHMARK_STAGES = (
@@ -140,9 +149,20 @@ class Layout:
         return self.root / "states.parquet"
 
     @property
+    def development(self) -> Layout:
+        """The development folder, laid out as an experiment's: its tuning states and the
+        pilot's rollouts (`snakemake -c2 pilot`); nothing under it reaches a reported number."""
+        return Layout(self.root / "development")
+
+    @property
     def development_states(self) -> Path:
         """The tuning states, never reported."""
-        return self.root / "development" / "states.parquet"
+        return self.development.states
+
+    @property
+    def pilot_summary(self) -> Path:
+        """The pilot's rates per condition on the development states."""
+        return self.development.root / "analysis" / "pilot.json"
 
     # -- rollouts -------------------------------------------------------------------------
     def rollouts_dir(self, variant: str = NOMINAL) -> Path:

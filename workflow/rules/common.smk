@@ -59,6 +59,11 @@ def shard_tables(wildcards):
     return [LAYOUT.shard_table(wildcards.condition, s, variant) for s in SHARDS]
 
 
+def pilot_shard_tables(wildcards):
+    """Every pilot shard table of the job's condition, in state order."""
+    return [LAYOUT.development.shard_table(wildcards.condition, s) for s in SHARDS]
+
+
 def shard_recordings_of(wildcards):
     """The job's shard's recordings folder (a rollout's param: one that records nothing
     removes an earlier run's, so the folder never holds recordings not of this run)."""

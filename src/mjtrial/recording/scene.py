@@ -182,7 +182,9 @@ def static_scene(model: mujoco.MjModel) -> list[tuple[str, list[Any]]]:
     """(entity, archetypes) logged statically: view coordinates, geoms, poses that never change.
 
     The world body's geoms go on ``world``; a body without joints gets its pose in its parent
-    here, once (a body with joints gets it per step, `BodyPoses`).
+    here, once (a body with joints gets it per step, `BodyPoses`). So does a mocap body: every
+    reset takes its pose from the model, which is the episode's own when a state parameter
+    moves it (`MocapPosition`), and no control of an episode moves it.
     """
     with strict():
         world = [rr.ViewCoordinates(xyz=rr.ViewCoordinates.RIGHT_HAND_Z_UP)]
@@ -233,8 +235,6 @@ class BodyPoses:
         self._free: dict[int, int] = {}  # qpos address
         self._other: list[int] = []
         for b in range(1, model.nbody):
-            if model.body_mocapid[b] >= 0:
-                raise ValueError(f"body {body_entity(model, b)!r} is a mocap body: not supported")
             first = int(model.body_jntadr[b])
             joints = range(first, first + int(model.body_jntnum[b]))
             if not joints:

@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 from mjtrial import REPO_ROOT, analysis, provenance
 from mjtrial.conditions import condition_record
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
+from mjtrial.stages.states import check_drawn_as, check_evaluation_table
 from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
@@ -27,7 +28,13 @@ def run_analysis(
     output: Path,
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
-    """Compute the summary, write `summary.json`, and log the table."""
+    """Compute the summary, write `summary.json`, and log the table.
+
+    Only the evaluation's states and tables are read: development states or a pilot's table
+    (`snakemake -c2 pilot`) are refused, whatever their path."""
+    check_drawn_as(Path(states_path), development=False, reader="the analysis")
+    for path in rollout_tables.values():
+        check_evaluation_table(Path(path), reader="the analysis")
     summary = summarize_tables(
         states_path=states_path,
         rollout_tables=rollout_tables,

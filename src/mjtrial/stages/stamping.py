@@ -11,7 +11,7 @@ from typing import Any
 from mjtrial import REPO_ROOT, codehash, provenance
 from mjtrial.conditions import all_conditions
 from mjtrial.crate.description import crate_description
-from mjtrial.layout import STAGES
+from mjtrial.layout import CONDITION_STAGES, STAGES
 from mjtrial.task import task_files
 
 
@@ -43,7 +43,7 @@ def _slice(
 ) -> dict[str, Any]:
     if stage == "states":  # the task declares the parameters and their draw order
         return {**config["states"], "task": config["task"]}
-    if stage in ("rollout", "gather"):  # condition: "<condition>" or "<variant>/<condition>"
+    if stage in CONDITION_STAGES:  # condition: "<condition>" or "<variant>/<condition>"
         variant, _, name = condition.rpartition("/")
         condition_slice = {
             "condition": name,
@@ -77,6 +77,12 @@ def _slice(
             "falsifier": dict(config["design"]["falsifier"]),
             "sample_size": dict(config["design"]["sample_size"]),
             "analysis": dict(config["analysis"]),
+        }
+    if stage == "pilot_summary":  # the design's conditions' rates on the development states
+        return {
+            "task": config["task"],
+            "conditions": dict(config["conditions"]),
+            "confidence": config["analysis"]["confidence"],
         }
     if stage == "failures":
         return {"failures_max": config["recording"]["failures_max"]}

@@ -58,6 +58,20 @@ def check_drawn_as(path: Path, *, development: bool, reader: str) -> dict[str, A
     return stamp
 
 
+def check_evaluation_table(path: Path, *, reader: str) -> None:
+    """Refuse a rollout table the evaluation must not read: one whose stamp is not a gather's
+    (the pilot's are `pilot_gather`); a one-line ValueError naming the file and `reader`."""
+    try:
+        rule = provenance.read_stamp(path).get("rule")
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: no readable stamp ({err}); expected a rollout table") from None
+    if not (isinstance(rule, str) and rule.startswith("gather:")):
+        raise ValueError(
+            f"{path}: written by {rule!r}, not the evaluation's gather; {reader} reads the "
+            "evaluation's rollout tables only"
+        )
+
+
 def build_states(
     *,
     states_slice: Mapping[str, Any],

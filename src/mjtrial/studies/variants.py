@@ -8,7 +8,17 @@ A variant is a mapping of overrides, each naming an attribute by its MJCF name:
      "body": {"arm": {"gravcomp": 0.5}},
      "joint": {"hinge": {"frictionloss": 0.2}}}
 
-(also `tendon`, `equality`, `sensor` and `site` attributes by element name).
+(also `tendon`, `equality`, `sensor` and `site` attributes by element name), and a default
+class's values, by class name (`main` is the top one) and the kind of element it sets:
+
+    {"default": {"main": {"joint": {"damping": [0.03, 0, 0]}, "actuator": {"gear": [...]}}}}
+
+MuJoCo applies a class when it parses the file: MjSpec holds each element's values already
+resolved, and an edit of `spec.find_default(name)` after parsing reaches no element (measured,
+MuJoCo 3.14). So an edit of a class is applied as the same edit of the file's text would be:
+to the class, to the classes nested in it that inherit the value, and to every element of those
+classes whose value is the class's (one that sets the same value itself cannot be told apart,
+and changes with it).
 
 MuJoCo's own editing API applies them (no XML text is edited), the edited spec is compiled as
 it is, and the edited model is recorded as the sha256 of that compiled model
@@ -22,6 +32,7 @@ from collections.abc import Mapping, Sequence
 from numbers import Integral, Real
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import mujoco
 import numpy as np
@@ -30,8 +41,17 @@ from mjtrial.physics import ModelError, compiled_sha256, load_spec
 
 OVERRIDE_KINDS = (
     *("option", "geom", "actuator", "body"),
-    *("joint", "tendon", "equality", "sensor", "site"),
+    *("joint", "tendon", "equality", "sensor", "site", "default"),
 )
+# What a default class may set, with the spec's list of the elements of that kind.
+DEFAULT_ELEMENTS = {
+    "joint": "joints",
+    "geom": "geoms",
+    "site": "sites",
+    "tendon": "tendons",
+    "actuator": "actuators",
+    "equality": "equalities",
+}
 
 # MJCF's keywords for the enumerated <option> attributes, in the order of their mjt enums
 # (mjtIntegrator, mjtCone, mjtSolver, mjtJacobian); MjSpec stores the enum's integer.
@@ -102,6 +122,66 @@ def _apply_element(element: Any, name: str, value: Any, key: str) -> None:
     setattr(element, name, _coerce(key, getattr(element, name), value))
 
 
+def _class_parents(spec: mujoco.MjSpec) -> dict[str, str | None]:
+    """Each default class's parent class (None for `main`): MjSpec does not expose the tree,
+    its own MJCF does."""
+    parents: dict[str, str | None] = {}
+
+    def walk(node: ElementTree.Element, parent: str | None) -> None:
+        name = node.get("class", "main")
+        parents[name] = parent
+        for child in node.findall("default"):
+            walk(child, name)
+
+    top = ElementTree.fromstring(spec.to_xml()).find("default")
+    if top is not None:
+        walk(top, None)
+    return parents
+
+
+def _same(a: Any, b: Any) -> bool:
+    return bool(np.array_equal(a, b)) if isinstance(a, np.ndarray) else a == b
+
+
+def _apply_default(spec: mujoco.MjSpec, name: str, kinds: Any, where: str) -> None:
+    """Edit the class `name` as an edit of its `<default>` in the file would (module docstring)."""
+    parents = _class_parents(spec)
+    if spec.find_default(name) is None or name not in parents:
+        _fail(
+            where,
+            f"the model has no default class of that name; expected one of {', '.join(parents)}",
+        )
+    if not isinstance(kinds, Mapping) or not kinds:
+        _fail(where, f"expected a non-empty mapping of {', '.join(DEFAULT_ELEMENTS)}")
+    for kind, attributes in kinds.items():
+        if kind not in DEFAULT_ELEMENTS:
+            _fail(f"{where}.{kind}", f"expected one of {', '.join(DEFAULT_ELEMENTS)}")
+        if not isinstance(attributes, Mapping) or not attributes:
+            _fail(f"{where}.{kind}", "expected a non-empty mapping of attributes")
+        for attribute, value in attributes.items():
+            key = f"{where}.{kind}.{attribute}"
+            values = getattr(spec.find_default(name), kind)
+            public = [a for a in dir(values) if not a.startswith("_")]
+            if attribute in _NOT_SETTABLE or attribute not in public:
+                _fail(key, "unknown or not overridable attribute")
+            old = np.copy(getattr(values, attribute))
+            new = _coerce(key, getattr(values, attribute), value)
+            # the class, and each class below it that still inherits the value
+            classes, frontier = {name}, [name]
+            while frontier:
+                parent = frontier.pop()
+                for child, of in parents.items():
+                    inherited = getattr(getattr(spec.find_default(child), kind), attribute)
+                    if of == parent and _same(inherited, old):
+                        classes.add(child)
+                        frontier.append(child)
+            for c in classes:
+                setattr(getattr(spec.find_default(c), kind), attribute, new)
+            for element in getattr(spec, DEFAULT_ELEMENTS[kind]):
+                if element.classname.name in classes and _same(getattr(element, attribute), old):
+                    setattr(element, attribute, new)
+
+
 def apply_overrides(
     spec: mujoco.MjSpec, overrides: Mapping[str, Any], *, key_prefix: str = "overrides"
 ) -> None:
@@ -122,6 +202,10 @@ def apply_overrides(
         if kind == "option":
             for name, value in entries.items():
                 _apply_option(spec, name, value, f"{where}.{name}")
+            continue
+        if kind == "default":
+            for name, kinds in entries.items():
+                _apply_default(spec, name, kinds, f"{where}.{name}")
             continue
         find = getattr(spec, kind)  # spec.geom(name), spec.joint(name), spec.sensor(name), ...
         for element_name, attributes in entries.items():
@@ -190,6 +274,14 @@ def describe_edits(edits: Mapping[str, Any]) -> str:
     for kind, entries in edits.items():
         if kind == "option":
             parts += [f"option {name} {_shown(v)}" for name, v in entries.items()]
+            continue
+        if kind == "default":  # `default main joint damping 0.03 0 0`
+            parts += [
+                f"default {name} {of} {attribute} {_shown(v)}"
+                for name, kinds in entries.items()
+                for of, attributes in kinds.items()
+                for attribute, v in attributes.items()
+            ]
             continue
         for element, attributes in entries.items():
             parts += [f"{kind} {element} {name} {_shown(v)}" for name, v in attributes.items()]

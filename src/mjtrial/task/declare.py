@@ -139,11 +139,15 @@ class ModelValue:
 
 @dataclass(frozen=True)
 class MocapPosition:
-    """Sets a mocap body's position along one axis (0, 1, 2: x, y, z) in the reset data."""
+    """Sets a mocap body's position along one axis (0, 1, 2: x, y, z): in the episode's model
+    (`body_pos`), from which every reset, `mujoco.rollout`'s included, takes the mocap pose (an
+    mjSTATE_FULLPHYSICS state does not hold it, so a value set in the reset data alone would be
+    lost), and in the reset data."""
 
     body: str
     axis: int
-    stage = "initial"
+    stage = "model"
+    sets = True  # writes its value whatever was there: a model copy can be reused
 
     def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
         mocap = model.body_mocapid[_element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)]
@@ -151,9 +155,10 @@ class MocapPosition:
             raise TaskError(f"expected body {self.body!r} to be a mocap body")
         if self.axis not in (0, 1, 2):
             raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
-        axis = self.axis
+        axis, body = self.axis, model.body_mocapid.tolist().index(mocap)
 
         def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            m.body_pos[body, axis] = value
             d.mocap_pos[mocap, axis] = value
 
         return apply

@@ -325,6 +325,7 @@ def verify_results(
             ],
             recomputed_differs=differs,
             outdated=_crate_outdated(layout, stamps, repo_root),
+            development_prefix=_relative(layout.development.root, repo_root),
         )
 
     report = check()

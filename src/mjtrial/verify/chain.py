@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, codehash, provenance
-from mjtrial.layout import STAGES
+from mjtrial.layout import CONDITION_STAGES, STAGES
 from mjtrial.stages.stamping import config_slice, stage_code
 from mjtrial.task import task_files
 
@@ -187,7 +187,7 @@ def parse_rule(rule: Any) -> tuple[str, str | None] | None:
     stage, sep, qualifier = rule.partition(":")
     if stage not in STAGES or (sep and not qualifier):
         return None
-    if stage in ("rollout", "gather") and not qualifier:
+    if stage in CONDITION_STAGES and not qualifier:
         return None
     return stage, qualifier or None
 
@@ -391,6 +391,7 @@ def check_stamps(
     expected_paths: Iterable[str] = (),
     recomputed_differs: Mapping[str, str] | None = None,
     outdated: Mapping[str, str] | None = None,
+    development_prefix: str | None = None,
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -405,7 +406,10 @@ def check_stamps(
     there (a study's summary beside its report). ``recomputed_differs`` maps outputs that
     differ from their recomputation (:mod:`mjtrial.verify.recompute`) to why: tampered.
     ``outdated`` maps outputs that miss something built after them (a crate that does not
-    cover a study sealed since) to why: stale.
+    cover a study sealed since) to why: stale. Outputs under ``development_prefix`` (the
+    development states and the pilot) are read by no reported number: one that is stale or
+    missing (a pilot of an earlier configuration) is a warning, not a failure, and an output
+    outside it that records an input under it is tampered.
     """
     unreadable = dict(unreadable or {})
     prefix = outputs_prefix.rstrip("/") + "/"
@@ -450,10 +454,11 @@ def check_stamps(
         stale[path].append(why)
 
     model_path = current.config.get("model")
+    development = development_prefix.rstrip("/") + "/" if development_prefix else None
     for path, stamp in pipeline_stamps.items():
         stage, qualifier = parsed[path]
         # "rollout:<variant>/<condition>#<shard>": the slice is the (variant's) condition's
-        condition = qualifier.partition("#")[0] if stage in ("rollout", "gather") else None
+        condition = qualifier.partition("#")[0] if stage in CONDITION_STAGES else None
         rule = stamp["rule"]
 
         # The stamp itself: its recorded slice must hash to its recorded slice hash.
@@ -506,6 +511,11 @@ def check_stamps(
                 tampered[path].append(f"malformed input record {name!r} in its stamp")
                 continue
             source, recorded_sha = record["path"], record["sha256"]
+            if development and source.startswith(development) and not path.startswith(development):
+                tampered[path].append(
+                    f"reads a development output, {source.removeprefix(prefix)}: the evaluation "
+                    "never does"
+                )
             if source.startswith(prefix):
                 expected.add(source)
                 upstream[path].add(source)
@@ -586,16 +596,23 @@ def check_stamps(
         else:
             status[path] = Status.OK
 
-    results = []
+    results, advisory = [], []
     for path, st in status.items():
         rule = pipeline_stamps[path].get("rule") if path in pipeline_stamps else None
         reasons = () if st is Status.OK else (*tampered.get(path, ()), *stale.get(path, ()))
-        results.append(OutputResult(path, st, tuple(reasons), rule))
+        result = OutputResult(path, st, tuple(reasons), rule)
+        if development and path.startswith(development) and st in (Status.STALE, Status.MISSING):
+            advisory.append(
+                f"development output {result.line()} (no reported number reads it; "
+                "`snakemake -c2 pilot` or `dev` rebuilds it)"
+            )
+            continue
+        results.append(result)
     results.sort(key=lambda r: rank(r.path))
     skipped.sort(key=lambda s: s.path)
     return VerifyReport(
         results_dir=prefix.rstrip("/"),
         outputs=tuple(results),
-        warnings=tuple(_consistency_warnings(pipeline_stamps, current, prefix)),
+        warnings=(*sorted(advisory), *_consistency_warnings(pipeline_stamps, current, prefix)),
         skipped=tuple(skipped),
     )

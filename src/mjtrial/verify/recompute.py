@@ -40,6 +40,7 @@ from mjtrial.report import report_text
 from mjtrial.report.traces import record_difference
 from mjtrial.stages.analysis import summarize_tables
 from mjtrial.stages.manifest import manifest_record
+from mjtrial.stages.pilot import summarize_pilot
 from mjtrial.stages.rollout import (
     condition_batches,
     condition_task,
@@ -254,11 +255,19 @@ class _Checker:
             for c in self.config["conditions"]:
                 yield v, c
 
-    def rollouts(self, resimulate: int) -> None:
+    def rollouts(
+        self,
+        resimulate: int,
+        conditions: Iterable[tuple[str, str]] | None = None,
+        recorded: str | None = None,
+    ) -> None:
+        """Each condition's table against its shards, its nominal episode, its recordings and
+        a re-simulated sample of each shard (the conditions and recordings of the config,
+        unless given: the pilot's are the design's conditions, recorded nowhere)."""
         n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
         shards = shard_ids(n, size)
-        recorded = self.config["recording"]["episodes"]
-        for variant, condition in self.conditions():
+        recorded = recorded or self.config["recording"]["episodes"]
+        for variant, condition in self.conditions() if conditions is None else conditions:
             qualified = condition if variant == NOMINAL else f"{variant}/{condition}"
             slice_ = config_slice("rollout", self.config, condition=qualified)
             tables = [self.layout.shard_table(condition, s, variant) for s in shards]
@@ -364,6 +373,35 @@ class _Checker:
             what="re-simulated episodes",
         )
         return why and why + _platform_note(provenance.read_stamp(table_path))
+
+    def pilot(self, resimulate: int) -> None:
+        """The pilot's outputs under `development/`, checked as the evaluation's are: each
+        table against its shards, a sample re-simulated on the development states, the rates."""
+        development = _Checker(
+            self.layout.development,
+            self.config,
+            self.repo_root,
+            self.current,
+            self.command_line,
+            self.command,
+        )
+        development.found = self.found
+        development.rollouts(
+            resimulate, [(NOMINAL, c) for c in self.config["conditions"]], recorded="none"
+        )
+        tables = {c: self.layout.development.rollout_table(c) for c in self.config["conditions"]}
+        if self.is_current(*tables.values()):
+            self.check(
+                self.layout.pilot_summary,
+                lambda: json_difference(
+                    self.layout.pilot_summary,
+                    summarize_pilot(
+                        tables,
+                        config_slice("pilot_summary", self.config),
+                        repo_root=self.repo_root,
+                    ),
+                ),
+            )
 
     def analysis(self) -> None:
         layout, conditions = self.layout, list(self.config["conditions"])
@@ -518,6 +556,7 @@ def recompute(
     checker.found.seed = fresh_seed() if seed is None else seed
     checker.states()
     checker.rollouts(resimulate)
+    checker.pilot(resimulate)
     checker.analysis()
     checker.manifest()
     checker.report()

@@ -1,0 +1,181 @@
+"""The pilot (`snakemake -c2 pilot`): every condition on the development states, under
+`development/`, with its rates; never read by the evaluation (no rule `snakemake -c2` plans
+lists a development output as input, and the analysis refuses one), stamped and verified, and
+a stale pilot (one of an earlier configuration) does not fail `mjtrial verify`."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
+from gantry_lift.model_spec import ModelSpec
+from gantry_lift.protocol import PROTOCOL
+from gantry_lift.simulate import reference_episode
+from gantry_lift.states import states_from_table
+from scipy.stats import binomtest
+
+from mjtrial import provenance
+from mjtrial.layout import Layout
+from mjtrial.physics import load_model
+from mjtrial.stages.analysis import run_analysis
+from mjtrial.stages.stamping import config_slice
+from mjtrial.verify import Status, verify_results
+
+LAYOUT = Layout.of("research_mode")
+DEVELOPMENT = LAYOUT.development
+# The pilot is run with the fast lift at 0.2 s; the config's is 0.15 s: a pilot of an earlier
+# configuration, as after tuning on it.
+PILOT_CONFIG = "conditions={fast: {lift_time: 0.2}, slow: {lift_time: 1.5}}"
+
+
+def planned_jobs(workdir: Path, *args: str) -> dict[str, list[tuple[list[str], list[str]]]]:
+    """Rule -> (outputs, inputs) of every job Snakemake plans for `args`, as a dry run of
+    every job (`-n --forceall`) prints them: Snakemake's own record of each job's files."""
+    out = run_snakemake(workdir, "-n", "--forceall", *args).stdout
+    jobs: dict[str, list[tuple[list[str], list[str]]]] = {}
+    for block in re.split(r"^(?:local)?rule ", out, flags=re.MULTILINE)[1:]:
+        rule = block.split(":", 1)[0]
+        files = {
+            m[1]: m[2].split(", ") for m in re.finditer(r"^    (input|output): (.*)$", block, re.M)
+        }
+        jobs.setdefault(rule, []).append((files.get("output", []), files.get("input", [])))
+    return jobs
+
+
+@pytest.fixture(scope="module")
+def workflow(tmp_path_factory) -> Path:
+    """The workflow's files, 12 states in shards of 5, nothing built."""
+    workdir = copy_workflow(tmp_path_factory.mktemp("pilot_plan"))
+    edit_config(workdir, lambda c: (c["states"].update(n=12), c["rollout"].update(shard_size=5)))
+    return workdir
+
+
+@pytest.mark.parametrize("target", [[], ["studies"]])
+def test_no_rule_of_the_evaluation_reads_a_development_output(workflow, target):
+    jobs = planned_jobs(workflow, *target)
+    assert {"analysis", "manifest", "report"} <= set(jobs) or target
+    development = f"{DEVELOPMENT.root.as_posix()}/"
+    read = [
+        f"{rule} reads {source}"
+        for rule, rows in jobs.items()
+        for outputs, inputs in rows
+        for source in inputs
+        if source.startswith(development)
+        and not all(o.startswith(development) for o in outputs)  # a development job's own
+    ]
+    assert read == []
+    # the check sees what a job reads: the analysis reads the evaluation's tables
+    assert any("rollouts/fast.parquet" in s for _, i in jobs.get("analysis", []) for s in i)
+    assert not {"pilot", "development_states", "pilot_rollout", "pilot_gather"} & set(jobs)
+
+
+def test_the_pilot_writes_under_development_only_and_reads_development_states(workflow):
+    jobs = planned_jobs(workflow, "pilot")
+    assert set(jobs) == {
+        *("development_states", "pilot_rollout", "pilot_gather", "pilot_summary", "pilot")
+    }
+    development = f"{DEVELOPMENT.root.as_posix()}/"
+    outputs = [o for rows in jobs.values() for out, _ in rows for o in out]
+    assert outputs and all(o.startswith(development) for o in outputs)
+    states = {s for _, inputs in jobs["pilot_rollout"] for s in inputs if s.endswith(".parquet")}
+    assert states == {DEVELOPMENT.states.as_posix()}
+    assert len(jobs["pilot_rollout"]) == 2 * 3  # two conditions, shards of 5 of 12 states
+
+
+@pytest.fixture(scope="module")
+def piloted(built, tmp_path_factory) -> Path:
+    """The built experiment (12 states, shards of 5) and a pilot run with the fast lift at 0.2 s."""
+    workdir = tmp_path_factory.mktemp("piloted") / "experiment"
+    shutil.copytree(built, workdir, symlinks=True)
+    run_snakemake(workdir, "pilot", "--config", PILOT_CONFIG)
+    return workdir
+
+
+def test_the_pilot_runs_every_condition_on_the_development_states(piloted):
+    model = load_model(REPO_ROOT / "models" / "gantry_gripper" / "scene.xml")
+    z = ModelSpec.of(model).state_cube_z
+    states = states_from_table(pq.read_table(piloted / DEVELOPMENT.states))
+    summary = json.loads(provenance.read_output_text(piloted / LAYOUT.pilot_summary))
+    assert "pilot" in summary["pilot"] and summary["states"] == "development"
+    for condition, lift_time in (("fast", 0.2), ("slow", 1.5)):
+        table = pq.read_table(piloted / DEVELOPMENT.rollout_table(condition))
+        # each development state's outcome as the gantry's literal mj_step loop gives it
+        heights = [reference_episode(model, s, lift_time=lift_time)[0][-1, z] for s in states]
+        expected = [bool(h > PROTOCOL.success_height) for h in heights]
+        assert table.column("state_id").to_pylist() == [s.state_id for s in states]
+        assert table.column("success").to_pylist() == expected
+        record = summary["conditions"][condition]
+        assert (record["lift_time"], record["n"], record["successes"]) == (
+            lift_time,
+            len(states),
+            sum(expected),
+        )
+        interval = binomtest(sum(expected), len(states)).proportion_ci(0.95, method="wilson")
+        assert record["wilson_low"] == pytest.approx(interval.low, abs=1e-12)
+        assert record["wilson_high"] == pytest.approx(interval.high, abs=1e-12)
+        stamp = provenance.read_stamp(piloted / DEVELOPMENT.shard_table(condition, "00000"))
+        assert stamp["rule"] == f"pilot:{condition}#00000"
+        assert stamp["inputs"]["states"]["path"].endswith("development/states.parquet")
+
+
+def test_changing_a_condition_reruns_its_pilot_shards_and_the_rates_only(piloted):
+    # the pilot ran fast at 0.2 s; the config says 0.15 s: fast's 3 shards, slow's none
+    out = run_snakemake(piloted, "-n", "pilot").stdout
+    table = out.split("Job stats:")[1].split("total")[0]
+    jobs = dict(line.split() for line in table.splitlines()[3:] if line.strip())
+    assert jobs == {"pilot_rollout": "3", "pilot_gather": "1", "pilot_summary": "1", "pilot": "1"}
+
+
+def verify(workdir: Path):
+    return verify_results(
+        workdir / LAYOUT.root, config_path=workdir / "config" / "config.yaml", repo_root=workdir
+    )
+
+
+def test_a_stale_pilot_is_a_warning_and_a_current_one_is_checked(piloted, tmp_path):
+    report = verify(piloted)
+    assert report.ok, report.format()
+    stale = [w for w in report.warnings if w.startswith("development output stale")]
+    # fast's shards, table, nominal episode and the rates
+    assert len(stale) == 3 + 2 + 1, report.format()
+    assert report.status_of(f"{DEVELOPMENT.rollout_table('slow').as_posix()}") is Status.OK
+
+    # a current pilot output is checked as any: slow's gathered table, a success flipped
+    # under its old stamp, is tampered (its re-simulated sample says so too)
+    work = tmp_path / "experiment"
+    shutil.copytree(piloted, work, symlinks=True)
+    path = work / DEVELOPMENT.rollout_table("slow")
+    stamp, table = provenance.read_stamp(path), pq.read_table(path)
+    success = table.column("success").to_pylist()
+    success[0] = not success[0]
+    table = table.set_column(table.schema.get_field_index("success"), "success", pa.array(success))
+    provenance.write_parquet(table.replace_schema_metadata(None), path, stamp)
+    report = verify(work)
+    assert not report.ok
+    assert report.with_status(Status.TAMPERED) == [DEVELOPMENT.rollout_table("slow").as_posix()]
+
+
+def test_the_analysis_refuses_development_states_and_a_pilot_table(piloted, tmp_path):
+    config = yaml.safe_load((piloted / "config" / "config.yaml").read_text())
+    kwargs = dict(
+        states_path=piloted / LAYOUT.states,
+        rollout_tables={c: piloted / LAYOUT.rollout_table(c) for c in ("fast", "slow")},
+        nominal_files={c: piloted / LAYOUT.nominal_episode(c) for c in ("fast", "slow")},
+        analysis_slice=config_slice("analysis", config),
+        output=tmp_path / "summary.json",
+        repo_root=piloted,
+    )
+    with pytest.raises(ValueError, match="not evaluation states; the analysis reads"):
+        run_analysis(**{**kwargs, "states_path": piloted / DEVELOPMENT.states})
+    pilot_tables = {c: piloted / DEVELOPMENT.rollout_table(c) for c in ("fast", "slow")}
+    with pytest.raises(ValueError, match="'pilot_gather:fast', not the evaluation's gather"):
+        run_analysis(**{**kwargs, "rollout_tables": pilot_tables})
+    assert not (tmp_path / "summary.json").exists()
+    run_analysis(**kwargs)  # the evaluation's own inputs
