@@ -312,6 +312,42 @@ def _new_task(args: argparse.Namespace) -> int:
     return 0
 
 
+def _diff(args: argparse.Namespace) -> int:
+    # Imported here: the diff reads recordings (rerun-sdk), which `mjtrial plan` need not pay.
+    import json
+
+    from mjtrial.diff import RunError, diff_runs, failures, render
+
+    out = Path(args.out)
+    inside = [r for r in (args.a, args.b) if out.resolve().is_relative_to(Path(r).resolve())]
+    if inside:
+        print(
+            f"mjtrial diff: --out {out} lies in {inside[0]}; a diff never writes into a run "
+            "(verify would take it for the run's): give a folder outside it",
+            file=sys.stderr,
+        )
+        return 2
+    given = {"tolerance": args.tolerance, "max_episodes": args.max_episodes, "level": args.level}
+    try:
+        diff = diff_runs(
+            args.a,
+            args.b,
+            recording=out / "replay" / "diff.rrd",
+            **{k: v for k, v in given.items() if v is not None},
+        )
+    except (RunError, OSError) as err:
+        print(f"mjtrial diff: {err}", file=sys.stderr)
+        return 2
+    failed = failures(diff, args.fail_on) if args.fail_on else []
+    if args.json:
+        print(json.dumps({**diff, "fail_on": args.fail_on, "failed": failed}, indent=1))
+    else:
+        print(render(diff))
+    for line in failed:
+        print(f"mjtrial diff --fail-on {args.fail_on}: {line}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -411,6 +447,43 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("name", help="the task's name: lower-case letters, digits and _")
     p.add_argument("--repo-root", help="the repository to write into (default: .)")
     p.set_defaults(run=_new_task)
+    p = sub.add_parser(
+        "diff",
+        help="what differs between two runs (results folders or zips): how they were made, "
+        "what they found, the flipped episodes; --fail-on makes it a regression gate",
+    )
+    p.add_argument("a", help="a results folder, or an archive of `mjtrial crate --zip`")
+    p.add_argument("b", help="the run to compare it with, the same way")
+    p.add_argument("--json", action="store_true", help="print the diff as JSON")
+    p.add_argument(
+        "--fail-on",
+        choices=["any", "changed", "verdict"],
+        help="exit 1 when outputs differ (any), when a condition's success changed beyond "
+        "noise (changed: McNemar exact p below --level), or when a verdict changed",
+    )
+    p.add_argument(
+        "--level", type=float, help="McNemar's level (default: mjtrial.diff.DEFAULT_LEVEL)"
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        help="trajectories part where a logged value differs by more than this (default: "
+        "mjtrial.diff.DEFAULT_TOLERANCE)",
+    )
+    p.add_argument(
+        "--max-episodes",
+        type=_count,
+        metavar="K",
+        help="flipped episodes traced and copied into the recording (default: "
+        "mjtrial.diff.DEFAULT_MAX_EPISODES)",
+    )
+    p.add_argument(
+        "--out",
+        default="diff",
+        help="folder for replay/diff.rrd, both runs' recordings of the flipped episodes "
+        "(default: ./diff; never inside a sealed results folder)",
+    )
+    p.set_defaults(run=_diff)
     args = parser.parse_args(argv)
     return args.run(args)
 

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mjtrial import recording  # noqa: F401 - registers the .rrd stamp reader
+import mjtrial.recording  # noqa: F401 - registers the .rrd stamp reader
 from mjtrial.diff.flips import (
     DEFAULT_MAX_EPISODES,
     DEFAULT_TOLERANCE,
@@ -59,9 +59,7 @@ def diff_runs(
     try:
         runs.append(open_run(b))
         conditions = compare_conditions(*runs)
-        traced = trace_flips(
-            *runs, conditions, tolerance=tolerance, max_episodes=max_episodes
-        )
+        traced = trace_flips(*runs, conditions, tolerance=tolerance, max_episodes=max_episodes)
         written = None
         if recording is not None and traced:
             write_diff_recording(recording, traced, labels=[r.label for r in runs])

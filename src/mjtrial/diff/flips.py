@@ -96,7 +96,9 @@ def trace_flips(
         for flip in record.get("flipped", []):
             sid = flip["state_id"]
             if len(traced) >= max_episodes:
-                flip["divergence"] = {"reason": f"not compared (past --max-episodes {max_episodes})"}
+                flip["divergence"] = {
+                    "reason": f"not compared (past --max-episodes {max_episodes})"
+                }
                 continue
             files = [episode_file(run, group, sid) for run in (a, b)]
             missing = [s for s, f in zip(SIDES, files, strict=True) if f is None]

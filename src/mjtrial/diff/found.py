@@ -18,7 +18,9 @@ from mjtrial.diff.source import Run
 from mjtrial.layout import NOMINAL
 
 # Where the seal lists a rollout table: `rollouts/<condition>.parquet`, or a variant's.
-_ROLLOUT_TABLE = re.compile(r"(?:variants/(?P<variant>[^/]+)/)?rollouts/(?P<condition>[^/]+)\.parquet")
+_ROLLOUT_TABLE = re.compile(
+    r"(?:variants/(?P<variant>[^/]+)/)?rollouts/(?P<condition>[^/]+)\.parquet"
+)
 # An output compared by outcomes and trajectories, not bytes: a recording (its bytes hold its
 # stamp) or a folder of them.
 _RECORDING = re.compile(r".*\.rrd|.*/shard-\d+")
@@ -194,7 +196,9 @@ def compare_effects(a: Run, b: Run) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     summaries = [r.json(r.layout.summary.relative_to(r.root).as_posix()) for r in (a, b)]
     pairs = {"main": (_effect(summaries[0]), _effect(summaries[1]))}
-    studies = [r.json(r.layout.study_summary("sensitivity").relative_to(r.root).as_posix()) for r in (a, b)]
+    studies = [
+        r.json(r.layout.study_summary("sensitivity").relative_to(r.root).as_posix()) for r in (a, b)
+    ]
     if all(studies):
         va, vb = (s.get("variants") or {} for s in studies)
         for name in (n for n in va if n in vb and n != NOMINAL):

@@ -56,7 +56,11 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
             )
             if outputs[key]
         ]
-        lines += [f"{g}: rolled out in {r['only']} only" for g, r in diff["conditions"].items() if "only" in r]
+        lines += [
+            f"{g}: rolled out in {r['only']} only"
+            for g, r in diff["conditions"].items()
+            if "only" in r
+        ]
         return lines
     if fail_on == "changed":
         return _changed_conditions(diff)
@@ -83,7 +87,9 @@ def _made_lines(made: Mapping[str, list[Mapping[str, Any]]]) -> list[str]:
     for section, rows in made.items():
         for row in rows:
             extra = f" (modules: {', '.join(row['modules'])})" if row.get("modules") else ""
-            lines.append(f"  {section}: {row['key']}: {_value(row['a'])} -> {_value(row['b'])}{extra}")
+            lines.append(
+                f"  {section}: {row['key']}: {_value(row['a'])} -> {_value(row['b'])}{extra}"
+            )
     return lines or ["  nothing differs (commit, code, config, model, versions, platform)"]
 
 

@@ -97,7 +97,9 @@ def _seal_outputs(root: Path, label: str) -> dict[str, str]:
         raise RunError(f"{label}: {Layout(root).seal.name}: lists no output")
     # Seals record paths relative to the repository the run was made in: the folder's own
     # path there is what they share (every output lies in it, states.parquet at its top).
-    recorded = os.path.commonpath(listed) if len(listed) > 1 else os.path.dirname(next(iter(listed)))
+    recorded = (
+        os.path.commonpath(listed) if len(listed) > 1 else os.path.dirname(next(iter(listed)))
+    )
     return {Path(p).relative_to(recorded).as_posix(): s for p, s in sorted(listed.items())}
 
 

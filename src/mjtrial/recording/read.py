@@ -155,9 +155,7 @@ def read_rrd_stamp(path: str | os.PathLike[str]) -> dict[str, Any] | None:
     return parse_json_property(raw.get(PROVENANCE_PROPERTY), f"{path}: provenance")
 
 
-def find_episode_entry(
-    reader: RrdReader, path: Path, condition: str, state_id: int
-) -> StoreEntry:
+def find_episode_entry(reader: RrdReader, path: Path, condition: str, state_id: int) -> StoreEntry:
     """The recording of one episode in an open file (its own, or its copy in failures.rrd)."""
     rid = episode_recording_id(condition, state_id)
     wanted = (rid, FAILURE_PREFIX + rid)

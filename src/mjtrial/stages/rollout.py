@@ -273,7 +273,9 @@ def run_shard(
         **task_inputs(condition_slice["task"], repo_root=repo_root),
         **(extra_inputs or {}),  # a benchmark's evaluation: the parameter file it ran
     }
-    stamp = make_stage_stamp(rule, dict(condition_slice), inputs, repo_root=repo_root)
+    stamp = make_stage_stamp(
+        rule, dict(condition_slice), inputs, threads=nthread, repo_root=repo_root
+    )
     columns: dict[str, list[np.ndarray]] = {c: [] for c in rollout_columns(task)}
     progress = Progress(f"{rule}", total=stop - first)
 

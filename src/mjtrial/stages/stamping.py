@@ -140,15 +140,22 @@ def make_stage_stamp(
     inputs: Mapping[str, Any],
     *,
     seeds: Mapping[str, int] | None = None,
+    threads: int | None = None,
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
-    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`."""
+    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`. `threads`:
+    the simulation threads the job ran (a rollout's), recorded beside the machine's CPU."""
     stage = rule.split(":")[0]
+    threads_record = {} if threads is None else {"threads": int(threads)}
     return provenance.make_stamp(
         rule=rule,
         config_slice=config_slice,
         inputs=inputs,
         seeds=seeds,
         repo_dir=repo_root,
-        extra={"code_sha256": stage_code_hash(stage), "code": stage_code(stage)},
+        extra={
+            "code_sha256": stage_code_hash(stage),
+            "code": stage_code(stage),
+            **threads_record,
+        },
     )
