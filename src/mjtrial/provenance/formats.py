@@ -407,8 +407,8 @@ def content_without_stamp(path: str | os.PathLike[str]) -> bytes | None:
     if path.is_dir():
         return None
     if suffix == ".parquet":
-        import pyarrow as pa
-        import pyarrow.parquet as pq  # slow import, see write_parquet
+        import pyarrow as pa  # slow imports, see write_parquet
+        import pyarrow.parquet as pq
 
         table = pq.read_table(path).replace_schema_metadata(None)
         sink = pa.BufferOutputStream()
