@@ -73,6 +73,11 @@ def test_one_config_value_names_the_key_the_condition_and_the_flips(runs, tmp_pa
     assert [r["key"] for r in made["config"]] == ["conditions.fast.lift_time"]
     assert (made["config"][0]["a"], made["config"][0]["b"]) == (0.15, 1.5)
     assert not made["code"] and not made["model"] and not made["versions"]
+    assert not made["platform"] and not made["commit"]
+    # Every rollout stamp records the machine's CPU and the job's simulation threads.
+    stamp = provenance.read_stamp(a / "rollouts" / "fast" / "shard-00000.parquet")
+    assert stamp["extra"]["threads"] == 1
+    assert stamp["platform"]["cpu_model"] and "sse2" in stamp["platform"]["cpu_flags_fp"]
     # The flips, as the two tables say: only the fast condition moved.
     before, after = _success(runs["a"], "fast"), _success(runs["lift"], "fast")
     flipped = sorted(s for s in before if before[s] != after[s])
@@ -150,14 +155,17 @@ def test_a_run_rebuilt_from_its_zip_on_another_checkout_is_identical(
     other = tmp_path / "other"
     with zipfile.ZipFile(archive) as z:
         z.extractall(other)
-    # The unpacked checkout runs its own package: nothing to do, or a rebuild; the diff
-    # reads what is there.
-    run_snakemake(other, env={"PYTHONPATH": str(other / "src")})
+    # Rebuilt there from scratch by its own package: every output gets a new stamp.
+    run_snakemake(other, "--forceall", env={"PYTHONPATH": str(other / "src")})
     for b in (other / RESULTS, archive):
         code, out, err = _diff(capsys, a / RESULTS, b, "--fail-on", "any", "--out", tmp_path)
         assert code == 0, err
         assert "0 differ" in out and "Flipped episodes: 0" in out
         assert "nothing differs" in out
+    code, out, _ = _diff(capsys, a / RESULTS, other / RESULTS, "--json", "--out", tmp_path)
+    outputs = json.loads(out)["outputs"]
+    assert outputs["differ"] == [] and outputs["same"] == []
+    assert "report.md" in outputs["same_content"] and "states.parquet" in outputs["same_content"]
 
 
 def test_an_output_rebuilt_with_a_new_stamp_has_the_same_content(tmp_path):

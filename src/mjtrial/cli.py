@@ -313,8 +313,6 @@ def _new_task(args: argparse.Namespace) -> int:
 
 
 def _diff(args: argparse.Namespace) -> int:
-    import json
-
     # Imported here: the diff reads recordings (rerun-sdk), which `mjtrial plan` need not pay.
     from mjtrial.diff import RunError, diff_runs, failures, render
 

@@ -161,7 +161,7 @@ def compare_conditions(a: Run, b: Run) -> dict[str, dict[str, Any]]:
     """`compare_condition` for every condition (and variant's) both runs rolled out; a group
     only one ran is `{"only": "a"}` or `"b"`."""
     ga, gb = rollout_groups(a), rollout_groups(b)
-    shared = shared_states(a, b)
+    shared = shared_states(a, b) if set(ga) & set(gb) else np.array([], dtype=np.int64)
     out: dict[str, dict[str, Any]] = {}
     for group in [*ga, *(g for g in gb if g not in ga)]:
         if group not in gb or group not in ga:
@@ -177,7 +177,9 @@ def compare_conditions(a: Run, b: Run) -> dict[str, dict[str, Any]]:
 
 
 def _effect(record: Mapping[str, Any] | None) -> dict[str, Any] | None:
-    if not record:
+    """The paired difference and verdict of an experiment's summary or a variant's record;
+    None for anything else (a benchmark's summary judges no falsifier)."""
+    if not record or "verdict" not in (record.get("falsifier") or record):
         return None
     paired = record.get("paired_difference") or {}
     falsifier = record.get("falsifier") or record
