@@ -15,11 +15,15 @@ import pyarrow.parquet as pq
 
 from mjtrial import provenance, stats
 from mjtrial.diff.source import Run
-from mjtrial.layout import NOMINAL
+from mjtrial.layout import NOMINAL, BenchmarkLayout
 
 # Where the seal lists a rollout table: `rollouts/<condition>.parquet`, or a variant's.
 _ROLLOUT_TABLE = re.compile(
     r"(?:variants/(?P<variant>[^/]+)/)?rollouts/(?P<condition>[^/]+)\.parquet"
+)
+# A benchmark's evaluation of one training seed's parameters on a task's evaluation states.
+_EVALUATION = re.compile(
+    r"evaluation/(?P<task>[^/]+)/(?P<method>[^/]+)/seed-(?P<seed>[^/]+)\.parquet"
 )
 # An output compared by outcomes and trajectories, not bytes: a recording (its bytes hold its
 # stamp) or a folder of them.
@@ -76,15 +80,22 @@ class Outcomes:
     failure_category: np.ndarray
 
 
-def rollout_groups(run: Run) -> dict[str, str]:
-    """{group: its rollout table}, a group being a condition (`fast`) or a variant's
-    (`timestep_1ms/fast`)."""
+def rollout_groups(run: Run) -> dict[str, tuple[str, str]]:
+    """{group: (its table of outcomes, its states)}: a condition (`fast`), a variant's
+    (`timestep_1ms/fast`), or a benchmark's evaluation of a method's training seed on a task
+    (`gantry_lift/tuned/seed-1`)."""
     out = {}
     for rel in run.outputs:
         if m := _ROLLOUT_TABLE.fullmatch(rel):
             variant = m.group("variant") or NOMINAL
             group = m.group("condition") if variant == NOMINAL else f"{variant}/{m['condition']}"
-            out[group] = rel
+            out[group] = (rel, run.layout.states.name)
+        elif m := _EVALUATION.fullmatch(rel):
+            states = BenchmarkLayout(run.root).task(m["task"]).states
+            out[f"{m['task']}/{m['method']}/seed-{m['seed']}"] = (
+                rel,
+                states.relative_to(run.root).as_posix(),
+            )
     return out
 
 
@@ -102,9 +113,12 @@ def read_outcomes(run: Run, rel: str) -> Outcomes:
     )
 
 
-def shared_states(a: Run, b: Run) -> np.ndarray:
-    """The state ids both runs drew with the same values (sorted): only these are paired."""
-    ta, tb = (pq.read_table(r.layout.states) for r in (a, b))
+def shared_states(a: Run, b: Run, states: str) -> np.ndarray:
+    """The state ids both runs drew with the same values (sorted) in their table `states`
+    (relative to the results folder): only these are paired."""
+    if not all((r.root / states).is_file() for r in (a, b)):
+        return np.array([], dtype=np.int64)
+    ta, tb = (pq.read_table(r.root / states) for r in (a, b))
     ta, tb = (t.replace_schema_metadata(None) for t in (ta, tb))
     if ta.schema != tb.schema:
         return np.array([], dtype=np.int64)  # another task's parameters: nothing is shared
@@ -161,14 +175,17 @@ def compare_conditions(a: Run, b: Run) -> dict[str, dict[str, Any]]:
     """`compare_condition` for every condition (and variant's) both runs rolled out; a group
     only one ran is `{"only": "a"}` or `"b"`."""
     ga, gb = rollout_groups(a), rollout_groups(b)
-    shared = shared_states(a, b) if set(ga) & set(gb) else np.array([], dtype=np.int64)
+    shared: dict[str, np.ndarray] = {}
     out: dict[str, dict[str, Any]] = {}
     for group in [*ga, *(g for g in gb if g not in ga)]:
         if group not in gb or group not in ga:
             out[group] = {"only": "a" if group in ga else "b"}
             continue
+        (table_a, states), (table_b, _) = ga[group], gb[group]
+        if states not in shared:
+            shared[states] = shared_states(a, b, states)
         out[group] = compare_condition(
-            read_outcomes(a, ga[group]), read_outcomes(b, gb[group]), shared
+            read_outcomes(a, table_a), read_outcomes(b, table_b), shared[states]
         )
     return out
 
@@ -191,13 +208,33 @@ def _effect(record: Mapping[str, Any] | None) -> dict[str, Any] | None:
     }
 
 
+def _comparison_verdict(c: Mapping[str, Any]) -> str:
+    """A benchmark's comparison of two methods on a task, in words (Holm-adjusted McNemar)."""
+    if not c.get("significant"):
+        return "no significant difference"
+    return f"{c['a'] if c['difference'] > 0 else c['b']} better"
+
+
+def _benchmark_effects(summary: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
+    """Each of a benchmark's comparisons (`{task}: {a} vs {b}`): the difference in success
+    and its verdict."""
+    out = {}
+    for c in (summary or {}).get("comparisons") or []:
+        verdict = _comparison_verdict(c)
+        estimate = {"estimate": c.get("difference"), "low": None, "high": None}
+        out[f"{c['task']}: {c['a']} vs {c['b']}"] = {**estimate, "verdict": verdict}
+    return out
+
+
 def compare_effects(a: Run, b: Run) -> dict[str, dict[str, Any]]:
     """The main effect (the falsifier's paired difference) and its verdict in each run, for
-    the experiment (`main`) and each variant of the sensitivity study both ran; `changed`
-    when the verdicts differ."""
+    the experiment (`main`) and each variant of the sensitivity study both ran, or a
+    benchmark's comparisons of methods per task; `changed` when the verdicts differ."""
     out: dict[str, dict[str, Any]] = {}
     summaries = [r.json(r.layout.summary.relative_to(r.root).as_posix()) for r in (a, b)]
     pairs = {"main": (_effect(summaries[0]), _effect(summaries[1]))}
+    ba, bb = (_benchmark_effects(s) for s in summaries)
+    pairs |= {name: (ba.get(name), bb.get(name)) for name in [*ba, *(n for n in bb if n not in ba)]}
     studies = [
         r.json(r.layout.study_summary("sensitivity").relative_to(r.root).as_posix()) for r in (a, b)
     ]

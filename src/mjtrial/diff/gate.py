@@ -65,7 +65,7 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
     if fail_on == "changed":
         return _changed_conditions(diff)
     return [
-        f"{name}: the falsifier's verdict changed: {rec['a'] and rec['a']['verdict']} -> "
+        f"{name}: verdict changed: {rec['a'] and rec['a']['verdict']} -> "
         f"{rec['b'] and rec['b']['verdict']}"
         for name, rec in diff["effects"].items()
         if rec["changed"]
@@ -98,6 +98,8 @@ def _effect(e: Mapping[str, Any] | None) -> str:
         return "(none)"
     if e["estimate"] is None:
         return str(e["verdict"])
+    if e["low"] is None:
+        return f"{e['estimate']:+.3f} {e['verdict']}"
     return f"{e['estimate']:+.3f} [{e['low']:+.3f}, {e['high']:+.3f}] {e['verdict']}"
 
 

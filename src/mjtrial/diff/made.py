@@ -47,7 +47,10 @@ def made_facts(run: Run) -> dict[str, dict[str, Any]]:
     code: dict[str, Any] = {}
     modules: dict[str, dict[str, str]] = {}
     commits, versions, platform, threads = [], {}, {}, []
+    benchmark_config: dict[str, Any] = {}
     for _, stamp in iter_stamps(run):
+        if stamp.get("rule") == "benchmark":  # a benchmark has no manifest: its summary's
+            benchmark_config = {"benchmark": stamp.get("config_slice") or {}}
         stage = str(stamp.get("rule", "?")).split(":")[0]
         extra = stamp.get("extra") or {}
         if "code_sha256" in extra:
@@ -67,7 +70,7 @@ def made_facts(run: Run) -> dict[str, dict[str, Any]]:
         "commit": {"commit": _one(commits)} if commits else {},
         "code": {stage: _one(hashes) for stage, hashes in sorted(code.items())},
         "modules": modules,
-        "config": flatten(rerun.get("config") or {}),
+        "config": flatten(rerun.get("config") or benchmark_config),
         "model": {
             **{f"files.{name}": sha for name, sha in sorted((model.get("files") or {}).items())},
             **{k: model[k] for k in ("sha256", "compiled_sha256") if k in model},
