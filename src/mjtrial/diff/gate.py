@@ -41,8 +41,8 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
 
     `any`: an output is in one run only, or its content differs beyond its stamp; `changed`:
     a condition's success on the shared states differs beyond noise (McNemar's exact p below
-    the diff's `level`); `verdict`: the falsifier's verdict differs (the experiment's or a
-    variant's of the sensitivity study)."""
+    the diff's `level`); `verdict`: a verdict differs (the falsifier's, the experiment's or a
+    variant's of the sensitivity study; a benchmark's comparison of two methods)."""
     if fail_on not in FAIL_ON:
         raise ValueError(f"fail_on: expected one of {list(FAIL_ON)}, got {fail_on!r}")
     if fail_on == "any":
