@@ -105,7 +105,13 @@ def trace_flips(
             if missing:
                 flip["divergence"] = {"reason": f"not recorded in {' and '.join(missing)}"}
                 continue
-            series = [recording.read_episode(f, condition=condition, state_id=sid) for f in files]
+            try:
+                series = [
+                    recording.read_episode(f, condition=condition, state_id=sid) for f in files
+                ]
+            except (KeyError, ValueError) as err:  # a damaged recording: `mjtrial verify` says
+                flip["divergence"] = {"reason": f"unreadable recording: {err}"}
+                continue
             flip["divergence"] = first_divergence(*series, tolerance=tolerance) or {
                 "reason": f"the recordings agree within {tolerance:g} at every time both logged"
             }

@@ -81,9 +81,9 @@ class Outcomes:
 
 
 def rollout_groups(run: Run) -> dict[str, tuple[str, str]]:
-    """{group: (its table of outcomes, its states)}: a condition (`fast`), a variant's
-    (`timestep_1ms/fast`), or a benchmark's evaluation of a method's training seed on a task
-    (`gantry_lift/tuned/seed-1`)."""
+    """{group: (its table of outcomes, its states)}: a condition (`<condition>`), a variant's
+    (`<variant>/<condition>`), or a benchmark's evaluation of a method's training seed on a
+    task (`<task>/<method>/seed-<seed>`)."""
     out = {}
     for rel in run.outputs:
         if m := _ROLLOUT_TABLE.fullmatch(rel):
