@@ -16,6 +16,9 @@ from scipy.stats import binomtest
 from mjtrial import provenance, recording
 from mjtrial.cli import main
 from mjtrial.diff.flips import first_divergence
+from mjtrial.diff.found import compare_effects, rollout_groups
+from mjtrial.diff.gate import failures
+from mjtrial.diff.source import Run
 
 RESULTS = Path("results") / "research_mode"
 MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"
@@ -202,3 +205,44 @@ def test_first_divergence_is_the_first_shared_time_past_the_tolerance():
     # Another logging grid: only the times both logged are compared.
     half = _episode(t[1::2], np.linspace(0, 1, 10)[1::2] + np.r_[0, 0, 5e-3, 0, 0])
     assert first_divergence(same, half, tolerance=1e-6)["time"] == pytest.approx(0.06)
+
+
+def _summaries(folder: Path, verdict: str, variant_verdict: str) -> Run:
+    """A results folder holding only a summary and a sensitivity study's, for their verdicts."""
+    (folder / "analysis").mkdir(parents=True)
+    falsifier = {"verdict": verdict}
+    paired = {"estimate": 0.3, "low": 0.1, "high": 0.5}
+    summary = {"paired_difference": paired, "falsifier": falsifier}
+    (folder / "analysis" / "summary.json").write_text(json.dumps(summary))
+    variants = {
+        "nominal": {"paired_difference": paired, "verdict": verdict},
+        "stiff": {"paired_difference": paired, "verdict": variant_verdict},
+    }
+    (folder / "analysis" / "sensitivity.json").write_text(json.dumps({"variants": variants}))
+    return Run(label=folder.name, root=folder, outputs={})
+
+
+def test_a_study_variant_s_verdict_is_compared_and_gated(tmp_path):
+    a = _summaries(tmp_path / "a", "survives", "survives")
+    b = _summaries(tmp_path / "b", "survives", "refuted")
+    effects = compare_effects(a, b)
+    assert set(effects) == {"main", "sensitivity/stiff"}  # the nominal row is the main result
+    assert not effects["main"]["changed"] and effects["sensitivity/stiff"]["changed"]
+    diff = {"effects": effects}
+    assert failures(diff, "verdict") == ["sensitivity/stiff: verdict changed: survives -> refuted"]
+
+
+def test_every_kind_of_outcome_table_is_a_group(tmp_path):
+    outputs = {
+        "rollouts/c1.parquet": "",
+        "rollouts/c1/shard-00000.parquet": "",
+        "variants/v1/rollouts/c1.parquet": "",
+        "evaluation/t1/m1/seed-1.parquet": "",
+        "evaluation/t1/m1/seed-1/shard-00000.parquet": "",
+    }
+    groups = rollout_groups(Run(label="x", root=tmp_path, outputs=outputs))
+    assert groups == {
+        "c1": ("rollouts/c1.parquet", "states.parquet"),
+        "v1/c1": ("variants/v1/rollouts/c1.parquet", "states.parquet"),
+        "t1/m1/seed-1": ("evaluation/t1/m1/seed-1.parquet", "tasks/t1/states.parquet"),
+    }
