@@ -186,6 +186,13 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     code, _, err = _diff(capsys, tmp_path / "empty", tmp_path / "empty")
     assert code == 2
     assert err.strip().count("\n") == 0 and "seal.json" in err
+    sealed = tmp_path / "sealed"  # a run's folder, as far as its seal says
+    sealed.mkdir()
+    (sealed / "seal.json").write_text(json.dumps({"outputs": {"results/x/states.parquet": "0"}}))
+    code, _, err = _diff(capsys, sealed, sealed, "--out", sealed / "diff")
+    assert code == 2 and "never writes into a run" in err and not (sealed / "diff").exists()
+    code, _, err = _diff(capsys, sealed, sealed, "--level", "5")
+    assert code == 2 and "level 5.0: expected in (0, 1)" in err
 
 
 def _episode(times, values):

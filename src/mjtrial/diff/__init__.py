@@ -36,6 +36,10 @@ __all__ = [
 ]
 
 
+def _inside(path: Path, folder: Path) -> bool:
+    return Path(os.path.abspath(path)).is_relative_to(os.path.abspath(folder))
+
+
 def diff_runs(
     a: str | os.PathLike[str],
     b: str | os.PathLike[str],
@@ -53,11 +57,20 @@ def diff_runs(
     None.
 
     Raises:
-      RunError: `a` or `b` is not a run the diff can read.
+      RunError: `a` or `b` is not a run the diff can read, or `recording` lies in one.
+      ValueError: `level` not in (0, 1), `tolerance` below 0.
     """
+    if not 0 < level < 1 or not tolerance >= 0:
+        raise ValueError(f"level {level!r}: expected in (0, 1); tolerance {tolerance!r}: >= 0")
     runs = [open_run(a)]
     try:
         runs.append(open_run(b))
+        for run in runs:
+            if recording is not None and run.archive is None and _inside(recording, run.root):
+                raise RunError(
+                    f"{recording}: inside the run {run.label}; a diff never writes into a run "
+                    "(verify would take the file for one of the run's): give --out outside it"
+                )
         conditions = compare_conditions(*runs)
         traced = trace_flips(*runs, conditions, tolerance=tolerance, max_episodes=max_episodes)
         written = None
