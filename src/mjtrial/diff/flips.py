@@ -79,6 +79,24 @@ def first_divergence(
     }
 
 
+def _trace(
+    a: Run, b: Run, group: str, state_id: int, *, tolerance: float
+) -> tuple[dict[str, Any], tuple[Path, Path] | None]:
+    """One flipped episode's divergence (`first_divergence`, or why there is none) and its
+    two recordings, None when it has not both."""
+    files = [episode_file(run, group, state_id) for run in (a, b)]
+    missing = [side for side, f in zip(SIDES, files, strict=True) if f is None]
+    if missing:
+        return {"reason": f"not recorded in {' and '.join(missing)}"}, None
+    condition = group.rpartition("/")[2]
+    try:
+        series = [recording.read_episode(f, condition=condition, state_id=state_id) for f in files]
+    except (KeyError, ValueError) as err:  # a damaged recording: `mjtrial verify` says why
+        return {"reason": f"unreadable recording: {err}"}, None
+    agree = {"reason": f"the recordings agree within {tolerance:g} at every time both logged"}
+    return first_divergence(*series, tolerance=tolerance) or agree, (files[0], files[1])
+
+
 def trace_flips(
     a: Run,
     b: Run,
@@ -92,7 +110,6 @@ def trace_flips(
     first `max_episodes` so compared are returned as (group, state, file in a, file in b)."""
     traced: list[tuple[str, int, Path, Path]] = []
     for group, record in conditions.items():
-        condition = group.rpartition("/")[2]
         for flip in record.get("flipped", []):
             sid = flip["state_id"]
             if len(traced) >= max_episodes:
@@ -100,22 +117,9 @@ def trace_flips(
                     "reason": f"not compared (past --max-episodes {max_episodes})"
                 }
                 continue
-            files = [episode_file(run, group, sid) for run in (a, b)]
-            missing = [s for s, f in zip(SIDES, files, strict=True) if f is None]
-            if missing:
-                flip["divergence"] = {"reason": f"not recorded in {' and '.join(missing)}"}
-                continue
-            try:
-                series = [
-                    recording.read_episode(f, condition=condition, state_id=sid) for f in files
-                ]
-            except (KeyError, ValueError) as err:  # a damaged recording: `mjtrial verify` says
-                flip["divergence"] = {"reason": f"unreadable recording: {err}"}
-                continue
-            flip["divergence"] = first_divergence(*series, tolerance=tolerance) or {
-                "reason": f"the recordings agree within {tolerance:g} at every time both logged"
-            }
-            traced.append((group, sid, files[0], files[1]))
+            flip["divergence"], files = _trace(a, b, group, sid, tolerance=tolerance)
+            if files is not None:
+                traced.append((group, sid, *files))
     return traced
 
 
