@@ -19,6 +19,7 @@ import yaml
 from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
 
 from mjtrial import provenance
+from mjtrial.cli import main
 from mjtrial.layout import BenchmarkLayout
 
 CONFIG = "config/benchmark.yaml"
@@ -595,3 +596,17 @@ def test_verify_of_a_renamed_copy_says_what_it_is(bench):
         f"{LAYOUT.root.as_posix()} (its seal lists the outputs there; stamps record paths in "
         f"the repository): verify {LAYOUT.root.as_posix()}, or rebuild this folder with snakemake"
     ]
+
+
+def test_a_benchmark_diffs_with_its_evaluations_and_comparisons(bench, tmp_path, capsys):
+    results = bench / "results" / "benchmark"
+    args = [str(results), str(results), "--json", "--fail-on", "any", "--out", str(tmp_path)]
+    assert main(["diff", *args]) == 0
+    diff = json.loads(capsys.readouterr().out)
+    summary = json.loads((results / "analysis" / "summary.json").read_text())
+    comparisons = {f"{c['task']}: {c['a']} vs {c['b']}" for c in summary["comparisons"]}
+    assert set(diff["effects"]) == comparisons
+    evaluations = (results / "evaluation").glob("*/*/seed-*.parquet")
+    groups = {p.relative_to(results / "evaluation").with_suffix("").as_posix() for p in evaluations}
+    assert set(diff["conditions"]) == groups
+    assert diff["made"]["config"] == [] and diff["outputs"]["differ"] == []

@@ -338,6 +338,31 @@ def _policy_check(args: argparse.Namespace) -> int:
     return 0 if found.invariant else 1
 
 
+def _diff(args: argparse.Namespace) -> int:
+    # Imported here: the diff reads recordings (rerun-sdk), which `mjtrial plan` need not pay.
+    from mjtrial.diff import RunError, diff_runs, failures, render
+
+    given = {"tolerance": args.tolerance, "max_episodes": args.max_episodes, "level": args.level}
+    try:
+        diff = diff_runs(
+            args.a,
+            args.b,
+            recording=Path(args.out) / "replay" / "diff.rrd",
+            **{k: v for k, v in given.items() if v is not None},
+        )
+    except (RunError, ValueError, OSError) as err:
+        print(f"mjtrial diff: {err}", file=sys.stderr)
+        return 2
+    failed = failures(diff, args.fail_on) if args.fail_on else []
+    if args.json:
+        print(json.dumps({**diff, "fail_on": args.fail_on, "failed": failed}, indent=1))
+    else:
+        print(render(diff))
+    for line in failed:
+        print(f"mjtrial diff --fail-on {args.fail_on}: {line}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjtrial", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -453,6 +478,45 @@ def main(argv: list[str] | None = None) -> int:
         help="a protocol parameter of the condition (default: the task's defaults)",
     )
     p.set_defaults(run=_policy_check)
+
+
+    p = sub.add_parser(
+        "diff",
+        help="what differs between two runs (results folders or zips): how they were made, "
+        "what they found, the flipped episodes; --fail-on makes it a regression gate",
+    )
+    p.add_argument("a", help="a results folder, or an archive of `mjtrial crate --zip`")
+    p.add_argument("b", help="the run to compare it with, the same way")
+    p.add_argument("--json", action="store_true", help="print the diff as JSON")
+    p.add_argument(
+        "--fail-on",
+        choices=["any", "changed", "verdict"],
+        help="exit 1 when outputs differ (any), when a condition's success changed beyond "
+        "noise (changed: McNemar exact p below --level), or when a verdict changed",
+    )
+    p.add_argument(
+        "--level", type=float, help="McNemar's level (default: mjtrial.diff.DEFAULT_LEVEL)"
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        help="trajectories part where a logged value differs by more than this (default: "
+        "mjtrial.diff.DEFAULT_TOLERANCE)",
+    )
+    p.add_argument(
+        "--max-episodes",
+        type=_count,
+        metavar="K",
+        help="flipped episodes traced and copied into the recording (default: "
+        "mjtrial.diff.DEFAULT_MAX_EPISODES)",
+    )
+    p.add_argument(
+        "--out",
+        default="diff",
+        help="folder for replay/diff.rrd, both runs' recordings of the flipped episodes "
+        "(default: ./diff; never inside a sealed results folder)",
+    )
+    p.set_defaults(run=_diff)
     args = parser.parse_args(argv)
     return args.run(args)
 

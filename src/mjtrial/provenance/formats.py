@@ -394,3 +394,41 @@ def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
     if stamp is None:
         raise MissingStampError(f"{path}: no mjtrial provenance stamp")
     return stamp
+
+
+def content_without_stamp(path: str | os.PathLike[str]) -> bytes | None:
+    """An output's content less its stamp, as bytes that are equal exactly when two outputs
+    say the same (a stamp holds its creation time, so two builds of one result differ in
+    bytes): a table's data and schema, a JSON object without `"provenance"` (canonical), a
+    Markdown body, an SVG without its stamp element, a PNG's pixels, a log after its first
+    line. None for what has no such form here (recordings, folders)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if path.is_dir():
+        return None
+    if suffix == ".parquet":
+        import pyarrow as pa  # slow imports, see write_parquet
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path).replace_schema_metadata(None)
+        sink = pa.BufferOutputStream()
+        with pa.ipc.new_stream(sink, table.schema) as writer:
+            writer.write_table(table)
+        return sink.getvalue().to_pybytes()
+    if suffix == ".json":
+        obj = json.loads(path.read_text(encoding="utf-8"))
+        if isinstance(obj, dict):
+            obj.pop("provenance", None)
+        return json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()
+    if suffix == ".md":
+        return _split_front_matter(path.read_text(encoding="utf-8"))[1].encode()
+    if suffix == ".svg":
+        return _SVG_STAMP_RE.sub("", path.read_text(encoding="utf-8")).encode()
+    if suffix == ".png":
+        from PIL import Image  # slow import, see _read_png_stamp
+
+        with Image.open(path, formats=["PNG"]) as image:
+            return f"{image.mode} {image.size}\n".encode() + image.tobytes()
+    if suffix == ".log":
+        return b"".join(path.read_bytes().splitlines(keepends=True)[1:])
+    return None

@@ -27,7 +27,13 @@ from mjtrial.recording.names import (
     SOURCE_PROVENANCE_PROPERTY,
     default_blueprint,
 )
-from mjtrial.recording.read import open_rrd, properties, recorded_signals, recording_files
+from mjtrial.recording.read import (
+    find_episode_entry,
+    open_rrd,
+    properties,
+    recorded_signals,
+    recording_files,
+)
 from mjtrial.recording.route import rrd_output, write_recording, write_store
 from mjtrial.recording.write import EpisodeRecord, EpisodeStores, stamp_json
 
@@ -162,6 +168,50 @@ def write_episodes_rrd(
                     )
                     count += 1
     return count
+
+
+def write_episode_copies_rrd(
+    path: str | os.PathLike[str],
+    episodes: Sequence[tuple[str, Path, str, int]],
+    *,
+    summary_id: str,
+    title: str,
+    table: str,
+    stamp: Mapping[str, Any],
+    application_id: str = APPLICATION_ID,
+) -> int:
+    """Atomically copy episodes' recordings, chunk for chunk, into one file after a summary
+    recording (id `summary_id`: `title`, the `stamp`, `table` as markdown). Each episode is
+    (label, .rrd file, condition, state id): its copy's recording id and name start with the
+    label, so copies of one episode from several runs open side by side. As in
+    `write_failures_rrd`, each copy's `provenance` becomes `stamp` and its own is kept as
+    `source_provenance`. Returns the number of episodes written."""
+    readers = {file: open_rrd(file) for _, file, _, _ in episodes}
+    sources = sorted({file.parent for file in readers})
+    blueprint = default_blueprint(_plots(sources, list(readers), readers))
+    stamp_text = stamp_json(stamp)
+    replaced = [f"{PROPERTIES}/{PROVENANCE_PROPERTY}", f"{PROPERTIES}/{SOURCE_PROVENANCE_PROPERTY}"]
+    with atomic_path(Path(path)) as tmp, rrd_output(tmp, application_id, blueprint) as out:
+        summary = [
+            _static_chunk(PROPERTIES, [rr.archetypes.RecordingInfo(name=title)]),
+            _property_chunk(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
+            _static_chunk(summary_id, [rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN)]),
+        ]
+        write_recording(out, summary, application_id=application_id, recording_id=summary_id)
+        for label, file, condition, state_id in episodes:
+            reader = readers[file]
+            entry = find_episode_entry(reader, file, condition, state_id)
+            props = properties(reader, entry)
+            copied = list(reader.store(store=entry).stream().drop(content=replaced))
+            name = f"{label}: {props.get('name') or entry.recording_id}"
+            copied.append(_static_chunk(PROPERTIES, [rr.archetypes.RecordingInfo(name=name)]))
+            copied.append(_property_chunk(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}))
+            if (original := props.get(PROVENANCE_PROPERTY)) is not None:
+                fields = {JSON_FIELD: json.dumps(original, allow_nan=False)}
+                copied.append(_property_chunk(SOURCE_PROVENANCE_PROPERTY, fields))
+            rid = f"{label}-{entry.recording_id}"
+            write_recording(out, copied, application_id=application_id, recording_id=rid)
+    return len(episodes)
 
 
 def _plots(

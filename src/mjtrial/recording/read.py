@@ -155,7 +155,8 @@ def read_rrd_stamp(path: str | os.PathLike[str]) -> dict[str, Any] | None:
     return parse_json_property(raw.get(PROVENANCE_PROPERTY), f"{path}: provenance")
 
 
-def _find_episode(reader: RrdReader, path: Path, condition: str, state_id: int) -> StoreEntry:
+def find_episode_entry(reader: RrdReader, path: Path, condition: str, state_id: int) -> StoreEntry:
+    """The recording of one episode in an open file (its own, or its copy in failures.rrd)."""
     rid = episode_recording_id(condition, state_id)
     wanted = (rid, FAILURE_PREFIX + rid)
     entries = reader.recordings()
@@ -235,7 +236,7 @@ def read_episode(
     if path.is_dir():
         path = find_episode_file(path, condition=condition, state_id=state_id)
     reader = open_rrd(path)
-    entry = _find_episode(reader, path, condition, state_id)
+    entry = find_episode_entry(reader, path, condition, state_id)
     signals = recorded_signals(reader, entry)
     if not signals:
         raise ValueError(f"{path}: recording {entry.recording_id!r} has no series")

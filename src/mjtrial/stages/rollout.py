@@ -297,6 +297,7 @@ def run_shard(
         rule,
         dict(condition_slice),
         inputs,
+        threads=nthread,
         repo_root=repo_root,
         extra=policy_settings(condition_slice),
     )

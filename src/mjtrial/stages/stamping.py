@@ -146,12 +146,15 @@ def make_stage_stamp(
     inputs: Mapping[str, Any],
     *,
     seeds: Mapping[str, int] | None = None,
+    threads: int | None = None,
     repo_root: Path = REPO_ROOT,
     extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`; `extra`:
-    what else the stage records (how a policy file ran)."""
+    """The stamp of a stage's outputs; `rule` is `<stage>` or `<stage>:<qualifier>`. `threads`:
+    the simulation threads the job ran (a rollout's), recorded beside the machine's CPU;
+    `extra`: what else the stage records (how a policy file ran)."""
     stage = rule.split(":")[0]
+    threads_record = {} if threads is None else {"threads": int(threads)}
     return provenance.make_stamp(
         rule=rule,
         config_slice=config_slice,
@@ -162,5 +165,6 @@ def make_stage_stamp(
             "code_sha256": stage_code_hash(stage),
             "code": stage_code(stage),
             **(extra or {}),
+            **threads_record,
         },
     )

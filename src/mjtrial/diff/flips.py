@@ -1,0 +1,155 @@
+"""The flipped episodes: where two runs' recordings of one state first part, and one file that
+holds both recordings of each, side by side, for the viewer."""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mjtrial import provenance, recording
+from mjtrial.diff.source import Run
+from mjtrial.layout import NOMINAL
+from mjtrial.recording.failures import write_episode_copies_rrd
+from mjtrial.recording.names import episode_file_name
+
+# Two trajectories part where a logged value differs by more than this (in its own units:
+# metres, radians, the task's series). Recordings keep poses as float32, whose rounding of a
+# coordinate under a few metres stays below 1e-6 m.
+DEFAULT_TOLERANCE = 1e-6
+# Flipped episodes whose trajectories are compared and copied into the diff's recording.
+DEFAULT_MAX_EPISODES = 50
+# The runs' labels in the diff's recording.
+SIDES = ("a", "b")
+
+
+def episode_file(run: Run, group: str, state_id: int) -> Path | None:
+    """The .rrd of one episode of a group (`condition` or `variant/condition`), in whichever
+    shard of the run holds it; None when the run did not record it."""
+    variant, _, condition = group.rpartition("/")
+    base = f"variants/{variant}/rollouts" if variant and variant != NOMINAL else "rollouts"
+    name = episode_file_name(condition, state_id)
+    shard = re.compile(re.escape(f"{base}/{condition}/") + r"shard-\d+")
+    for rel in run.outputs:
+        if shard.fullmatch(rel):
+            path = run.path(f"{rel}/{name}")
+            if path.is_file():
+                return path
+    return None
+
+
+def first_divergence(
+    a: Mapping[str, np.ndarray], b: Mapping[str, np.ndarray], *, tolerance: float
+) -> dict[str, Any] | None:
+    """The first logged time at which two recordings of an episode (`recording.read_episode`)
+    differ by more than `tolerance` in any series or body pose they share, with each run's
+    physics step there, the quantity and the difference; None when they never do.
+
+    Only the times both logged are compared (a run with another timestep or logging rate logs
+    at other times): the first step at which they part is known to the logging interval.
+    """
+    ta, tb = (np.round(np.asarray(r["time"]) * 1e9).astype(np.int64) for r in (a, b))
+    common, ia, ib = np.intersect1d(ta, tb, return_indices=True)
+    if common.size == 0:
+        return {"time": None, "reason": "the runs logged no time in common"}
+    worst = np.zeros(common.size)
+    which = np.full(common.size, "", dtype=object)
+    for key in sorted(set(a) & set(b) - {"time", "step"}):
+        va, vb = np.asarray(a[key])[ia], np.asarray(b[key])[ib]
+        if va.shape != vb.shape:
+            continue
+        gap = np.abs(va.astype(float) - vb)
+        gap[np.isnan(va) & np.isnan(vb)] = 0.0  # both non-finite alike: not where they part
+        gap = np.nan_to_num(gap, nan=np.inf).reshape(common.size, -1).max(axis=1)
+        larger = gap > worst
+        worst[larger], which[larger] = gap[larger], key
+    parted = np.flatnonzero(worst > tolerance)
+    if parted.size == 0:
+        return None
+    i = int(parted[0])
+    return {
+        "time": float(common[i] / 1e9),
+        "step": [int(a["step"][ia[i]]), int(b["step"][ib[i]])],
+        "quantity": str(which[i]),
+        "difference": float(worst[i]),
+    }
+
+
+def _trace(
+    a: Run, b: Run, group: str, state_id: int, *, tolerance: float
+) -> tuple[dict[str, Any], tuple[Path, Path] | None]:
+    """One flipped episode's divergence (`first_divergence`, or why there is none) and its
+    two recordings, None when it has not both."""
+    files = [episode_file(run, group, state_id) for run in (a, b)]
+    missing = [side for side, f in zip(SIDES, files, strict=True) if f is None]
+    if missing:
+        return {"reason": f"not recorded in {' and '.join(missing)}"}, None
+    condition = group.rpartition("/")[2]
+    try:
+        series = [recording.read_episode(f, condition=condition, state_id=state_id) for f in files]
+    except (KeyError, ValueError) as err:  # a damaged recording: `mjtrial verify` says why
+        return {"reason": f"unreadable recording: {err}"}, None
+    agree = {"reason": f"the recordings agree within {tolerance:g} at every time both logged"}
+    return first_divergence(*series, tolerance=tolerance) or agree, (files[0], files[1])
+
+
+def trace_flips(
+    a: Run,
+    b: Run,
+    conditions: Mapping[str, Mapping[str, Any]],
+    *,
+    tolerance: float = DEFAULT_TOLERANCE,
+    max_episodes: int = DEFAULT_MAX_EPISODES,
+) -> list[tuple[str, int, Path, Path]]:
+    """Add to each flipped episode of `conditions` (`found.compare_conditions`) its
+    `divergence` where both runs recorded it: `first_divergence`, or why there is none. The
+    first `max_episodes` so compared are returned as (group, state, file in a, file in b)."""
+    traced: list[tuple[str, int, Path, Path]] = []
+    for group, record in conditions.items():
+        for flip in record.get("flipped", []):
+            sid = flip["state_id"]
+            if len(traced) >= max_episodes:
+                flip["divergence"] = {
+                    "reason": f"not compared (past --max-episodes {max_episodes})"
+                }
+                continue
+            flip["divergence"], files = _trace(a, b, group, sid, tolerance=tolerance)
+            if files is not None:
+                traced.append((group, sid, *files))
+    return traced
+
+
+def write_diff_recording(
+    path: Path, traced: Sequence[tuple[str, int, Path, Path]], *, labels: Sequence[str]
+) -> int:
+    """Both runs' recordings of each traced episode in one file at `path`, labelled `a` and
+    `b` (the runs `labels`), after a table of them. Returns the number of episodes."""
+    rows = ["| condition | state | a | b |", "|---|---|---|---|"]
+    episodes = []
+    for group, sid, file_a, file_b in traced:
+        rows.append(f"| {group} | {sid} | {file_a.name} | {file_b.name} |")
+        condition = group.rpartition("/")[2]
+        for side, file in zip(SIDES, (file_a, file_b), strict=True):
+            episodes.append((f"{side}-{group.replace('/', '-')}", file, condition, sid))
+    names = [Path(label).name for label in labels]  # names only: no private paths in outputs
+    legend = f"a: {names[0]}; b: {names[1]}"
+    stamp = provenance.make_stamp(
+        rule="diff",
+        config_slice=dict(zip(SIDES, names, strict=True)),
+        inputs={},
+        repo_dir=os.getcwd(),
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_episode_copies_rrd(
+        path,
+        episodes,
+        summary_id="diff",
+        title=f"diff: {len(traced)} flipped episode(s), both runs ({legend})",
+        table=legend + "\n\n" + "\n".join(rows),
+        stamp=stamp,
+    )
+    return len(episodes)
