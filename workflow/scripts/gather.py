@@ -19,4 +19,6 @@ run_job(
     output_table=Path(snakemake.output.table),
     output_nominal=Path(snakemake.output.nominal),
     repo_root=Path.cwd(),
+    # another MuJoCo version's environment (its lock), where the variant names one
+    extra_inputs={k: Path(v) for k, v in snakemake.input.items() if k == "simulator_env"},
 )

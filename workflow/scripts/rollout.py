@@ -25,4 +25,6 @@ run_job(
     unrecorded=None if recorded else Path(snakemake.params.recordings),
     nthread=snakemake.threads,
     repo_root=Path.cwd(),
+    # another MuJoCo version's environment (its lock), where the variant names one
+    extra_inputs={k: Path(v) for k, v in snakemake.input.items() if k == "simulator_env"},
 )
