@@ -21,6 +21,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from uv import find_uv_bin
+
 from mjtrial import REPO_ROOT
 from mjtrial.atomic import write_text_atomic
 
@@ -92,8 +94,6 @@ def build(version: str, lock: Path, *, log: Path) -> None:
     Raises `RuntimeError` naming the step and pointing to `log` (uv's own output) when a step
     fails: a version PyPI does not have, no network and no cache.
     """
-    from uv import find_uv_bin
-
     folder = Path(lock).parent
     folder.mkdir(parents=True, exist_ok=True)
     venv = folder / "venv"

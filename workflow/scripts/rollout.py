@@ -1,9 +1,15 @@
 """Snakemake adapter: roll out one shard of one condition (mjtrial.stages.rollout.run_shard)."""
 
-from pathlib import Path
+from mjtrial.simenv import run_in_env
 
-from mjtrial.stages.rollout import run_shard
-from mjtrial.workflow_script import run_job
+# A variant on another MuJoCo version: the job starts again in that version's environment,
+# before anything imports MuJoCo (mjtrial.simenv).
+run_in_env(globals()["snakemake"])
+
+from pathlib import Path  # noqa: E402
+
+from mjtrial.stages.rollout import run_shard  # noqa: E402
+from mjtrial.workflow_script import run_job  # noqa: E402
 
 snakemake = globals()["snakemake"]
 condition = snakemake.params.slice["condition"]
