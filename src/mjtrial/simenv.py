@@ -12,7 +12,9 @@ it. uv's cache lies in `envs/uv-cache` (or `UV_CACHE_DIR`): a second build needs
 
 from __future__ import annotations
 
+import hashlib
 import importlib.metadata
+import json
 import os
 import re
 import subprocess
@@ -72,6 +74,13 @@ def requirements(version: str) -> tuple[list[str], list[str]]:
         }
     )
     return [f"mujoco=={version}", *pins], installed
+
+
+def build_key(version: str) -> str:
+    """The sha256 of what the environment is built from (the pins, this checkout): a rule's
+    param, so that a changed pin here or another checkout builds it again."""
+    text = json.dumps([requirements(version), str(REPO_ROOT)])
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _normal(name: str) -> str:

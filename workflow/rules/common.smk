@@ -13,7 +13,9 @@ from mjtrial.layout import (
     shard_range,
 )
 from mjtrial.provenance import file_sha256, model_sha256
-from mjtrial.simenv import build as build_env, lock_path, variant_version
+from mjtrial.simenv import build as build_env
+from mjtrial.simenv import lock_path, variant_version
+from mjtrial.simenv import build_key as env_build_key
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
 

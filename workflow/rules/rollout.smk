@@ -115,5 +115,8 @@ rule simulator_env:
         LAYOUT.log("simulator_env_{version}"),
     wildcard_constraints:
         version=one_of(VERSIONS.values()),
+    # what it is built from: a changed pin here, or another checkout, builds it again
+    params:
+        built_from=lambda wildcards: env_build_key(wildcards.version),
     run:
         build_env(wildcards.version, Path(output.lock), log=Path(log[0]))
