@@ -26,6 +26,7 @@ from mjtrial.physics import ModelError, load_model
 from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
+from mjtrial.simenv import model_overrides, variant_version
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
 from mjtrial.task_checks import check_observations, run_task_code
@@ -597,23 +598,27 @@ def _check_studies(
     named as the committed model, one that changes nothing, and two that make the same model
     are refused: each would be counted in "survives N of M" without testing anything new."""
     variants = config.get("variants") or {}
-    seen = {nominal_model_hash(model_file): NOMINAL} if variants else {}
-    for name, overrides in variants.items():
+    seen = {(None, nominal_model_hash(model_file)): NOMINAL} if variants else {}
+    for name, variant in variants.items():
         key = f"variants.{name}"
         if name == NOMINAL:
             fail(key, f"{NOMINAL!r} is reserved for the model as committed; expected another name")
-        try:
-            model, sha256 = variant_model(model_file, overrides, key_prefix=key)
+        version = variant_version(variant)
+        if version == mujoco.__version__:
+            fail(f"{key}.mujoco", f"{version} is the MuJoCo that runs; expected another version")
+        try:  # the edits are checked on this MuJoCo; the version's own runs in its environment
+            model, sha256 = variant_model(model_file, model_overrides(variant), key_prefix=key)
         except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
             named, _, expectation = str(err).partition(": ")
             if named.startswith(key):
                 fail(named, expectation)
             fail(key, str(err))
-        if seen.get(sha256) == NOMINAL:
+        if seen.get((version, sha256)) == NOMINAL:
             fail(key, "changes nothing: the edited model is the committed one; expected an edit")
-        if sha256 in seen:
-            fail(key, f"the same model as variants.{seen[sha256]}; expected each variant once")
-        seen[sha256] = name
+        if (version, sha256) in seen:
+            same = seen[version, sha256]
+            fail(key, f"the same model as variants.{same}; expected each variant once")
+        seen[version, sha256] = name
         try:
             bound = BoundTask.of(task, model)
         except ModelCheckError as err:

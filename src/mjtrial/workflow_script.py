@@ -29,6 +29,7 @@ from types import CodeType, SimpleNamespace
 from typing import Any
 
 from mjtrial import provenance
+from mjtrial.simenv import run_in_env
 from mjtrial.stages.stamping import make_stage_stamp
 
 log = logging.getLogger("mjtrial")
@@ -54,7 +55,10 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     """
     in_process = getattr(snakemake, "in_process", False)
     if not in_process:
+        run_in_env(snakemake)  # a variant's other MuJoCo version: its own environment's Python
         die_with_workflow()
+    elif snakemake.input.get("simulator_env"):
+        raise JobFailed(f"{rule}: a job in another MuJoCo's environment needs a process of its own")
     log_path = Path(snakemake.log[0])
     log_path.parent.mkdir(parents=True, exist_ok=True)
     started = time.monotonic(), time.thread_time()

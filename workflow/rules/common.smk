@@ -19,6 +19,9 @@ from mjtrial.layout import (
 )
 from mjtrial.policy_file import contract_path
 from mjtrial.provenance import file_sha256, model_sha256
+from mjtrial.simenv import build as build_env
+from mjtrial.simenv import lock_path, variant_version
+from mjtrial.simenv import build_key as env_build_key
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
 
@@ -28,6 +31,12 @@ CONDITIONS = list(config["conditions"])
 # The nominal model's conditions: the design's, and those the dose-response sweep adds.
 ALL_CONDITIONS = list(all_conditions(config))
 VARIANTS = variant_names(config)
+# Variants that name another MuJoCo version (mjtrial.simenv), by name: their version.
+VERSIONS = {
+    v: variant_version(config["variants"][v])
+    for v in VARIANTS
+    if variant_version(config["variants"][v])
+}
 SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
 SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
@@ -44,6 +53,14 @@ def rollout_slice(wildcards):
     """The config a condition's rollout depends on: its own protocol parameters (and the
     variant's edits) only."""
     return config_slice("rollout", config, condition=qualified(wildcards))
+
+
+def simulator_env(wildcards):
+    """A variant's other MuJoCo: its environment's lock as the job's input, else none."""
+    variant = getattr(wildcards, "variant", None)
+    return (
+        {"simulator_env": lock_path(VERSIONS[variant])} if variant in VERSIONS else {}
+    )
 
 
 def shard_bounds(wildcards):

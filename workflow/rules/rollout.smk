@@ -56,8 +56,13 @@ rule gather:
         run_script("gather", input, output, params, wildcards, threads, log, rule)
 
 
-# The design's conditions on a simulator variant (the sensitivity study).
+# The design's conditions on a simulator variant (the sensitivity study); a variant that names
+# another MuJoCo version runs in its environment (simulator_env below).
 use rule rollout as rollout_variant with:
+    input:
+        unpack(simulator_env),
+        states=LAYOUT.states,
+        model=config["model"],
     output:
         **shard_recording_output(
             LAYOUT.shard_recordings("{condition}", "{shard}", "{variant}")
@@ -78,5 +83,44 @@ use rule gather as gather_variant with:
     log:
         LAYOUT.log("gather_{variant}_{condition}"),
     wildcard_constraints:
-        variant=one_of(VARIANTS),
+        variant=one_of([v for v in VARIANTS if v not in VERSIONS]),
         condition=one_of(CONDITIONS),
+
+
+# Another MuJoCo version's gather runs its nominal episode in that version's environment: in a
+# process of its own (the variant's environment's Python).
+rule gather_version:
+    input:
+        unpack(simulator_env),
+        shards=shard_tables,
+        model=config["model"],
+    output:
+        table=LAYOUT.rollout_table("{condition}", "{variant}"),
+        nominal=LAYOUT.nominal_episode("{condition}", "{variant}"),
+    log:
+        LAYOUT.log("gather_{variant}_{condition}"),
+    wildcard_constraints:
+        variant=one_of(VERSIONS),
+        condition=one_of(CONDITIONS),
+    params:
+        slice=rollout_slice,
+        model_sha256=model_content,
+        code=stage_code_hash("gather"),
+    script:
+        "../scripts/gather.py"
+
+
+# Another MuJoCo version's environment, built by uv (mjtrial.simenv): its lock, written last,
+# is what the variant's jobs read. uv's cache lies in envs/uv-cache: offline once cached.
+rule simulator_env:
+    output:
+        lock=lock_path("{version}"),
+    log:
+        LAYOUT.log("simulator_env_{version}"),
+    wildcard_constraints:
+        version=one_of(VERSIONS.values()),
+    # what it is built from: a changed pin here, or another checkout, builds it again
+    params:
+        built_from=lambda wildcards: env_build_key(wildcards.version),
+    run:
+        build_env(wildcards.version, Path(output.lock), log=Path(log[0]))

@@ -1,9 +1,15 @@
 """Snakemake adapter: a condition's table from its shards (gather_condition)."""
 
-from pathlib import Path
+from mjtrial.simenv import run_in_env
 
-from mjtrial.stages.rollout import gather_condition
-from mjtrial.workflow_script import run_job
+# A variant on another MuJoCo version: the job starts again in that version's environment,
+# before anything imports MuJoCo (mjtrial.simenv).
+run_in_env(globals()["snakemake"])
+
+from pathlib import Path  # noqa: E402
+
+from mjtrial.stages.rollout import gather_condition  # noqa: E402
+from mjtrial.workflow_script import run_job  # noqa: E402
 
 snakemake = globals()["snakemake"]
 condition = snakemake.params.slice["condition"]
@@ -19,4 +25,6 @@ run_job(
     output_table=Path(snakemake.output.table),
     output_nominal=Path(snakemake.output.nominal),
     repo_root=Path.cwd(),
+    # another MuJoCo version's environment (its lock), where the variant names one
+    extra_inputs={k: Path(v) for k, v in snakemake.input.items() if k == "simulator_env"},
 )

@@ -1,9 +1,15 @@
 """Snakemake adapter: roll out one shard of one condition (mjtrial.stages.rollout.run_shard)."""
 
-from pathlib import Path
+from mjtrial.simenv import run_in_env
 
-from mjtrial.stages.rollout import run_shard
-from mjtrial.workflow_script import run_job
+# A variant on another MuJoCo version: the job starts again in that version's environment,
+# before anything imports MuJoCo (mjtrial.simenv).
+run_in_env(globals()["snakemake"])
+
+from pathlib import Path  # noqa: E402
+
+from mjtrial.stages.rollout import run_shard  # noqa: E402
+from mjtrial.workflow_script import run_job  # noqa: E402
 
 snakemake = globals()["snakemake"]
 condition = snakemake.params.slice["condition"]
@@ -25,4 +31,6 @@ run_job(
     unrecorded=None if recorded else Path(snakemake.params.recordings),
     nthread=snakemake.threads,
     repo_root=Path.cwd(),
+    # another MuJoCo version's environment (its lock), where the variant names one
+    extra_inputs={k: Path(v) for k, v in snakemake.input.items() if k == "simulator_env"},
 )

@@ -194,6 +194,9 @@ def _overrides(overrides: Mapping[str, Any]) -> str:
     """`option.timestep=0.001; geom.left_pad.friction=[0.6, 0.003, 0.0001]`, or `none`."""
     parts = []
     for kind, entries in overrides.items():
+        if kind == "mujoco":  # another MuJoCo version (mjtrial.simenv)
+            parts.append(f"MuJoCo {entries}, in an environment of its own")
+            continue
         for name, value in entries.items():
             if kind == "option":
                 parts.append(f"{kind}.{name}={value}")
@@ -233,6 +236,9 @@ def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -
     lines += [
         f"- {name}: {_overrides(rec['overrides'])}" for name, rec in sensitivity["variants"].items()
     ]
+    for name, rec in sensitivity["variants"].items():
+        if "flipped" in rec:
+            lines += flipped_table(name, rec["flipped"])
     v = sensitivity["verdicts"]
     lines += [
         "",
@@ -243,6 +249,28 @@ def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -
         "",
     ]
     return "\n".join(lines)
+
+
+def flipped_table(name: str, flipped: Mapping[str, Any], *, limit: int = 50) -> list[str]:
+    """A MuJoCo-version variant's flipped episodes: the states whose outcome differs from the
+    nominal model's, with the failure category in each run (the first `limit` listed)."""
+    episodes = flipped["episodes"]
+    lines = [
+        "",
+        f"Flipped episodes under {name}: {len(episodes)} of {flipped['n_compared']} "
+        "(state, condition) outcomes differ from the nominal model's.",
+    ]
+    if not episodes:
+        return lines
+    lines += ["", "| state | condition | nominal | " + name + " |", "| --- | --- | --- | --- |"]
+    lines += [
+        f"| {e['state_id']} | {e['condition']} | {e['nominal'] or 'success'} | "
+        f"{e['variant'] or 'success'} |"
+        for e in episodes[:limit]
+    ]
+    if len(episodes) > limit:
+        lines.append(f"\n({len(episodes) - limit} more in analysis/sensitivity.json)")
+    return lines
 
 
 def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: str) -> str:

@@ -291,7 +291,8 @@ def run_shard(
         **model_inputs(model_file),
         **task_inputs(condition_slice["task"], repo_root=repo_root),
         **condition_policy_inputs(condition_slice, repo_root=repo_root),
-        **(extra_inputs or {}),  # a benchmark's evaluation: the parameter file it ran
+        # a benchmark's evaluation: the parameter file it ran; another MuJoCo: its env's lock
+        **(extra_inputs or {}),
     }
     stamp = make_stage_stamp(
         rule,
@@ -358,6 +359,7 @@ def gather_condition(
     output_nominal: Path,
     rule: str,
     repo_root: Path = REPO_ROOT,
+    extra_inputs: Mapping[str, Any] | None = None,
 ) -> pa.Table:
     """The condition's rollout table from its shards' (in state order), and the nominal state's
     episode (each state parameter at its nominal value) for the "nominal state alone" mistake."""
@@ -376,6 +378,7 @@ def gather_condition(
         **model_inputs(model_file),
         **task_inputs(condition_slice["task"], repo_root=repo_root),
         **condition_policy_inputs(condition_slice, repo_root=repo_root),
+        **(extra_inputs or {}),  # another MuJoCo version's environment: its lock
     }
     stamp = make_stage_stamp(
         rule,

@@ -12,6 +12,7 @@ from mjtrial import REPO_ROOT, codehash, provenance
 from mjtrial.conditions import all_conditions
 from mjtrial.crate.description import crate_description
 from mjtrial.layout import CONDITION_STAGES, STAGES
+from mjtrial.simenv import VERSION_KEY, model_overrides, variant_version
 from mjtrial.task import task_files
 
 
@@ -53,7 +54,10 @@ def _slice(
             "recording": {k: config["recording"][k] for k in ("rate_hz", "episodes")},
         }
         if variant:
-            condition_slice["variant"] = {"name": variant, "overrides": config["variants"][variant]}
+            edits = config["variants"][variant]
+            condition_slice["variant"] = {"name": variant, "overrides": model_overrides(edits)}
+            if variant_version(edits):  # another MuJoCo version (mjtrial.simenv)
+                condition_slice["variant"][VERSION_KEY] = variant_version(edits)
         return condition_slice
     if stage == "sensitivity":
         return {

@@ -18,9 +18,10 @@ import pyarrow.parquet as pq
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.layout import NOMINAL, STUDY_FIGURES
 from mjtrial.report import studies as study_report
+from mjtrial.simenv import model_overrides, variant_version
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.dose_response import summarize_dose_response
-from mjtrial.studies.sensitivity import summarize_sensitivity
+from mjtrial.studies.sensitivity import flipped_episodes, summarize_sensitivity
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 from mjtrial.task import load_task
 
@@ -136,8 +137,9 @@ def sensitivity_summary(
         overrides = {} if name == NOMINAL else study_slice["variants"][name]
         if name == NOMINAL:
             sha = nominal_model_hash(model_file)
-        else:
-            sha = variant_model(model_file, overrides, key_prefix=f"variants.{name}")[1]
+        else:  # a variant naming a MuJoCo version: its edits' model on this MuJoCo
+            edits = model_overrides(overrides)
+            sha = variant_model(model_file, edits, key_prefix=f"variants.{name}")[1]
         variants[name] = {
             "tables": {c: _columns(p) for c, p in by_condition.items()},
             "overrides": overrides,
@@ -146,6 +148,11 @@ def sensitivity_summary(
     summary = summarize_sensitivity(
         variants, falsifier=study_slice["falsifier"], analysis=study_slice["analysis"]
     )
+    for name, record in summary["variants"].items():
+        if variant_version(record["overrides"]):
+            record["flipped"] = flipped_episodes(
+                variants[NOMINAL]["tables"], variants[name]["tables"]
+            )
     return summary
 
 

@@ -154,3 +154,32 @@ def summarize_sensitivity(
         "verdicts": counts,
         "survives_in": counts[VERDICT_SURVIVES],
     }
+
+
+def flipped_episodes(
+    nominal: Mapping[str, Mapping[str, np.ndarray]],
+    variant: Mapping[str, Mapping[str, np.ndarray]],
+) -> dict[str, Any]:
+    """The states whose outcome under a variant differs from the nominal model's, per condition
+    both ran: its count of the states compared, and each flipped episode's state id with its
+    failure category in each run ("" where it succeeded), in state order."""
+    out: dict[str, Any] = {"n_compared": 0, "episodes": []}
+    for condition in (c for c in nominal if c in variant):
+        a, b = nominal[condition], variant[condition]
+        ids = np.intersect1d(a["state_id"], b["state_id"])
+        ia, ib = np.searchsorted(a["state_id"], ids), np.searchsorted(b["state_id"], ids)
+        out["n_compared"] += len(ids)
+        for k in np.flatnonzero(a["success"][ia] != b["success"][ib]):
+            out["episodes"].append(
+                {
+                    "condition": condition,
+                    "state_id": int(ids[k]),
+                    "nominal": _category(a, ia[k]),
+                    "variant": _category(b, ib[k]),
+                }
+            )
+    return out
+
+
+def _category(table: Mapping[str, np.ndarray], row: int) -> str:
+    return "" if table["success"][row] else str(table["failure_category"][row])

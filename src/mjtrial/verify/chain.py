@@ -18,6 +18,7 @@ from typing import Any
 
 from mjtrial import REPO_ROOT, codehash, provenance
 from mjtrial.layout import CONDITION_STAGES, STAGES
+from mjtrial.simenv import VERSION_KEY
 from mjtrial.stages.stamping import config_slice, stage_code
 from mjtrial.task import task_files
 
@@ -298,6 +299,14 @@ def _platform_key(platform: Any) -> tuple[str, tuple[str, ...]]:
     return str(platform.get("cpu_model")), flags
 
 
+def _variant_mujoco(stamp: Mapping[str, Any]) -> dict[str, str]:
+    """{"mujoco": version} for a stamp of a variant that names another MuJoCo, else {}."""
+    config_slice = stamp.get("config_slice")
+    variant = config_slice.get("variant") if isinstance(config_slice, Mapping) else None
+    version = variant.get(VERSION_KEY) if isinstance(variant, Mapping) else None
+    return {VERSION_KEY: version} if isinstance(version, str) else {}
+
+
 def _consistency_warnings(
     stamps: Mapping[str, Mapping[str, Any]], current: Current, prefix: str
 ) -> list[str]:
@@ -321,7 +330,8 @@ def _consistency_warnings(
         for path, stamp in stamps.items():
             versions = stamp.get("versions")
             value = versions.get(key) if isinstance(versions, Mapping) else None
-            values[str(value)].append(path)
+            if key not in _variant_mujoco(stamp):  # a variant's own MuJoCo differs by design
+                values[str(value)].append(path)
         if len(values) > 1:
             warnings.append(f"stamps disagree on {key}: {_grouped(values, prefix)}")
 
@@ -494,13 +504,14 @@ def check_stamps(
         elif changed := codehash.changed_code(code, code_now):
             stale[path].append(f"code changed: {_names(changed, '')}")
 
-        # Library versions against this environment.
+        # Library versions against this environment (or the MuJoCo its variant names).
         versions = stamp.get("versions")
         versions = versions if isinstance(versions, Mapping) else {}
+        wanted = {**current.versions, **_variant_mujoco(stamp)}
         changed = [
-            f"{key} {versions.get(key)} -> {current.versions.get(key)}"
-            for key in sorted(set(versions) | set(current.versions))
-            if versions.get(key) != current.versions.get(key)
+            f"{key} {versions.get(key)} -> {wanted.get(key)}"
+            for key in sorted(set(versions) | set(wanted))
+            if versions.get(key) != wanted.get(key)
         ]
         if changed:
             stale[path].append(f"versions changed: {', '.join(changed)}")

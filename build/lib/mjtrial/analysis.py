@@ -1,0 +1,341 @@
+"""From per-episode outcomes to the numbers a paper reports, and the falsifier's verdict.
+
+Pure functions over arrays: the analysis rule reads the tables, calls `summarize`, and writes
+the result; the printed table is rendered from the same summary, so the two cannot disagree.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from mjtrial import stats
+from mjtrial.conditions import MODEL_EDITS
+from mjtrial.task import UNHEALTHY
+
+VERDICT_SURVIVES = "survives"
+VERDICT_REFUTED = "refuted"
+# Too many unhealthy episodes (a MuJoCo warning, a non-finite or halted state): the result is
+# no evidence either way, whatever the interval says.
+VERDICT_INVALID = "invalid"
+
+
+def rate_record(success: np.ndarray, *, confidence: float) -> dict[str, Any]:
+    """Successes, n, rate and Wilson interval of a boolean array of shape (n,)."""
+    success = np.asarray(success, dtype=bool)
+    n = int(success.size)
+    k = int(success.sum())
+    low, high = stats.wilson_interval(k, n, confidence) if n else (float("nan"),) * 2
+    return {
+        "n": n,
+        "successes": k,
+        "rate": k / n if n else None,
+        "wilson_low": low if n else None,
+        "wilson_high": high if n else None,
+    }
+
+
+# What a condition's summary record holds besides the protocol parameters it sets.
+RESULT_KEYS = ("n", "successes", "rate", "wilson_low", "wilson_high", "unhealthy")
+
+
+def condition_settings(record: Mapping[str, Any]) -> dict[str, Any]:
+    """The protocol parameters a condition's summary record carries, in config order (its
+    edits of the model, if any, are under `model`: `mjtrial.conditions.MODEL_EDITS`)."""
+    return {k: v for k, v in record.items() if k not in (*RESULT_KEYS, MODEL_EDITS)}
+
+
+def band_labels(edges: Sequence[float]) -> list[str]:
+    """Labels of the bands [e0, e1), ..., [e(k-1), ek] (the last band is closed)."""
+    labels = [f"[{a:g}, {b:g})" for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    labels[-1] = labels[-1][:-1] + "]"
+    return labels
+
+
+def band_index(values: np.ndarray, edges: Sequence[float]) -> np.ndarray:
+    """Band of each value, 0..k-1; the last band includes its upper edge."""
+    idx = np.searchsorted(np.asarray(edges), values, side="right") - 1
+    return np.clip(idx, 0, len(edges) - 2)
+
+
+def band_values(states: Mapping[str, np.ndarray], parameter: str) -> np.ndarray:
+    """Values a band table sorts by: a state column, or its magnitude for `abs_<column>`."""
+    if parameter.startswith("abs_"):
+        return np.abs(np.asarray(states[parameter.removeprefix("abs_")], dtype=float))
+    return np.asarray(states[parameter], dtype=float)
+
+
+def band_table(
+    values: np.ndarray,
+    edges: Sequence[float],
+    success: Mapping[str, np.ndarray],
+    *,
+    confidence: float,
+) -> list[dict[str, Any]]:
+    """Success per band of `values` (shape (n,)) for each condition's success (shape (n,))."""
+    band = band_index(values, edges)
+    return [
+        {
+            "band": label,
+            "low": edges[i],
+            "high": edges[i + 1],
+            "n": int((band == i).sum()),
+            "conditions": {
+                name: rate_record(s[band == i], confidence=confidence)
+                for name, s in success.items()
+            },
+        }
+        for i, label in enumerate(band_labels(edges))
+    ]
+
+
+def failure_counts(categories: np.ndarray, order: Sequence[str]) -> dict[str, int]:
+    """Failed episodes per category, in the task's order (zeros included), then any other
+    category the episodes name.
+
+    Args:
+      categories: each episode's category name, or None for a success; shape (n,).
+      order: the task's categories (`Task.category_names()`).
+    """
+    counts = Counter(c for c in categories if c is not None)
+    return {c: counts[c] for c in [*order, *sorted(set(counts) - set(order))]}
+
+
+def unhealthy(table: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Episodes of a rollout table that are unhealthy: a MuJoCo warning, a non-finite state, or
+    classified "simulation unhealthy" (halted), shape `(n,)` booleans."""
+    return (
+        np.asarray(table["nonfinite"], dtype=bool)
+        | (np.asarray(table["warning"], dtype=object) != "")
+        | (np.asarray(table["failure_category"], dtype=object) == UNHEALTHY)
+    )
+
+
+def judge_falsifier(
+    falsifier: Mapping[str, Any],
+    paired: Mapping[str, float],
+    *,
+    n_unhealthy: int = 0,
+    n_episodes: int = 1,
+) -> dict[str, Any]:
+    """Verdict of the preregistered falsifier on the paired-difference interval.
+
+    Refuted when the interval's lower bound is at or below the threshold, i.e. the interval
+    includes the threshold or lies below it; invalid, whatever the interval, when more than the
+    design's `max_unhealthy_share` (default 0) of the compared episodes (`n_episodes`, both
+    conditions) are unhealthy: an unstable simulation is no evidence either way.
+    """
+    threshold = float(falsifier["threshold"])
+    refuted = paired["low"] <= threshold
+    verdict = VERDICT_REFUTED if refuted else VERDICT_SURVIVES
+    relation = "at or below" if refuted else "above"
+    reason = (
+        f"{falsifier['statistic']} ({falsifier['treatment']} - {falsifier['baseline']}) = "
+        f"{paired['estimate']:+.3f}, interval [{paired['low']:+.3f}, {paired['high']:+.3f}]: "
+        f"lower bound {relation} the threshold {threshold:g}"
+    )
+    allowed = float(falsifier.get("max_unhealthy_share", 0.0))
+    if n_unhealthy > allowed * n_episodes:
+        verdict = VERDICT_INVALID
+        reason = (
+            f"{n_unhealthy} of {n_episodes} episodes unhealthy (MuJoCo warning, non-finite state "
+            f"or halted), more than the design allows ({allowed:g}): not evidence either way; "
+            f"{reason}"
+        )
+    return {**dict(falsifier), "verdict": verdict, "reason": reason}
+
+
+def summarize(
+    *,
+    states: Mapping[str, np.ndarray],
+    outcomes: Mapping[str, Mapping[str, np.ndarray]],
+    nominal: Mapping[str, bool],
+    condition_parameters: Mapping[str, Mapping[str, float]],
+    falsifier: Mapping[str, Any],
+    analysis: Mapping[str, Any],
+    sample_size: Mapping[str, Any] | None = None,
+    nominal_text: str = "each state parameter at its nominal value",
+    categories: Sequence[str] = (),
+) -> dict[str, Any]:
+    """The experiment's summary.
+
+    Args:
+      states: columns of the states table (state_id, then the task's state parameters),
+        each shape (n,).
+      outcomes: per condition, the columns of its rollout table, each shape (n,).
+      nominal: per condition, the success of the nominal state: the first classic mistake
+        reports it alone.
+      condition_parameters: per condition, the protocol parameters it sets, recorded beside
+        its results.
+      nominal_text: the nominal state in words (`Task.nominal_description`).
+      categories: the task's failure categories in order (`Task.category_names()`).
+      falsifier: the design's falsifier (treatment, baseline, statistic, threshold).
+      analysis: the analysis config slice (n_resamples, confidence, seed, bands, first_k).
+      sample_size: the design's sample-size plan (target_halfwidth); the summary says whether
+        n met it.
+    """
+    confidence = float(analysis["confidence"])
+    order = np.argsort(states["state_id"])
+    state_ids = np.asarray(states["state_id"])[order]
+    success: dict[str, np.ndarray] = {}
+    for name, table in outcomes.items():
+        ids = np.asarray(table["state_id"])
+        sort = np.argsort(ids)
+        if not np.array_equal(ids[sort], state_ids):
+            raise ValueError(f"rollouts of {name!r}: state ids differ from the states table")
+        success[name] = np.asarray(table["success"], dtype=bool)[sort]
+
+    conditions = {}
+    for name, table in outcomes.items():
+        conditions[name] = {
+            **condition_parameters[name],
+            **rate_record(success[name], confidence=confidence),
+            "unhealthy": int(unhealthy(table).sum()),
+        }
+
+    treatment, baseline = falsifier["treatment"], falsifier["baseline"]
+    a, b = success[treatment], success[baseline]
+    estimate, low, high = stats.paired_difference_ci(
+        a.astype(float),
+        b.astype(float),
+        n_resamples=int(analysis["n_resamples"]),
+        confidence=confidence,
+        seed=int(analysis["seed"]),
+    )
+    paired = {
+        "treatment": treatment,
+        "baseline": baseline,
+        "estimate": estimate,
+        "low": low,
+        "high": high,
+        "method": f"{stats.BOOTSTRAP_METHOD} over pairs",
+        "n_resamples": int(analysis["n_resamples"]),
+        "confidence": confidence,
+        "seed": int(analysis["seed"]),
+    }
+    test = stats.mcnemar(a, b)
+    discordant = {
+        "both": int((a & b).sum()),
+        f"only_{treatment}": test.only_a,
+        f"only_{baseline}": test.only_b,
+        "neither": int((~a & ~b).sum()),
+    }
+
+    bands = {
+        parameter: band_table(
+            band_values(states, parameter)[order], list(edges), success, confidence=confidence
+        )
+        for parameter, edges in analysis["bands"].items()
+    }
+    failures = {
+        name: failure_counts(np.asarray(table["failure_category"], dtype=object), categories)
+        for name, table in outcomes.items()
+    }
+
+    k = min(int(analysis["first_k"]), len(state_ids))
+    mistakes = {
+        "nominal_state": {
+            "what": f"the nominal state alone ({nominal_text})",
+            "conditions": {
+                name: rate_record(np.array([nominal[name]]), confidence=confidence)
+                for name in success
+            },
+        },
+        "first_k": {
+            "what": f"the first {k} states alone",
+            "k": k,
+            "conditions": {
+                name: rate_record(s[:k], confidence=confidence) for name, s in success.items()
+            },
+        },
+    }
+    pooled = None
+    if bands:  # the first band parameter is the one the pooled rates are read against
+        first = next(iter(bands))
+        pooled = {
+            "what": f"pooled rates average over this {first} distribution; per-band rates "
+            "beside them",
+            f"{first}_bands": [{"band": b["band"], "n": b["n"]} for b in bands[first]],
+        }
+    return {
+        "n_states": int(len(state_ids)),
+        "confidence": confidence,
+        "conditions": conditions,
+        "paired_difference": paired,
+        "discordant": discordant,
+        "mcnemar": {"p_value": test.p_value, "method": test.method},
+        "bands": bands,
+        "pooled_over": pooled,
+        "failures": failures,
+        "mistakes": mistakes,
+        "falsifier": judge_falsifier(
+            falsifier,
+            paired,
+            n_unhealthy=conditions[treatment]["unhealthy"] + conditions[baseline]["unhealthy"],
+            n_episodes=2 * len(state_ids),
+        ),
+        "sample_size": sample_size_check(sample_size, len(state_ids), confidence=confidence),
+    }
+
+
+def sample_size_check(
+    plan: Mapping[str, Any] | None, n: int, *, confidence: float
+) -> dict[str, Any] | None:
+    """Whether n met the design's plan: the worst-case episodes for its target half-width."""
+    if plan is None:
+        return None
+    halfwidth = float(plan["target_halfwidth"])
+    required = stats.episodes_for_halfwidth(halfwidth, 0.5, confidence)
+    return {"target_halfwidth": halfwidth, "required": required, "n": n, "met": n >= required}
+
+
+def _interval(rec: Mapping[str, Any]) -> str:
+    if not rec["n"]:
+        return "      (no states)"
+    return (
+        f"{rec['successes']:>5}/{rec['n']:<5} {rec['rate']:6.3f} "
+        f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
+    )
+
+
+def format_table(summary: Mapping[str, Any]) -> str:
+    """The summary as the plain-text table printed to the console and the rule's log."""
+    conf = f"{summary['confidence'] * 100:g}%"
+    lines = [f"Success per condition (Wilson {conf} interval), n = {summary['n_states']} states"]
+    for name, rec in summary["conditions"].items():
+        setting = " ".join(f"{k} {v:g}" for k, v in condition_settings(rec).items())
+        lines.append(f"  {name:<12} {setting}  {_interval(rec)}  unhealthy {rec['unhealthy']}")
+    p = summary["paired_difference"]
+    lines.append(
+        f"Paired difference {p['treatment']} - {p['baseline']}: {p['estimate']:+.3f} "
+        f"[{p['low']:+.3f}, {p['high']:+.3f}] ({p['method']}, {p['n_resamples']} resamples)"
+    )
+    d = summary["discordant"]
+    lines.append("Pairs: " + ", ".join(f"{k} {v}" for k, v in d.items()))
+    lines.append(f"McNemar exact p = {summary['mcnemar']['p_value']:.3g}")
+    for parameter, table in summary["bands"].items():
+        lines.append(f"Success by {parameter} band")
+        for band in table:
+            for name, rec in band["conditions"].items():
+                lines.append(f"  {band['band']:<16} {name:<12} {_interval(rec)}")
+    lines.append("Failures by category")
+    for name, counts in summary["failures"].items():
+        lines.append(f"  {name:<12} " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    lines.append("Classic evaluation mistakes, reproduced")
+    for mistake in summary["mistakes"].values():
+        lines.append(f"  {mistake['what']}:")
+        for name, rec in mistake["conditions"].items():
+            lines.append(f"    {name:<12} {_interval(rec)}")
+    plan = summary.get("sample_size")
+    if plan:
+        met = "met" if plan["met"] else "NOT met"
+        lines.append(
+            f"Sample size: n = {plan['n']}, plan needs {plan['required']} for a half-width of "
+            f"{plan['target_halfwidth']:g} at worst: {met}"
+        )
+    f = summary["falsifier"]
+    lines.append(f"Falsifier: {f['verdict'].upper()}: {f['reason']}")
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""The benchmark: tasks x methods x training seeds, tuned on development states."""

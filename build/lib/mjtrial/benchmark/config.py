@@ -1,0 +1,297 @@
+"""Check a benchmark's config (`config/benchmark.yaml`): the schema, then what it cannot say.
+
+A benchmark names tasks by their experiment configs (the task, its model, the evaluation and
+development states, the failure thresholds), and methods by what each fixes and tunes on each
+task. Every problem is one line naming the file, the key and what was expected, before any
+work: a task's own config is checked as an experiment's is, and named when it fails.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+from mjtrial import REPO_ROOT
+from mjtrial.benchmark.stats import SEEDS_FOR_DEVELOPMENT_DECISION, SEEDS_FOR_REPORTED_RESULT
+from mjtrial.benchmark.tuning import check_search, minimum_budget
+from mjtrial.config import (
+    ConfigError,
+    _non_finite,
+    _schema_message,
+    _Validator,
+    check_config,
+    read_config_file,
+)
+from mjtrial.crate.description import crate_description
+from mjtrial.layout import shard_ids, shard_range
+from mjtrial.task import Task, TaskError, load_task
+
+SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "benchmark.schema.yaml"
+
+
+@dataclass(frozen=True)
+class BenchmarkTask:
+    """One task of a benchmark: its experiment config, read and checked, and the task."""
+
+    name: str
+    config_path: str  # the experiment config, as the benchmark names it
+    config: dict[str, Any]
+    task: Task
+    condition: dict[str, float]  # what every method runs with, under its own values
+
+
+def is_benchmark(config: Mapping[str, Any]) -> bool:
+    """Whether a run's config is a benchmark's (it has a `benchmark` section)."""
+    return "benchmark" in config
+
+
+def check_benchmark_config(
+    config: Mapping[str, Any], *, source: str, repo_root: Path = REPO_ROOT
+) -> dict[str, BenchmarkTask]:
+    """The benchmark's tasks, or `ConfigError` (one line: file, key, expectation)."""
+
+    def fail(key: str, expectation: str):
+        raise ConfigError(f"{source}: {key}: {expectation}")
+
+    bad = _non_finite(dict(config))
+    if bad:
+        fail(bad[0], f"expected a finite number, got {bad[1]}")
+    schema = yaml.safe_load(SCHEMA_PATH.read_text(encoding="utf-8"))
+    error = jsonschema.exceptions.best_match(_Validator(schema).iter_errors(dict(config)))
+    if error is not None:
+        key, _, expectation = _schema_message(error).partition(": ")
+        fail(key, expectation)
+    bench = config["benchmark"]
+
+    seeds = bench["seeds"]
+    if bench["result"] == "reported" and len(seeds) < SEEDS_FOR_DEVELOPMENT_DECISION:
+        fail(
+            "benchmark.seeds",
+            f"expected at least {SEEDS_FOR_DEVELOPMENT_DECISION} training seeds for a reported "
+            f"result ({SEEDS_FOR_REPORTED_RESULT} or more to report it as more than a "
+            f"development decision), got {len(seeds)}",
+        )
+
+    tasks = {
+        name: _benchmark_task(name, entry, repo_root=Path(repo_root), fail=fail)
+        for name, entry in bench["tasks"].items()
+    }
+    for name, method in bench["methods"].items():
+        _check_method(name, method, tasks, fail=fail)
+    budgets = {name: m["budget"] for name, m in bench["methods"].items()}
+    if len(set(budgets.values())) > 1 and "unequal_budgets" not in bench:
+        fail(
+            "benchmark.unequal_budgets",
+            f"missing; the methods' budgets differ ({budgets}): expected the reason, which the "
+            "report prints beside them",
+        )
+    return tasks
+
+
+def _benchmark_task(name: str, entry: Mapping[str, Any], *, repo_root: Path, fail) -> BenchmarkTask:
+    key = f"benchmark.tasks.{name}"
+    path = repo_root / entry["experiment"]
+    if not path.is_file():
+        fail(
+            f"{key}.experiment", f"expected an experiment config file, got {entry['experiment']!r}"
+        )
+    try:
+        experiment = read_config_file(path)
+        check_config(experiment, source=entry["experiment"], repo_root=repo_root)
+    except ConfigError as err:
+        fail(f"{key}.experiment", f"its config is not runnable: {err}")
+    try:
+        task = load_task(experiment["task"], repo_root=repo_root)
+    except TaskError as err:  # checked above; a task that fails the second time is named too
+        fail(f"{key}.experiment", str(err))
+    condition = {k: float(v) for k, v in entry.get("condition", {}).items()}
+    for field in ("condition", "reference"):
+        try:
+            check_search(task, {}, entry.get(field, {}), require_tuned=False)
+        except ValueError as err:
+            fail(*_search_problem(err, f"{key}.{field}."))
+    return BenchmarkTask(name, entry["experiment"], experiment, task, condition)
+
+
+def _check_method(
+    name: str, method: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], *, fail
+) -> None:
+    key = f"benchmark.methods.{name}"
+    given = method["tasks"]
+    missing = [t for t in tasks if t not in given]
+    if missing:
+        fail(f"{key}.tasks.{missing[0]}", "missing; every method runs on every task")
+    unknown = [t for t in given if t not in tasks]
+    if unknown:
+        fail(
+            f"{key}.tasks.{unknown[0]}",
+            f"not a task of the benchmark; expected one of {list(tasks)}",
+        )
+    tunes = False
+    for task_name, spec in given.items():
+        bt = tasks[task_name]
+        fixed = {**bt.condition, **spec.get("fixed", {})}
+        tune = spec.get("tune", {})
+        fixed = {k: v for k, v in fixed.items() if k not in tune}
+        try:
+            check_search(bt.task, tune, fixed, require_tuned=False)
+        except ValueError as err:
+            fail(*_search_problem(err, f"{key}.tasks.{task_name}."))
+        tunes = tunes or bool(tune)
+        if tune and method["budget"] > 0 and "episodes_per_candidate" in method:
+            n_dev = bt.config["states"]["n"]  # the development states: as many as evaluated
+            least = minimum_budget(
+                len(tune),
+                episodes_per_candidate=method["episodes_per_candidate"],
+                n_development=n_dev,
+            )
+            if method["budget"] < least:
+                fail(
+                    f"{key}.budget",
+                    f"expected at least {least} episodes to tune on {task_name} (one generation "
+                    f"of candidates, and the finalists on its {n_dev} development states), got "
+                    f"{method['budget']}",
+                )
+    if tunes and method["budget"] == 0:
+        fail(f"{key}.budget", "expected a budget of episodes > 0 for a method that tunes")
+    if not tunes and method["budget"] != 0:
+        fail(f"{key}.budget", f"expected 0 for a method that tunes nothing, got {method['budget']}")
+    if tunes and "episodes_per_candidate" not in method:
+        fail(f"{key}.episodes_per_candidate", "missing; a method that tunes needs it")
+
+
+def _search_problem(err: ValueError, prefix: str) -> tuple[str, str]:
+    """A `check_search` problem (`tuned.NAME: ...`, `fixed.NAME: ...`) as the config's key
+    under `prefix` (`...tune.NAME`, `...fixed.NAME`; a condition's key has no `fixed.`) and
+    the expectation."""
+    where, _, expectation = str(err).partition(": ")
+    kind, _, name = where.partition(".")
+    field = {"tuned": "tune.", "fixed": "fixed."}.get(kind, "")
+    if prefix.endswith(("condition.", "reference.")):
+        field = ""
+    return f"{prefix}{field}{name or kind}", expectation
+
+
+def train_slice(
+    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], task: str, method: str, seed: int
+) -> dict[str, Any]:
+    """What one training job depends on (its rule's params, its stamp's record): the task's
+    reference, thresholds and development seed, the benchmark's condition for it, the method's
+    budget and what it fixes and tunes on this task, the seed. Nothing else reruns it."""
+    spec = config["benchmark"]["methods"][method]
+    experiment = tasks[task].config
+    return {
+        "task": experiment["task"],
+        "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
+        "development_seed": experiment["states"]["development_seed"],
+        "condition": dict(tasks[task].condition),
+        "method": {
+            "name": method,
+            "budget": spec["budget"],
+            **(
+                {"episodes_per_candidate": spec["episodes_per_candidate"]}
+                if "episodes_per_candidate" in spec
+                else {}
+            ),
+            **{k: v for k, v in spec["tasks"][task].items() if v},
+        },
+        "seed": seed,
+    }
+
+
+def evaluation_shards(tasks: Mapping[str, BenchmarkTask], task: str) -> list[str]:
+    """The shards of a task's evaluation states: its experiment's `rollout.shard_size`."""
+    experiment = tasks[task].config
+    return shard_ids(experiment["states"]["n"], experiment["rollout"]["shard_size"])
+
+
+def evaluation_shard_range(
+    tasks: Mapping[str, BenchmarkTask], task: str, shard: str
+) -> tuple[int, int]:
+    """The state ids [first, stop) of one shard of a task's evaluation states."""
+    experiment = tasks[task].config
+    return shard_range(shard, experiment["rollout"]["shard_size"], experiment["states"]["n"])
+
+
+def evaluate_slice(tasks: Mapping[str, BenchmarkTask], task: str) -> dict[str, Any]:
+    """What an evaluation job depends on besides its parameter file: the task and thresholds."""
+    experiment = tasks[task].config
+    return {
+        "task": experiment["task"],
+        "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
+    }
+
+
+def crate_slice(config: Mapping[str, Any], *, command: str, config_file: str) -> dict[str, Any]:
+    """What a benchmark's crate says of the run beyond its files (an experiment's crate reads
+    it from the manifest): the question, the config file and the command that rebuilds it;
+    the license, authors and keywords as an experiment's (`crate_description`)."""
+    return {
+        **crate_description(config),
+        "design": {"question": config["benchmark"]["question"]},
+        "rerun": {"command": command, "config_file": config_file},
+    }
+
+
+def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
+    """What the summary depends on: the tasks, methods (budgets, descriptions), seeds, the
+    headline, the reason for unequal budgets and the analysis settings."""
+    bench = config["benchmark"]
+    return {
+        "question": bench["question"],
+        "tasks": list(bench["tasks"]),
+        "methods": {
+            m: {"description": spec["description"], "budget": spec["budget"]}
+            for m, spec in bench["methods"].items()
+        },
+        "seeds": list(bench["seeds"]),
+        "headline": bench["headline"],
+        "unequal_budgets": bench.get("unequal_budgets"),
+        "analysis": dict(bench["analysis"]),
+    }
+
+
+# Episodes of each kind (closest successes, highest scores) per task in replay/closest_calls.rrd
+CLOSEST_CALLS_DEFAULT = 10
+
+# The solvability check when the config says nothing (`benchmark.solvability`).
+SOLVABILITY_DEFAULTS = {"max_corner_parameters": 6, "states": 64, "seed": 0}
+
+
+def solvability_slice(
+    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], task: str
+) -> dict[str, Any]:
+    """What a task's solvability check depends on: its ranges, its reference controller (the
+    benchmark's condition with the task's `reference` on top) and the probe's settings."""
+    experiment = tasks[task].config
+    entry = config["benchmark"]["tasks"][task]
+    return {
+        "task": experiment["task"],
+        "ranges": dict(experiment["states"]["ranges"]),
+        "reference": {**tasks[task].condition, **entry.get("reference", {})},
+        "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
+        **SOLVABILITY_DEFAULTS,
+        **config["benchmark"].get("solvability", {}),
+    }
+
+
+def closest_calls_slice(
+    config: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask]
+) -> dict[str, Any]:
+    """What the closest calls depend on besides the evaluations: how many of each kind, and
+    each task's evaluation settings and logging rate (its experiment's `recording.rate_hz`)."""
+    return {
+        "k": config["benchmark"].get("closest_calls", CLOSEST_CALLS_DEFAULT),
+        "tasks": {
+            task: {
+                "evaluate_slice": evaluate_slice(tasks, task),
+                "rate_hz": tasks[task].config["recording"]["rate_hz"],
+            }
+            for task in tasks
+        },
+    }

@@ -1,0 +1,330 @@
+"""Closed-loop episodes in lockstep: `mujoco.rollout` between control instants, the policy once
+per instant on the whole batch.
+
+A feedback or learned controller reads the state, so its control sequence is not known before
+the episode starts and cannot go to `mujoco.rollout` whole. The plain way is a per-episode
+`mj_step` loop that calls the policy once per control step (`reference_episode` here, the
+correctness oracle and the speed baseline). The engine instead steps a batch of episodes
+together: at each control instant it calls the policy once on every episode's observation, then
+`mujoco.rollout` runs the physics steps up to the next instant for the whole batch, on as many
+threads as it is given. For a small model the per-call cost of Python and of the policy is then
+paid once per batch instead of once per episode.
+
+Results do not depend on the batch: each episode's physics is its own (`mujoco.rollout` sets
+each episode's full state before its steps), and the policy must compute each row from that row
+alone (`check_batch_independence` tests a policy for it before work, and every batch replays
+its recorded observations through the policy in other batches: `check_replayed`). With no
+constraint active the solver has no warm start to carry, and the engine's episodes equal the
+reference's bit for bit; a model with contacts would differ by the warm start MuJoCo keeps
+between steps.
+
+Timing: a control instant every `steps_per_control` physics steps; the observation used at
+instant k is measured `latency_steps` physics steps earlier (the initial state's while k's time
+is within the latency), so sensing latency is a whole number of physics steps.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from mjtrial.physics import FULLPHYSICS
+
+# What mujoco.rollout's control columns hold: the actuators' ctrl, then every body's applied
+# wrench (force, torque in the world frame), so pushes travel with the controls.
+CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL.value | mujoco.mjtState.mjSTATE_XFRC_APPLIED.value
+
+
+# Control instants replayed from the reset (`check_replayed`): on the built-in closed-loop
+# experiment (300 instants an episode) the first 20 cost under 1 % of its rollout stage's time
+# and all 300 about 12 %; a difference that shows only later is still caught on verify's
+# re-simulated sample, whose every episode runs alone.
+REPLAYED_INSTANTS = 20
+
+
+class BatchPolicy(Protocol):
+    """A controller over a batch of episodes. Row i of every array is episode i."""
+
+    def reset(self, n_episodes: int) -> None:
+        """Start `n_episodes` new episodes (clear any per-episode memory)."""
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        """(n_episodes, n_observations) -> controls (n_episodes, nu)."""
+
+
+class PolicyError(ValueError):
+    """The policy returned something the engine cannot apply (shape, non-finite values)."""
+
+
+@dataclass(frozen=True)
+class Timing:
+    """When the controller acts, in physics steps."""
+
+    steps_per_control: int  # physics steps between two control instants
+    n_controls: int  # control instants per episode
+    latency_steps: int = 0  # physics steps between a measurement and the control that uses it
+
+    def __post_init__(self) -> None:
+        for name in ("steps_per_control", "n_controls"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        if self.latency_steps < 0:
+            raise ValueError(f"latency_steps: expected >= 0, got {self.latency_steps}")
+
+    @property
+    def n_steps(self) -> int:
+        return self.steps_per_control * self.n_controls
+
+    def measured_step(self, k: int) -> int:
+        """Index into the physics states of an episode (0: initial, j: after step j) that
+        control instant k observes."""
+        return max(0, k * self.steps_per_control - self.latency_steps)
+
+
+@dataclass(frozen=True)
+class Pushes:
+    """One wrench pulse per episode on one body: `wrench[i]` (force N, torque N m, world
+    frame) applied during physics steps `start[i] <= j < stop[i]` (j counts from 0)."""
+
+    body: int
+    start: np.ndarray  # (n_episodes,) int
+    stop: np.ndarray  # (n_episodes,) int
+    wrench: np.ndarray  # (n_episodes, 6)
+
+    def rows(self, index: np.ndarray | slice) -> Pushes:
+        return Pushes(self.body, self.start[index], self.stop[index], self.wrench[index])
+
+    def xfrc(self, nbody: int, first_step: int, n_steps: int) -> np.ndarray:
+        """(n_episodes, n_steps, nbody * 6) applied wrenches of steps first_step onwards."""
+        steps = first_step + np.arange(n_steps)
+        on = (steps[None, :] >= self.start[:, None]) & (steps[None, :] < self.stop[:, None])
+        out = np.zeros((len(self.start), n_steps, nbody, 6))
+        out[:, :, self.body, :] = np.where(on[:, :, None], self.wrench[:, None, :], 0.0)
+        return out.reshape(len(self.start), n_steps, nbody * 6)
+
+
+Observe = Callable[[np.ndarray], np.ndarray]
+"""(n_episodes, nstate) mjSTATE_FULLPHYSICS rows -> (n_episodes, n_observations)."""
+
+
+@dataclass(frozen=True)
+class ClosedLoopBatch:
+    """Trajectories of a batch of closed-loop episodes.
+
+    Attributes:
+      physics: (n_episodes, n_steps, nstate) mjSTATE_FULLPHYSICS after each physics step.
+      sensordata: (n_episodes, n_steps, nsensordata) sensor values after each physics step.
+      ctrl: (n_episodes, n_controls, nu) the controls the policy chose at each instant.
+      warnings: (mjNWARNING,) warning counters of a `reference_episode` (None from the engine,
+        which, like `mujoco.rollout`, reports only the frozen state).
+    """
+
+    physics: np.ndarray
+    sensordata: np.ndarray
+    ctrl: np.ndarray
+    warnings: np.ndarray | None = None
+
+
+def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
+    ctrl = np.asarray(ctrl, dtype=np.float64)
+    if ctrl.shape != (n, nu):
+        raise PolicyError(f"policy: expected controls of shape ({n}, {nu}), got {ctrl.shape}")
+    if not np.isfinite(ctrl).all():
+        rows = np.flatnonzero(~np.isfinite(ctrl).all(axis=1))
+        raise PolicyError(
+            f"policy: non-finite controls for {len(rows)} episode(s), e.g. row {rows[0]}"
+        )
+    return ctrl
+
+
+def run_batch(
+    models: list[mujoco.MjModel],
+    initial: np.ndarray,
+    policy: BatchPolicy,
+    observe: Observe,
+    timing: Timing,
+    *,
+    runner: rollout.Rollout,
+    datas: list[mujoco.MjData],
+    pushes: Pushes | None = None,
+    check: bool = True,
+) -> ClosedLoopBatch:
+    """Run a batch of closed-loop episodes in lockstep.
+
+    Args:
+      models: one model per episode (the same sizes; per-episode physical parameters).
+      initial: (n_episodes, nstate) mjSTATE_FULLPHYSICS initial states.
+      policy: called once per control instant on all the batch's observations.
+      observe: the observations of a batch of physics states.
+      timing: control period, episode length and sensing latency in physics steps.
+      runner: a `mujoco.rollout.Rollout` (its thread pool is reused across batches).
+      datas: one MjData per runner thread (at least one).
+      pushes: a wrench pulse per episode, or None.
+      check: replay the first `REPLAYED_INSTANTS` instants' observations through the policy in
+        other batches (`check_replayed`) and raise `PolicyError` if a row's controls differ;
+        off only to measure its cost.
+    """
+    n, nstate = initial.shape
+    model = models[0]
+    nu, nbody, s = model.nu, model.nbody, timing.steps_per_control
+    physics = np.empty((n, timing.n_steps, nstate))
+    sensordata = np.empty((n, timing.n_steps, model.nsensordata))
+    ctrl_log = np.empty((n, timing.n_controls, nu))
+    # Preallocated rollout outputs and controls, reused every call (skip_checks needs them whole).
+    step_states = np.empty((n, s, nstate))
+    step_sensors = np.empty((n, s, model.nsensordata))
+    controls = np.zeros((n, s, nu + nbody * 6))
+    state = np.ascontiguousarray(initial, dtype=np.float64)
+    replayed = min(timing.n_controls, REPLAYED_INSTANTS) if check else 0
+    observed: np.ndarray | None = None  # (n, replayed, n_observations), for check_replayed
+    policy.reset(n)
+    for k in range(timing.n_controls):
+        j = timing.measured_step(k)
+        measured = initial if j == 0 else physics[:, j - 1]
+        obs = np.asarray(observe(measured), dtype=np.float64)
+        if k < replayed:
+            if observed is None:
+                observed = np.empty((n, replayed, *obs.shape[1:]))
+            observed[:, k] = obs  # a copy: the policy may change its argument
+        ctrl = _checked_controls(policy(obs), n, nu)
+        ctrl_log[:, k] = ctrl
+        controls[:, :, :nu] = ctrl[:, None, :]
+        if pushes is not None:
+            controls[:, :, nu:] = pushes.xfrc(nbody, k * s, s)
+        runner.rollout(
+            models,
+            datas,
+            state,
+            controls,
+            control_spec=CONTROL_SPEC,
+            skip_checks=True,
+            nstep=s,
+            state=step_states,
+            sensordata=step_sensors,
+        )
+        physics[:, k * s : (k + 1) * s] = step_states
+        sensordata[:, k * s : (k + 1) * s] = step_sensors
+        state = np.ascontiguousarray(step_states[:, -1])
+    if observed is not None:
+        check_replayed(policy, observed, ctrl_log[:, :replayed])
+    return ClosedLoopBatch(physics=physics, sensordata=sensordata, ctrl=ctrl_log)
+
+
+def reference_episode(
+    model: mujoco.MjModel,
+    initial: np.ndarray,
+    policy: BatchPolicy,
+    observe: Observe,
+    timing: Timing,
+    *,
+    pushes: Pushes | None = None,
+) -> ClosedLoopBatch:
+    """One episode with plain `mj_step`, the policy called once per control step on a batch of
+    one: what a user writes without the engine, and the engine's reference.
+
+    Like `mujoco.rollout`, it stops stepping at the first MuJoCo warning and repeats the frozen
+    state. Returns a batch of one episode.
+    """
+    m = copy.copy(model)
+    d = mujoco.MjData(m)
+    mujoco.mj_setState(m, d, initial, FULLPHYSICS)
+    nstate = initial.shape[0]
+    states = [np.asarray(initial, dtype=np.float64)]
+    sensors = []
+    ctrl_log = np.empty((timing.n_controls, m.nu))
+    policy.reset(1)
+    halted = False
+    for k in range(timing.n_controls):
+        measured = states[timing.measured_step(k)]
+        ctrl = _checked_controls(policy(np.asarray(observe(measured[None]))), 1, m.nu)[0]
+        ctrl_log[k] = ctrl
+        d.ctrl[:] = ctrl
+        for j in range(k * timing.steps_per_control, (k + 1) * timing.steps_per_control):
+            if pushes is not None:
+                d.xfrc_applied[:] = 0.0
+                if pushes.start[0] <= j < pushes.stop[0]:
+                    d.xfrc_applied[pushes.body] = pushes.wrench[0]
+            if not halted and any(w.number for w in d.warning):
+                halted = True
+            if not halted:
+                mujoco.mj_step(m, d)
+            row = np.empty(nstate)
+            mujoco.mj_getState(m, d, row, FULLPHYSICS)
+            states.append(row)
+            sensors.append(d.sensordata.copy())
+    return ClosedLoopBatch(
+        physics=np.stack(states[1:])[None],
+        sensordata=np.stack(sensors).reshape(1, len(sensors), m.nsensordata),
+        ctrl=ctrl_log[None],
+        warnings=np.array([w.number for w in d.warning]),
+    )
+
+
+def check_batch_independence(policy: BatchPolicy, observations: np.ndarray) -> None:
+    """Raise `PolicyError` unless the policy gives every row the same controls alone as in the
+    batch, bit for bit: an episode's result must not depend on which batch it ran in."""
+    n = len(observations)
+    policy.reset(n)
+    together = np.asarray(policy(observations), dtype=np.float64)
+    # the shape first: a transposed (nu, n) answer is a wrong shape, not a batch dependence
+    if together.ndim != 2 or together.shape[0] != n:
+        raise PolicyError(
+            f"policy: expected controls of shape ({n}, nu), one row per episode of a batch of "
+            f"{n}, got {together.shape}"
+        )
+    for i in range(n):
+        policy.reset(1)
+        alone = _checked_controls(policy(observations[i : i + 1]), 1, together.shape[1])
+        if not np.array_equal(alone[0], together[i], equal_nan=True):
+            diff = float(np.max(np.abs(alone[0] - together[i])))
+            raise PolicyError(
+                f"policy: row {i} alone gives other controls than in a batch of {n} "
+                f"(largest difference {diff:.3g}); compute each row from that row alone "
+                "(elementwise arithmetic, not a matrix product whose summation order depends on "
+                "the batch)"
+            )
+
+
+def replay_splits(n: int) -> list[np.ndarray]:
+    """Other batches of a batch's rows 0..n-1: its rows in reverse order, in two halves of
+    different sizes (so every row sits at another position, in a batch of another size), and
+    its first row alone (the reference's batch of one). None for a batch of one row."""
+    if n < 2:
+        return []
+    backwards = np.arange(n)[::-1]
+    return [backwards[: n // 2], backwards[n // 2 :], np.array([0])]
+
+
+def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.ndarray) -> None:
+    """Raise `PolicyError` unless the policy, given the same observations from its reset on but
+    in other batches (`replay_splits`), gives every row the controls it gave in the batch, bit
+    for bit: an episode's controls, and so its result, must not depend on its batch (the
+    shard's size, the episodes beside it).
+
+    Args:
+      policy: the batch's policy (reset here; its memory is per episode from a reset on).
+      observations: (n, k, n_observations) what the policy saw at its first k instants.
+      controls: (n, k, nu) what it returned.
+    """
+    n, n_controls, nu = controls.shape
+    for rows in replay_splits(n):
+        policy.reset(len(rows))
+        for k in range(n_controls):
+            again = _checked_controls(policy(observations[rows, k].copy()), len(rows), nu)
+            given = controls[rows, k]
+            if np.array_equal(again, given):  # both finite (`_checked_controls`)
+                continue
+            bad = int(np.flatnonzero((again != given).any(axis=1))[0])
+            diff = float(np.max(np.abs(again[bad] - given[bad])))
+            raise PolicyError(
+                f"policy: episode row {rows[bad]} of a batch of {n} gets other controls at "
+                f"control instant {k} when its observations are replayed in a batch of "
+                f"{len(rows)} (largest difference {diff:.3g}): its results would depend on the "
+                "batch (rollout.shard_size); compute each row from that row's observations alone"
+            )

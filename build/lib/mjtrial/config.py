@@ -1,0 +1,637 @@
+"""Load and check the experiment's config: the schema first, then what a schema cannot say.
+
+Every problem is reported as one line naming the file, the key and what was expected, before
+any work starts, so a typo never costs a run or touches an earlier result.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import mujoco
+import numpy as np
+import yaml
+
+from mjtrial import REPO_ROOT, budget
+from mjtrial.conditions import all_conditions, model_edits, sweep_base
+from mjtrial.engine import iter_batches
+from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
+from mjtrial.physics import ModelError, load_model
+from mjtrial.provenance import git_state
+from mjtrial.provenance.model_closure import model_closure
+from mjtrial.studies.variants import nominal_model_hash, variant_model
+from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
+from mjtrial.task_checks import check_observations, run_task_code
+
+SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
+# A config is a few hundred lines; anything far larger is a mistake or an attack (a YAML
+# "billion laughs" document expands a few lines of aliases into billions of values).
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_VALUES = 100_000
+
+
+class ConfigError(ValueError):
+    """The config does not describe a runnable experiment; the message is one line."""
+
+
+# JSON Schema counts 200.0 as an integer; a count written as a float is a typo here.
+_Validator = jsonschema.validators.extend(
+    jsonschema.Draft202012Validator,
+    type_checker=jsonschema.Draft202012Validator.TYPE_CHECKER.redefine(
+        "integer", lambda _, value: isinstance(value, int) and not isinstance(value, bool)
+    ),
+)
+
+
+def _non_finite(value: Any, key: str = "") -> tuple[str, float] | None:
+    """The first NaN or infinite number in the config, with its key (JSON Schema's minimum
+    and maximum let NaN through, since every comparison with NaN is false)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return key or "(top level)", value
+    children = (
+        value.items()
+        if isinstance(value, Mapping)
+        else enumerate(value)
+        if isinstance(value, list)
+        else ()
+    )
+    for k, v in children:
+        found = _non_finite(v, f"{key}[{k}]" if isinstance(k, int) else f"{key}.{k}".lstrip("."))
+        if found:
+            return found
+    return None
+
+
+def _has_key(config: Mapping[str, Any] | None, key: str) -> bool:
+    """Whether `config` holds the dotted `key` (`states.n`, `analysis.bands.mass[0]`)."""
+    node: Any = config
+    for part in key.replace("[", ".").replace("]", "").split("."):
+        if isinstance(node, Mapping) and part in node:
+            node = node[part]
+        elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+        else:
+            return False
+    return True
+
+
+# What each schema keyword expects, in the config's words; `s` is the keyword's value.
+_EXPECTATIONS = {
+    "type": "expected {s}",
+    "minimum": "expected >= {s}",
+    "maximum": "expected <= {s}",
+    "exclusiveMinimum": "expected > {s}",
+    "exclusiveMaximum": "expected < {s}",
+    "enum": "expected one of {s}",
+    "minItems": "expected at least {s} items",
+    "maxItems": "expected at most {s} items",
+    "minLength": "expected a non-empty string",
+    "minProperties": "expected at least {s} entries",
+    "pattern": "expected a name matching {s}",
+}
+
+
+def _key(error: jsonschema.ValidationError, child: Any = None) -> str:
+    """The key an error is about, from jsonschema's path (`$.states.ranges.mass[0]` ->
+    `states.ranges.mass[0]`), optionally one level further down, at `child`."""
+    key = error.json_path.removeprefix("$").removeprefix(".")
+    if child is not None:
+        key = f"{key}.{child}" if key else str(child)
+    return key or "(top level)"
+
+
+def _schema_message(error: jsonschema.ValidationError) -> str:
+    """`key: expectation` for one schema error, naming the offending key itself."""
+    keyword, value, got = error.validator, error.validator_value, error.instance
+    if keyword == "additionalProperties":
+        allowed = sorted(error.schema.get("properties", {}))
+        unknown = min(set(got) - set(allowed), key=str)
+        hint = f"one of {allowed}" if allowed else "no other keys"
+        return f"{_key(error, unknown)}: unknown key; expected {hint}"
+    if keyword == "required":
+        missing = next(k for k in value if k not in got)
+        return f"{_key(error, missing)}: missing; this key is required"
+    template = _EXPECTATIONS.get(keyword)
+    expectation = template.format(s=value) if template else error.message
+    return f"{_key(error)}: {expectation}, got {got!r}"
+
+
+def _duplicate_key(node: yaml.Node, path: tuple[str, ...] = ()) -> tuple[str, int] | None:
+    """The first key that appears twice in one mapping, with its line; YAML loaders keep the
+    last silently, so a duplicated condition would quietly replace the first."""
+    if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
+        for key, value in node.value:
+            name = str(key.value)
+            if name in seen:
+                return ".".join((*path, name)), key.start_mark.line + 1
+            seen.add(name)
+            found = _duplicate_key(value, (*path, name))
+            if found:
+                return found
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            found = _duplicate_key(item, (*path[:-1], f"{path[-1]}[{i}]") if path else (f"[{i}]",))
+            if found:
+                return found
+    return None
+
+
+def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
+    """How many values `node` holds once its aliases are expanded, counted once per node
+    (aliases share nodes, so this is linear in the document, not in its expansion)."""
+    key = id(node)
+    if key not in sizes:
+        sizes[key] = 0  # a recursive alias counts as nothing more
+        if isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        elif isinstance(node, yaml.SequenceNode):
+            children = node.value
+        else:
+            children = []
+        sizes[key] = 1 + sum(_expanded_size(c, sizes) for c in children)
+    return sizes[key]
+
+
+def parse_config_text(text: str, *, source: str) -> dict[str, Any]:
+    """Parse YAML config text strictly: no duplicate keys, no alias bombs; no schema check."""
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ConfigError(f"{source}: not valid YAML{where}: {problem}") from None
+    if node is not None and _expanded_size(node, {}) > MAX_CONFIG_VALUES:
+        raise ConfigError(
+            f"{source}: expands to more than {MAX_CONFIG_VALUES} values through YAML aliases; "
+            "expected a plain config"
+        )
+    config = yaml.safe_load(text)
+    duplicate = _duplicate_key(node) if node is not None else None
+    if duplicate:
+        key, line = duplicate
+        raise ConfigError(f"{source}: {key}: duplicate key (line {line}); expected each key once")
+    if not isinstance(config, dict):
+        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
+    return config
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """Read and parse a YAML config file strictly (see `parse_config_text`)."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(
+                f"{path}: {size} bytes; expected a config file of at most {MAX_CONFIG_BYTES}"
+            )
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[: err.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte 0x{data[err.start]:02x} on line {line}); "
+            "expected a UTF-8 YAML file"
+        ) from None
+    return parse_config_text(text, source=str(path))
+
+
+def parse_config_args(args: list[str] | None) -> dict[str, Any]:
+    """The `--config key=value` arguments, each value read as YAML (skipped if it is not).
+
+    Snakemake reads a nested value such as `states={n: 50}` with YAML's base loader, which
+    leaves every scalar a string (`'50'`); reading it as YAML gives what the user typed.
+    """
+    parsed: dict[str, Any] = {}
+    for arg in args or []:
+        key, sep, value = arg.partition("=")
+        if not sep:
+            raise ConfigError(f"--config {arg}: expected key=value")
+        try:
+            node = yaml.compose(value, Loader=yaml.SafeLoader)
+        except yaml.YAMLError:
+            continue  # not YAML: Snakemake's own reading of it stands
+        if node is not None and _expanded_size(node, {}) > MAX_CONFIG_VALUES:
+            raise ConfigError(f"--config {key}: expands to more than {MAX_CONFIG_VALUES} values")
+        parsed[key] = yaml.safe_load(value)
+    return parsed
+
+
+def merge_config(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """`base` with `override`'s values on top, recursively (how Snakemake merges configs)."""
+    merged = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = merge_config(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def run_configuration(
+    configfiles: list[str | Path],
+    config_args: list[str] | None,
+    given: Mapping[str, Any],
+    *,
+    default: str | Path = CONFIG_FILE,
+) -> tuple[Path, dict[str, Any], dict[str, Any]]:
+    """A run's configuration: its file, the values given on top of it, and the two merged.
+
+    A `--configfile` that names an `experiment` is a whole experiment (say,
+    config/cartpole_latency.yaml): it is the run's file, in place of config/config.yaml (the
+    last one, if several do); merged on top of the default, two experiments' conditions and
+    ranges would mix. Other `--configfile` files, then the `--config` values, go on top of it,
+    as Snakemake merges them. `given` is Snakemake's config (its reading of `--config`).
+    """
+    files = [Path(f) for f in configfiles]
+    whole = [f for f in files if "experiment" in read_config_file(f)]
+    base = whole[-1] if whole else Path(default)
+    command_line: dict[str, Any] = {}
+    for f in files:
+        if f not in whole:
+            command_line = merge_config(command_line, read_config_file(f))
+    keys = [arg.partition("=")[0] for arg in config_args or []]
+    command_line = merge_config(command_line, {k: given[k] for k in keys if k in given})
+    command_line = merge_config(command_line, parse_config_args(config_args))
+    return base, command_line, merge_config(read_config_file(base), command_line)
+
+
+def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:
+    """Checks on the run's surroundings, before any work: warnings to print, or a refusal.
+
+    Refuses (`ConfigError`) a results folder that another experiment wrote, and a dirty
+    repository when `provenance.require_clean` is set; a dirty repository otherwise gives one
+    warning, since every output will be stamped dirty.
+    """
+    layout = Layout.of(config["experiment"])
+    manifest = repo_root / layout.manifest
+    if manifest.is_file():
+        try:
+            recorded = json.loads(manifest.read_text())["experiment"]
+        except (ValueError, TypeError, KeyError, UnicodeDecodeError) as err:
+            raise ConfigError(
+                f"{layout.manifest}: corrupt ({type(err).__name__}: not the manifest this "
+                "pipeline writes); expected a manifest.json naming its experiment: delete it to "
+                "rebuild it"
+            ) from None
+        if recorded != config["experiment"]:
+            raise ConfigError(
+                f"{layout.root}/: written by experiment {recorded!r} (manifest.json); expected "
+                f"{config['experiment']!r}: choose another experiment name or move the folder"
+            )
+    git = git_state(repo_root)
+    if git.get("available") and git.get("dirty"):
+        if config["provenance"]["require_clean"]:
+            raise ConfigError(
+                "provenance.require_clean is true and the repository has uncommitted changes; "
+                "expected a clean tree (commit or stash them)"
+            )
+        return [
+            "Warning: the repository has uncommitted changes: every output will be stamped "
+            f"dirty: true with the diff's hash {git['diff_sha256'][:12]}"
+        ]
+    return []
+
+
+def load_config(path: str | Path = DEFAULT_CONFIG) -> dict[str, Any]:
+    """Read a YAML config file and check it (see `check_config`)."""
+    config = read_config_file(path)
+    check_config(config, source=str(path))
+    return config
+
+
+def _check_task_model(
+    config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
+) -> None:
+    """The task's model is the config's (when the config names an existing file)."""
+    if not isinstance(config.get("model"), str):
+        return
+    model_file = (repo_root / config["model"]).resolve()
+    if not model_file.is_relative_to(repo_root.resolve()):
+        return  # refused as outside the repository, below
+    if model_file.is_file() and Path(task.model).resolve() != model_file:
+        shown = os.path.relpath(Path(task.model).resolve(), repo_root.resolve())
+        fail("task", f"its model is {shown}; expected the config's model {config['model']}")
+
+
+def _check_privileged(
+    config: Mapping[str, Any], task: Task, *, fail: Callable[[str, str], None]
+) -> None:
+    """The course's cheap test of a policy: every observation it reads has a real-world source,
+    or is allowed, with a reason, in `privileged_observations`; an allowance is for a
+    privileged observation the policy reads."""
+    allowed = config.get("privileged_observations") or {}
+    try:
+        used = check_observations(task, allowed)
+    except TaskError as err:
+        fail("task", str(err))
+    for name in allowed:
+        if name not in used:
+            fail(
+                f"privileged_observations.{name}",
+                f"not a privileged observation the policy reads; expected one of {sorted(used)}"
+                if used
+                else "the policy reads no privileged observation; expected no allowance",
+            )
+
+
+def _check_task_states(
+    config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
+) -> None:
+    """`states.ranges` gives a range to each of the task's state parameters (a body's mass a
+    positive one) and to nothing else."""
+    names = [p.name for p in task.state_parameters]
+    ranges = config["states"]["ranges"]
+    for name in names:
+        if name not in ranges:
+            fail(f"states.ranges.{name}", f"missing; expected a range for each of {names}")
+    for name in ranges:
+        if name not in names:
+            fail(f"states.ranges.{name}", f"not a state parameter of the task; expected {names}")
+    for p in task.state_parameters:
+        low = ranges[p.name][0]
+        if isinstance(p.apply, BodyMass) and not low > 0:
+            fail(f"states.ranges.{p.name}[0]", f"expected > 0, got {low}")
+
+
+def check_config(
+    config: Mapping[str, Any],
+    *,
+    source: str = "config/config.yaml",
+    repo_root: Path = REPO_ROOT,
+    overrides: Mapping[str, Any] | None = None,
+) -> None:
+    """Raise `ConfigError` (one line: file, key, expectation) unless the config is runnable.
+
+    `overrides` are the values given on the command line (`--config`, `--configfile`): an
+    error about one of them names the command line rather than `source`.
+    """
+    if not isinstance(config, Mapping):
+        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
+
+    def fail(key: str, expectation: str) -> None:
+        where = "--config" if _has_key(overrides, key) else source
+        raise ConfigError(f"{where}: {key}: {expectation}")
+
+    bad = _non_finite(dict(config))
+    if bad:
+        fail(bad[0], f"expected a finite number, got {bad[1]}")
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    task = None
+    if isinstance(config.get("task"), str) and config["task"]:
+        # the task declares what conditions, the taxonomy, a sweep and the bands may hold
+        try:
+            task = load_task(config["task"], repo_root=Path(repo_root))
+        except TaskError as err:
+            fail("task", str(err))
+        _check_task_model(config, task, repo_root=Path(repo_root), fail=fail)
+        schema = task.config_schema(schema)
+    error = jsonschema.exceptions.best_match(_Validator(schema).iter_errors(dict(config)))
+    if error is not None:
+        key, _, expectation = _schema_message(error).partition(": ")
+        fail(key, expectation)
+
+    conditions = config["conditions"]
+    falsifier = config["design"]["falsifier"]
+    for role in ("treatment", "baseline"):
+        if falsifier[role] not in conditions:
+            fail(
+                f"design.falsifier.{role}",
+                f"expected one of the conditions {sorted(conditions)}, got {falsifier[role]!r}",
+            )
+    if falsifier["treatment"] == falsifier["baseline"]:
+        fail("design.falsifier.baseline", "expected a condition other than the treatment")
+    _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
+    _check_privileged(config, task, fail=fail)
+    for name, (low, high) in config["states"]["ranges"].items():
+        if not low < high:
+            fail(
+                f"states.ranges.{name}", f"expected [low, high] with low < high, got {[low, high]}"
+            )
+    if config["states"]["development_seed"] == config["states"]["seed"]:
+        fail(
+            "states.development_seed",
+            "expected a seed other than states.seed (development and evaluation states must be "
+            "disjoint)",
+        )
+    for name, edges in config["analysis"]["bands"].items():
+        key = f"analysis.bands.{name}"
+        if any(high <= low for low, high in zip(edges[:-1], edges[1:], strict=True)):
+            fail(key, f"expected strictly increasing edges, got {edges}")
+        parameter = name.removeprefix("abs_")
+        low, high = config["states"]["ranges"][parameter]
+        if name.startswith("abs_"):
+            low, high = 0.0, max(abs(low), abs(high))
+        if edges[0] > low or edges[-1] < high:
+            fail(key, f"expected edges covering the range of {name} [{low}, {high}], got {edges}")
+    if config["analysis"]["first_k"] > config["states"]["n"]:
+        fail("analysis.first_k", f"expected at most states.n ({config['states']['n']})")
+    too_many = budget.job_count_problem(config, len(all_conditions(config)))
+    if too_many:
+        fail(*too_many)
+    model_file = (repo_root / config["model"]).resolve()
+    if not model_file.is_relative_to(Path(repo_root).resolve()):
+        fail(
+            "model",
+            f"expected a file inside the repository, got {config['model']!r} (copy it under "
+            "models/, so that stamps record it and mjtrial verify can check it)",
+        )
+    if not model_file.is_file():
+        fail("model", f"expected an existing model file, got {config['model']!r} (not found)")
+    try:
+        model = load_model(model_file)
+    except ModelError as err:
+        fail("model", str(err).replace(str(model_file), config["model"]))
+    try:
+        bound = BoundTask.of(task, model)
+    except ModelCheckError as err:
+        fail("model", f"{config['model']}: {err.problem}")
+    except TaskError as err:
+        fail("task", str(err))
+    root = Path(repo_root).resolve()
+    for path in model_closure(model_file)[1:]:
+        if not path.is_relative_to(root):
+            fail(
+                "model",
+                f"{config['model']} loads {os.path.relpath(path, root)}, outside the repository; "
+                "expected every file it includes or names (meshes, textures) inside it, so that "
+                "stamps record them and mjtrial verify can check them",
+            )
+    rate_hz = float(config["recording"]["rate_hz"])
+    groups = _conditions_by_model(all_conditions(config), bound, model_file, fail)
+    try:
+        problems = [
+            problem
+            for on_model, conditions in groups
+            for problem in budget.episode_problems(
+                conditions, on_model, timestep_key="model", rate_hz=rate_hz
+            )
+        ]
+    except TaskError as err:
+        fail("task", str(err))
+    for key, expectation in problems:
+        fail(key, f"{config['model']}: {expectation}" if key == "model" else expectation)
+    # The task's own code on every condition's nominal episode: a bad shape, an exception, a
+    # non-finite control or a parameter never applied is one line here, before any rollout.
+    taxonomy = config["failure_taxonomy"]
+    given = {t.name: float(taxonomy.get(t.name, t.default)) for t in task.thresholds}
+    printer = mujoco.get_mju_user_warning()  # an unstable model is said below, in one line
+    mujoco.set_mju_user_warning(lambda _: None)
+    try:
+        for on_model, conditions in groups:
+            run_task_code(
+                on_model,
+                conditions,
+                thresholds=given,
+                allowed_privileged=config.get("privileged_observations") or {},
+            )
+    except TaskError as err:
+        fail("task", str(err))
+    finally:
+        mujoco.set_mju_user_warning(printer)
+    for on_model, conditions in groups:
+        designed = {n: c for n, c in conditions.items() if n in config["conditions"]}
+        unstable = _unstable(on_model, designed, config["failure_taxonomy"])
+        if unstable:
+            fail("model", f"{config['model']}: {unstable}")
+    _check_studies(config, schema, model_file, task, fail)
+
+
+def _conditions_by_model(
+    conditions: Mapping[str, Mapping[str, Any]],
+    bound: BoundTask,
+    model_file: Path,
+    fail: Callable[[str, str], None],
+) -> list[tuple[BoundTask, dict[str, Mapping[str, Any]]]]:
+    """The conditions with the model each runs on: those without edits on the committed model
+    (`bound`), each with `model` edits on its own edited model, the edits checked against the
+    model (one line naming the key: an unknown element or attribute, a wrong value)."""
+    plain = {n: c for n, c in conditions.items() if not model_edits(c)}
+    groups = [(bound, plain)] if plain else []
+    for name, condition in conditions.items():
+        if not model_edits(condition):
+            continue
+        key = f"conditions.{name}.model"
+        try:
+            model, _ = variant_model(
+                model_file, {}, key_prefix=key, then=[(model_edits(condition), key)]
+            )
+        except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
+            named, _, expectation = str(err).partition(": ")
+            fail(*((named, expectation) if named.startswith(key) else (key, str(err))))
+        try:
+            groups.append((BoundTask.of(bound.task, model), {name: condition}))
+        except TaskError as err:
+            fail(key, str(err))
+    return groups
+
+
+def _check_studies(
+    config: Mapping[str, Any],
+    schema: Mapping[str, Any],
+    model_file: Path,
+    task: Task,
+    fail: Callable[[str, str], None],
+) -> None:
+    """Variants that apply to the model and keep the protocol's step; a sweep whose conditions
+    are valid ones. An unstable variant is not refused: its verdict is `invalid`. A variant
+    named as the committed model, one that changes nothing, and two that make the same model
+    are refused: each would be counted in "survives N of M" without testing anything new."""
+    variants = config.get("variants") or {}
+    seen = {nominal_model_hash(model_file): NOMINAL} if variants else {}
+    for name, overrides in variants.items():
+        key = f"variants.{name}"
+        if name == NOMINAL:
+            fail(key, f"{NOMINAL!r} is reserved for the model as committed; expected another name")
+        try:
+            model, sha256 = variant_model(model_file, overrides, key_prefix=key)
+        except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
+            named, _, expectation = str(err).partition(": ")
+            if named.startswith(key):
+                fail(named, expectation)
+            fail(key, str(err))
+        if seen.get(sha256) == NOMINAL:
+            fail(key, "changes nothing: the edited model is the committed one; expected an edit")
+        if sha256 in seen:
+            fail(key, f"the same model as variants.{seen[sha256]}; expected each variant once")
+        seen[sha256] = name
+        try:
+            bound = BoundTask.of(task, model)
+        except ModelCheckError as err:
+            fail(key, err.problem)
+        except TaskError as err:
+            fail(key, str(err))
+        for problem in budget.episode_problems(
+            config["conditions"],
+            bound,
+            timestep_key=f"{key}.option.timestep",
+            rate_hz=float(config["recording"]["rate_hz"]),
+        ):
+            fail(*problem)
+    if "sweep" not in config:
+        return
+    sweep = config["sweep"]
+    base = sweep_base(config)
+    if base not in config["conditions"]:
+        fail("sweep.base", f"expected one of the conditions {sorted(config['conditions'])}")
+    # The condition's schema with the definitions it refers to ($defs/hold).
+    condition_schema = {
+        **schema["properties"]["conditions"]["additionalProperties"],
+        "$defs": schema["$defs"],
+    }
+    for i, value in enumerate(sweep["values"]):
+        condition = {**config["conditions"][base], sweep["parameter"]: value}
+        error = jsonschema.exceptions.best_match(
+            _Validator(condition_schema).iter_errors(condition)
+        )
+        if error is not None:
+            fail(f"sweep.values[{i}]", _schema_message(error).partition(": ")[2])
+    if "reference" in sweep and sweep["reference"] not in sweep["values"]:
+        fail("sweep.reference", f"expected one of sweep.values, got {sweep['reference']}")
+    reference = sweep.get("reference", max(sweep["values"]))
+    if "toward" not in sweep and min(sweep["values"]) < reference < max(sweep["values"]):
+        fail(
+            "sweep.toward",
+            f"expected smaller or larger: the reference {reference:g} lies inside the sweep, "
+            "so which way values cost must be said",
+        )
+
+
+def _unstable(
+    bound: BoundTask,
+    conditions: Mapping[str, Mapping[str, Any]],
+    thresholds: Mapping[str, float],
+) -> str | None:
+    """Why the model cannot run the task, or None: it runs the nominal episode (each state
+    parameter at its nominal value) under every condition."""
+    task = bound.task
+    nominal = {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
+    given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
+    for name, condition in conditions.items():
+        # MuJoCo prints each warning; the one line below says it instead.
+        printer = mujoco.get_mju_user_warning()
+        mujoco.set_mju_user_warning(lambda _: None)
+        try:
+            batch = next(iter_batches(bound, nominal, condition, thresholds=given, nthread=0))
+        finally:
+            mujoco.set_mju_user_warning(printer)
+        outcome = batch.outcome
+        if outcome["nonfinite"][0] or outcome["warning"][0]:
+            what = outcome["warning"][0] or "a non-finite state"
+            return (
+                f"unstable: the nominal episode under condition {name!r} stops at step "
+                f"{outcome['steps_simulated'][0]} with {what}; expected a model that runs it "
+                "without a MuJoCo warning"
+            )
+    return None

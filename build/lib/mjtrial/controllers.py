@@ -1,0 +1,104 @@
+"""Controllers a task can use: LQR gains from MuJoCo's own linearization, and a linear feedback
+policy on encoder readings with velocities by finite differences.
+
+The gains come from `mujoco.mjd_transitionFD` (the discrete-time transition Jacobians of the
+model at an operating point) and scipy's discrete algebraic Riccati solver, so the controller is
+designed on exactly the dynamics the experiment simulates, integrator and timestep included.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import scipy.linalg
+
+
+def lqr_gain(
+    model: mujoco.MjModel,
+    *,
+    q: np.ndarray,
+    r: np.ndarray,
+    steps_per_control: int = 1,
+    qpos: np.ndarray | None = None,
+    eps: float = 1e-6,
+) -> np.ndarray:
+    """The discrete LQR gain K (u = -K x, x = [qpos, qvel]) about an operating point.
+
+    The model is linearized over one physics step (A, B from `mjd_transitionFD`, centred
+    differences), then held over `steps_per_control` steps (A^s, sum of A^i B): a zero-order
+    hold at the control rate, as the engine applies controls.
+
+    Args:
+      model: the nominal model (it must have no activations: x is [qpos, qvel]).
+      q: (2 nv, 2 nv) state cost; r: (nu, nu) control cost.
+      steps_per_control: physics steps per control period.
+      qpos: the operating point's positions (default: the model's qpos0), at rest, zero control.
+    Returns:
+      (nu, 2 nv) gain matrix.
+    """
+    if model.na:
+        raise ValueError("lqr_gain: models with actuator activations are not supported")
+    data = mujoco.MjData(model)
+    if qpos is not None:
+        data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    nx = 2 * model.nv
+    a = np.zeros((nx, nx))
+    b = np.zeros((nx, model.nu))
+    mujoco.mjd_transitionFD(model, data, eps, True, a, b, None, None)
+    a_hold, b_hold = np.eye(nx), np.zeros_like(b)
+    for _ in range(steps_per_control):
+        a_hold, b_hold = a @ a_hold, a @ b_hold + b
+    p = scipy.linalg.solve_discrete_are(a_hold, b_hold, q, r)
+    return np.linalg.solve(r + b_hold.T @ p @ b_hold, b_hold.T @ p @ a_hold)
+
+
+class EncoderFeedback:
+    """u = -K [y, (y - y_prev) / period], clipped to the actuators' range: linear feedback on
+    encoder readings y, velocities by finite differences between control instants (zero at the
+    first instant).
+
+    Each row is computed from that row alone with elementwise arithmetic in a fixed order, so an
+    episode's controls do not depend on its batch (a matrix product's summation order may).
+    """
+
+    def __init__(self, gain: np.ndarray, *, period: float, ctrl_range: np.ndarray) -> None:
+        self.gain = np.asarray(gain, dtype=np.float64)  # (nu, 2 ny)
+        self.period = float(period)
+        self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T
+        self._previous: np.ndarray | None = None
+
+    def reset(self, n_episodes: int) -> None:
+        self._previous = None
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        y = np.asarray(observations, dtype=np.float64)
+        previous = y if self._previous is None else self._previous
+        self._previous = y.copy()
+        velocity = (y - previous) / self.period
+        state = np.concatenate([y, velocity], axis=1)
+        u = np.zeros((len(y), len(self.gain)))
+        for j in range(state.shape[1]):  # fixed order: the same sum for any batch
+            u -= self.gain[:, j][None, :] * state[:, j][:, None]
+        return np.clip(u, self.low, self.high)
+
+
+class StateFeedback:
+    """u = -K y on observations y read as they are (no memory), clipped to the actuators'
+    range: the textbook state feedback, which needs the velocities observed directly, and so
+    a privileged observation unless a sensor measures them. Elementwise, in a fixed order, like
+    `EncoderFeedback`, so an episode's controls do not depend on its batch."""
+
+    def __init__(self, gain: np.ndarray, *, ctrl_range: np.ndarray) -> None:
+        self.gain = np.asarray(gain, dtype=np.float64)  # (nu, ny)
+        self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T
+
+    def reset(self, n_episodes: int) -> None:
+        pass
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        y = np.asarray(observations, dtype=np.float64)
+        u = np.zeros((len(y), len(self.gain)))
+        for j in range(y.shape[1]):
+            u -= self.gain[:, j][None, :] * y[:, j][:, None]
+        return np.clip(u, self.low, self.high)

@@ -1,0 +1,239 @@
+"""A task's episodes, in batches: models and initial states from the states' values, the physics
+by `mujoco.rollout` (open loop) or the lockstep closed-loop engine, then success, the task's
+measures and one failure category per failed episode.
+
+Every episode starts from its own full state with a zero warm start, so its physics never
+depends on the batch it ran in or the number of threads. An open-loop task's controls are
+computed once per condition, before any batch, so they cannot depend on it either; a
+closed-loop policy could, and every batch checks it (`closed_loop.check_replayed`). The task's
+measure, success and pushes read a whole batch too: verify re-simulates its sample each
+episode alone, so one that depends on the batch is not confirmed.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from mjtrial import closed_loop
+from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
+from mjtrial.task import (
+    UNHEALTHY,
+    BoundTask,
+    ClosedLoop,
+    Episodes,
+    OpenLoop,
+    TaskError,
+    call,
+    expect_rows,
+)
+
+# Episodes per batch in the pipeline. Each episode of a batch holds its own model copy and
+# trajectories until the batch is classified and handed to the recording writer: 16 keep a
+# rollout job's working memory near 20-30 MB (64 took about 85 MB), and the per-call cost is
+# still small beside 16 episodes' stepping.
+BATCH_SIZE = 16
+UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
+
+
+@dataclass(frozen=True)
+class Batch:
+    """A batch of finished episodes: their state values, trajectories and outcome columns."""
+
+    values: dict[str, np.ndarray]  # state column -> (n,)
+    episodes: Episodes
+    outcome: dict[str, np.ndarray]  # success, failure_category and the task's measures
+
+
+def warning_names(counters: np.ndarray) -> str:
+    """MuJoCo warnings that fired, by name (e.g. "mjWARN_BADQACC"), comma-separated."""
+    return ",".join(mujoco.mjtWarning(i).name for i, n in enumerate(counters) if n)
+
+
+def open_loop_warnings(model: mujoco.MjModel, initial: np.ndarray, ctrl: np.ndarray) -> str:
+    """The warnings that stop an open-loop episode, from a plain `mj_step` run of it that ends
+    at the first one (as `mujoco.rollout` does): rollout reports only the frozen state."""
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, initial, FULLPHYSICS)
+    for row in ctrl:
+        if any(w.number for w in data.warning):
+            break
+        data.ctrl[:] = row
+        mujoco.mj_step(model, data)
+    return warning_names(np.array([w.number for w in data.warning]))
+
+
+def classify(bound: BoundTask, success: np.ndarray, healthy_rows: np.ndarray, measures, thresholds):
+    """Each failed episode's category (None for a success): unhealthy first, then the task's
+    categories in order, the first that applies; `UNCLASSIFIED` when none does."""
+    category = np.full(success.shape, None, dtype=object)
+    task = bound.task
+    tests = [
+        (
+            c.name,
+            np.asarray(call(task, f"failure category {c.name!r}", c.test, measures, thresholds)),
+        )
+        for c in task.failure_categories
+    ]
+    for i in np.flatnonzero(~success):
+        if not healthy_rows[i]:
+            category[i] = UNHEALTHY
+            continue
+        category[i] = next((name for name, hit in tests if hit[i]), UNCLASSIFIED)
+    return category
+
+
+def episode_steps(bound: BoundTask, condition: Mapping[str, float]) -> int:
+    """Physics steps of an episode under a condition."""
+    task, model = bound.task, bound.model
+    params = task.parameters(condition)
+    controller = task.controller
+    if isinstance(controller, OpenLoop):
+        if controller.n_steps is not None:
+            return int(call(task, "n_steps", controller.n_steps, model, params))
+        return len(call(task, "controls", controller.controls, model, params))
+    return call(task, "timing", controller.timing, model, params).n_steps
+
+
+# A batch's episodes with model parameters each run on a copy of the model (one per batch slot,
+# reused batch after batch where the task's parameters allow: `BoundTask.reuses_models`),
+# textures included: dm_control's reacher is 11.8 MB with its skybox, so it gets 8 slots.
+# Outcomes never depend on the batch, so this changes memory and speed, not results.
+MODEL_COPIES_BYTES = 96 * 2**20
+
+
+def iter_batches(
+    bound: BoundTask,
+    values: Mapping[str, np.ndarray],
+    condition: Mapping[str, float],
+    *,
+    thresholds: Mapping[str, float],
+    nthread: int = 0,
+    batch_size: int = BATCH_SIZE,
+) -> Iterator[Batch]:
+    """Run the episodes whose state values are the columns `values`, `batch_size` at a time.
+
+    Args:
+      bound: the task, its model loaded.
+      values: state column -> (n,) values (the states table without `state_id`, or with it).
+      condition: the condition's protocol parameters (defaults are filled in).
+      thresholds: the failure categories' thresholds by name.
+      nthread: rollout threads (0: the calling thread).
+      batch_size: episodes per batch (memory is bounded by it).
+    """
+    task, model = bound.task, bound.model
+    if any(p.apply.stage == "model" for p in task.state_parameters):
+        # each batch slot holds a copy of the model, textures and all
+        batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
+    params = task.parameters(condition)
+    n = len(next(iter(values.values())))
+    scratch = mujoco.MjData(model)
+    controller = task.controller
+    if isinstance(controller, OpenLoop):
+        ctrl = np.asarray(
+            call(task, "controls", controller.controls, model, params), dtype=np.float64
+        )
+    else:
+        assert isinstance(controller, ClosedLoop)
+        timing = call(task, "timing", controller.timing, model, params)
+        policy = call(task, "policy", controller.policy, model, params)
+    episode_values = [p.name for p in task.state_parameters]
+    datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
+    # one copy of the model per batch slot, reused batch after batch where it can be
+    slots = [copy.copy(model) for _ in range(min(batch_size, n))] if bound.reuses_models else []
+    with rollout.Rollout(nthread=nthread) as runner:
+        for start in range(0, n, batch_size):
+            rows = {k: np.asarray(v[start : start + batch_size]) for k, v in values.items()}
+            size = len(next(iter(rows.values())))
+            models, initial = [], []
+            for i in range(size):
+                m, s = bound.episode(
+                    {k: float(v[i]) for k, v in rows.items()},
+                    scratch=scratch,
+                    model=slots[i] if slots else None,
+                )
+                models.append(m)
+                initial.append(s)
+            initial_states = np.stack(initial)
+            if isinstance(controller, OpenLoop):
+                physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
+                applied = np.broadcast_to(ctrl, (size, *ctrl.shape))
+            else:
+                pushes = (
+                    call(task, "pushes", controller.pushes, model, rows)
+                    if controller.pushes
+                    else None
+                )
+                observe = bound.observer(
+                    controller.observations, {p: rows[p] for p in episode_values}
+                )
+                try:
+                    result = closed_loop.run_batch(
+                        models,
+                        initial_states,
+                        policy,
+                        observe,
+                        timing,
+                        runner=runner,
+                        datas=datas,
+                        pushes=pushes,
+                    )
+                except closed_loop.PolicyError as err:
+                    raise TaskError(f"{task.source or task.name}: {err}") from None
+                physics, sensordata = result.physics, result.sensordata
+                applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
+            stopped, broken = halted(physics), nonfinite(physics)
+            ok = ~stopped & ~broken
+            episodes = Episodes(
+                model,
+                params,
+                physics,
+                sensordata,
+                ok,
+                applied,
+                {p: rows[p] for p in episode_values},
+            )
+            measures = dict(call(task, "measure", task.measure, episodes))
+            missing = [m.name for m in task.own_measures if m.name not in measures]
+            if missing:
+                raise TaskError(
+                    f"{task.source or task.name}: measure: expected a value for {missing[0]!r}"
+                )
+            for m in task.own_measures:
+                expect_rows(task, f"measure[{m.name!r}]", measures[m.name], size)
+            success = call(task, "success", task.success, episodes)
+            expect_rows(task, "success", success, size, dtype=bool)
+            success = np.asarray(success, dtype=bool) & ok
+            warning = np.full(size, "", dtype=object)
+            for i in np.flatnonzero(~ok):
+                if isinstance(controller, OpenLoop):
+                    warning[i] = open_loop_warnings(models[i], initial_states[i], ctrl)
+                else:
+                    warning[i] = warning_names(
+                        closed_loop.reference_episode(
+                            models[i],
+                            initial_states[i],
+                            policy,
+                            bound.observer(
+                                controller.observations,
+                                {p: rows[p][i : i + 1] for p in episode_values},
+                            ),
+                            timing,
+                            pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
+                        ).warnings
+                    )
+            outcome = {
+                "success": success,
+                # copies: a view would keep the batch's trajectories alive with the table's columns
+                **{m.name: np.array(measures[m.name], dtype=np.float64) for m in task.own_measures},
+                "steps_simulated": steps_simulated(physics),
+                "nonfinite": broken,
+                "warning": warning,
+                "failure_category": classify(bound, success, ok, measures, thresholds),
+            }
+            yield Batch(rows, episodes, outcome)

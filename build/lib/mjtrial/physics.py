@@ -1,0 +1,107 @@
+"""MuJoCo's physics-state layout, a model's loading, and what a healthy episode is: the few
+facts about a simulation that hold for every task.
+
+An episode's trajectory is its `mjSTATE_FULLPHYSICS` vector at every physics step (time, qpos,
+qvel, act, ...), shape `(n_steps, nstate)`; a batch stacks episodes in front.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+# Layout of an mjSTATE_FULLPHYSICS vector: time, qpos, qvel, act, ...
+FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
+STATE_TIME = 0
+STATE_QPOS = 1
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used: missing, not compiling, or lacking what a task reads."""
+
+
+def _one_line(err: Exception) -> str:
+    """MuJoCo's message on one line (an XML error names its line on the second), quotes and the
+    working folder dropped, so an error names a file as the user wrote it."""
+    text = str(err).replace("'", "").replace(str(Path.cwd().resolve()) + "/", "")
+    return " ".join(text.split()) or "compile error"
+
+
+def load_spec(path: str | os.PathLike[str]) -> mujoco.MjSpec:
+    """A model file's `MjSpec`, read from its absolute path; one line (`ModelError`) naming the
+    file when it cannot be.
+
+    Every model is read from its absolute path, in every stage: MuJoCo 3.14 resolves an include
+    nested in an included file against the working folder when the main file's path is relative
+    (`scene.xml` including `kinova/arm.xml` including `common.xml` looks for
+    `kinova/kinova/common.xml`), so a relative path can fail where an absolute one compiles.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: model file not found")
+    try:
+        return mujoco.MjSpec.from_file(str(path.resolve()))
+    except ValueError as err:
+        raise ModelError(f"{path}: MuJoCo could not read the model: {_one_line(err)}") from None
+
+
+def load_model(path: str | os.PathLike[str]) -> mujoco.MjModel:
+    """Compile a model file, from its absolute path (`load_spec` says why); one line
+    (`ModelError`) naming the file when it cannot be."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: model file not found")
+    try:
+        return mujoco.MjModel.from_xml_path(str(path.resolve()))
+    except ValueError as err:
+        raise ModelError(f"{path}: MuJoCo could not compile the model: {_one_line(err)}") from None
+
+
+def compiled_sha256(model: mujoco.MjModel) -> str:
+    """The sha256 of a compiled model: its MJB bytes (`mj_saveModel`) with the asset files'
+    paths blanked. A function of the model's files and edits alone (and of MuJoCo's version),
+    the same in every process and folder.
+
+    `MjSpec.to_xml()` is not: in MuJoCo 3.14 the first call in a process writes
+    `content_type="model/stl"` on meshes and later calls do not. The MJB keeps, for an asset
+    named in an included file, its absolute path (`model.paths`); the asset's content is in the
+    MJB itself (vertices, texels), so the path adds nothing but the folder the files lie in.
+    """
+    buffer = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    mjb = buffer.tobytes()
+    paths = bytes(model.paths)
+    if paths.strip(b"\0"):
+        mjb = mjb.replace(paths, b"\0" * len(paths))
+    return hashlib.sha256(mjb).hexdigest()
+
+
+def halted(physics: np.ndarray) -> np.ndarray:
+    """Where an episode stopped early, from its physics states `(..., n_steps, nstate)`.
+
+    `mujoco.rollout` stops stepping at a MuJoCo warning and repeats the last state (a bad
+    acceleration resets it first), so time is not a step counter: a repeated time is the halt.
+    Returns `(...)` booleans.
+    """
+    return (np.diff(physics[..., STATE_TIME], axis=-1) == 0).any(axis=-1)
+
+
+def steps_simulated(physics: np.ndarray) -> np.ndarray:
+    """Steps an episode ran before it halted (all of them if it did not), shape `(...)`."""
+    frozen = np.diff(physics[..., STATE_TIME], axis=-1) == 0
+    n_steps = physics.shape[-2]
+    return np.where(frozen.any(axis=-1), frozen.argmax(axis=-1) + 1, n_steps).astype(np.int64)
+
+
+def nonfinite(physics: np.ndarray) -> np.ndarray:
+    """Where an episode's state went NaN or infinite at any step, shape `(...)`."""
+    return ~np.isfinite(physics).all(axis=(-2, -1))
+
+
+def healthy(physics: np.ndarray) -> np.ndarray:
+    """An episode is healthy when it ran to the end with a finite state: `(...)` booleans."""
+    return ~halted(physics) & ~nonfinite(physics)

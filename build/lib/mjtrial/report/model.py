@@ -1,0 +1,192 @@
+"""What the report says of a compiled model: only what is true of any model.
+
+Actuator limits in the units of what they drive, the geom pairs MuJoCo's collision filter lets
+through (none when contacts are disabled), and the joints' damping, armature and frictionloss:
+read from the compiled `MjModel`, never assumed from the built-in tasks.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import mujoco
+
+_OBJ = mujoco.mjtObj
+_TRN = mujoco.mjtTrn
+# what a unit of generalized force is on each joint type
+_JOINT_FORCE_UNIT = {
+    mujoco.mjtJoint.mjJNT_SLIDE: "N",
+    mujoco.mjtJoint.mjJNT_HINGE: "N·m",
+    mujoco.mjtJoint.mjJNT_BALL: "N·m",
+    mujoco.mjtJoint.mjJNT_FREE: "N, N·m",
+}
+
+
+def _name(model: mujoco.MjModel, kind: mujoco.mjtObj, i: int) -> str:
+    return mujoco.mj_id2name(model, kind, i) or f"{kind.name[6:].lower()} {i}"
+
+
+def _driven(model: mujoco.MjModel, i: int) -> tuple[str, str]:
+    """What actuator `i` drives, and the unit of its force there."""
+    trn, target = _TRN(model.actuator_trntype[i]), model.actuator_trnid[i, 0]
+    if trn in (_TRN.mjTRN_JOINT, _TRN.mjTRN_JOINTINPARENT):
+        unit = _JOINT_FORCE_UNIT[mujoco.mjtJoint(model.jnt_type[target])]
+        return f"joint `{_name(model, _OBJ.mjOBJ_JOINT, target)}`", unit
+    if trn == _TRN.mjTRN_TENDON:
+        return f"tendon `{_name(model, _OBJ.mjOBJ_TENDON, target)}`", "N"
+    if trn == _TRN.mjTRN_SITE:
+        return f"site `{_name(model, _OBJ.mjOBJ_SITE, target)}`", "N, N·m"
+    return trn.name[6:].lower(), ""
+
+
+def actuator_force_limit(model: mujoco.MjModel, i: int) -> tuple[float, float, str] | None:
+    """The bounds of actuator `i`'s force where it acts (gear times the actuator's force), and
+    what sets them: its `forcerange`, or for a motor (a fixed gain, no bias) its control or
+    activation range times its gain; None when nothing bounds it (a position servo without a
+    `forcerange` pushes as hard as its error asks)."""
+    gear = model.actuator_gear[i, 0]
+    bounds: list[tuple[float, float]] = []
+    sources = []
+    motor = (
+        mujoco.mjtGain(model.actuator_gaintype[i]) == mujoco.mjtGain.mjGAIN_FIXED
+        and mujoco.mjtBias(model.actuator_biastype[i]) == mujoco.mjtBias.mjBIAS_NONE
+    )
+    if motor:
+        stateful = mujoco.mjtDyn(model.actuator_dyntype[i]) != mujoco.mjtDyn.mjDYN_NONE
+        if stateful and model.actuator_actlimited[i]:
+            bounds.append(tuple(model.actuator_gainprm[i, 0] * model.actuator_actrange[i]))
+            sources.append("actrange × gain")
+        elif model.actuator_ctrllimited[i]:
+            bounds.append(tuple(model.actuator_gainprm[i, 0] * model.actuator_ctrlrange[i]))
+            sources.append("ctrlrange × gain")
+    if model.actuator_forcelimited[i]:
+        bounds.append(tuple(model.actuator_forcerange[i]))
+        sources.append("forcerange")
+    if not bounds:
+        return None
+    low = max(min(b) for b in bounds)
+    high = min(max(b) for b in bounds)
+    ends = sorted((gear * low + 0.0, gear * high + 0.0))  # + 0.0: no -0 in the report
+    return ends[0], ends[1], " and ".join(sources) + (f", × gear {gear:g}" if gear != 1 else "")
+
+
+def actuator_lines(model: mujoco.MjModel) -> list[str]:
+    """One line per actuator: what it drives and the bounds of its force there, in that
+    joint's (or tendon's, or site's) units."""
+    if model.nu == 0:
+        return ["- Actuators: none."]
+    lines = ["- Actuators, each force's bounds where it acts (from the compiled model):"]
+    for i in range(model.nu):
+        driven, unit = _driven(model, i)
+        limit = actuator_force_limit(model, i)
+        bound = (
+            "unbounded (no forcerange, not a motor with a limited control)"
+            if limit is None
+            else f"[{limit[0]:g}, {limit[1]:g}] {unit} ({limit[2]})"
+        )
+        lines.append(f"  - `{_name(model, _OBJ.mjOBJ_ACTUATOR, i)}` on {driven}: {bound}")
+    return lines
+
+
+def contacts_enabled(model: mujoco.MjModel) -> bool:
+    """False when `<option><flag contact="disable"/>` (or constraint) turns every contact off."""
+    off = mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    return not model.opt.disableflags & off
+
+
+def collision_pairs(model: mujoco.MjModel) -> list[tuple[int, int]]:
+    """The geom pairs (ids, ascending) that MuJoCo's collision filter lets through: the
+    explicit `<pair>`s, and the pairs whose contype and conaffinity match, on bodies not welded
+    together, not parent and child (unless filterparent is off), not `<exclude>`d. Their
+    distance is another matter: two geoms that can never come near each other are listed."""
+    if not contacts_enabled(model):
+        return []
+    pairs = {tuple(sorted(p)) for p in zip(model.pair_geom1, model.pair_geom2, strict=True)}
+    excluded = set(model.exclude_signature.tolist())
+    filter_parent = not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+    weld = model.body_weldid
+    weld_parent = weld[model.body_parentid[weld]]
+    for g1, g2 in combinations(range(model.ngeom), 2):
+        if not (
+            model.geom_contype[g1] & model.geom_conaffinity[g2]
+            or model.geom_contype[g2] & model.geom_conaffinity[g1]
+        ):
+            continue
+        b1, b2 = model.geom_bodyid[g1], model.geom_bodyid[g2]
+        w1, w2 = weld[b1], weld[b2]
+        if w1 == w2:
+            continue
+        if filter_parent and w1 and w2 and (w1 == weld_parent[b2] or w2 == weld_parent[b1]):
+            continue
+        if ((min(b1, b2) << 16) + max(b1, b2)) in excluded:
+            continue
+        pairs.add((g1, g2))
+    return sorted((int(a), int(b)) for a, b in pairs)
+
+
+def contact_lines(model: mujoco.MjModel, *, max_pairs: int = 24) -> list[str]:
+    """The pairs that can collide and, per geom in one, what sets its contacts' friction budget."""
+    if not contacts_enabled(model):
+        return ["- Contacts: disabled in the model's `<option>`; no geom collides."]
+    pairs = collision_pairs(model)
+    if not pairs:
+        return ["- Contacts: no two geoms of the model can collide (contype, conaffinity)."]
+    geom = lambda g: f"`{_name(model, _OBJ.mjOBJ_GEOM, g)}`"  # noqa: E731
+    shown = ", ".join(f"{geom(a)}–{geom(b)}" for a, b in pairs[:max_pairs])
+    more = f", and {len(pairs) - max_pairs} more" if len(pairs) > max_pairs else ""
+    lines = [
+        f"- Contacts: {len(pairs)} geom pairs pass MuJoCo's collision filter (whether they come "
+        f"near each other is not checked): {shown}{more}. The parameters of their geoms:",
+        "",
+        "| geom | condim | friction (sliding, torsional, rolling) | solref | solimp |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for g in sorted({g for pair in pairs for g in pair}):
+        numbers = lambda values: ", ".join(f"{v:g}" for v in values)  # noqa: E731
+        lines.append(
+            f"| {geom(g)} | {model.geom_condim[g]} | {numbers(model.geom_friction[g])} "
+            f"| {numbers(model.geom_solref[g])} | {numbers(model.geom_solimp[g])} |"
+        )
+    return lines
+
+
+def joint_lines(model: mujoco.MjModel) -> list[str]:
+    """Damping, armature and frictionloss of every joint that has any (per degree of freedom:
+    a joint with several lists its first), and a word on the others."""
+    rows = []
+    for j in range(model.njnt):
+        dof = model.jnt_dofadr[j]
+        values = (model.dof_damping[dof], model.dof_armature[dof], model.dof_frictionloss[dof])
+        if any(values):
+            kind = mujoco.mjtJoint(model.jnt_type[j]).name[6:].lower()
+            rows.append(
+                f"| `{_name(model, _OBJ.mjOBJ_JOINT, j)}` | {kind} | "
+                + " | ".join(f"{v:g}" for v in values)
+                + " |"
+            )
+    if not rows:
+        return ["- Joints: no damping, armature or frictionloss on any joint."]
+    others = model.njnt - len(rows)
+    return [
+        "- Joints with damping, armature or frictionloss (the joint's force units: N·s/m or "
+        "N·m·s/rad, kg or kg·m², N or N·m)"
+        + {0: ":", 1: "; the other joint has none:"}.get(
+            others, f"; the other {others} have none:"
+        ),
+        "",
+        "| joint | type | damping | armature | frictionloss |",
+        "| --- | --- | --- | --- | --- |",
+        *rows,
+        "",
+    ]
+
+
+def model_files_text(files: dict[str, str] | None) -> str:
+    """How many files the model's sha256 is over (`provenance.model_sha256`)."""
+    n = len(files or {})
+    return (
+        "of its one file's name and bytes"
+        if n == 1
+        else f"over its {n} files (the scene and every file it includes or loads: names and "
+        "bytes; not the `sha256sum` of the scene)"
+    )

@@ -1,0 +1,89 @@
+"""The analysis stage: the summary of every condition, the paired comparison, the verdict."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+
+from mjtrial import REPO_ROOT, analysis, provenance
+from mjtrial.conditions import condition_record
+from mjtrial.stages.stamping import make_stage_stamp, task_inputs
+from mjtrial.task import load_task
+
+log = logging.getLogger("mjtrial")
+
+
+def run_analysis(
+    *,
+    states_path: Path,
+    rollout_tables: Mapping[str, Path],
+    nominal_files: Mapping[str, Path],
+    analysis_slice: Mapping[str, Any],
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """Compute the summary, write `summary.json`, and log the table."""
+    summary = summarize_tables(
+        states_path=states_path,
+        rollout_tables=rollout_tables,
+        nominal_files=nominal_files,
+        analysis_slice=analysis_slice,
+        repo_root=repo_root,
+    )
+    inputs = {
+        "states": states_path,
+        **task_inputs(analysis_slice["task"], repo_root=repo_root),
+        **{f"rollout:{k}": v for k, v in rollout_tables.items()},
+    }
+    inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
+    stamp = make_stage_stamp(
+        "analysis",
+        dict(analysis_slice),
+        inputs,
+        seeds={"bootstrap": analysis_slice["analysis"]["seed"]},
+        repo_root=repo_root,
+    )
+    provenance.write_json(summary, output, stamp)
+    log.info("analysis -> %s\n%s", output, analysis.format_table(summary))
+    return summary
+
+
+def summarize_tables(
+    *,
+    states_path: Path,
+    rollout_tables: Mapping[str, Path],
+    nominal_files: Mapping[str, Path],
+    analysis_slice: Mapping[str, Any],
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """The summary the analysis stage writes, from its input files (`mjtrial verify` checks
+    `summary.json` against it)."""
+    conditions = analysis_slice["conditions"]
+    task = load_task(analysis_slice["task"], repo_root=repo_root)
+    analysis_config = analysis_slice["analysis"]
+    states_table = pq.read_table(states_path)
+    states = {c: states_table.column(c).to_numpy() for c in states_table.column_names}
+    outcomes = {}
+    for name, path in rollout_tables.items():
+        t = pq.read_table(path)
+        outcomes[name] = {c: t.column(c).to_numpy(zero_copy_only=False) for c in t.column_names}
+    nominal = {
+        name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()
+    }
+    summary = analysis.summarize(
+        states=states,
+        outcomes=outcomes,
+        nominal=nominal,
+        condition_parameters={name: condition_record(task, c) for name, c in conditions.items()},
+        nominal_text=task.nominal_description,
+        categories=task.category_names(),
+        falsifier=analysis_slice["falsifier"],
+        analysis=analysis_config,
+        sample_size=analysis_slice.get("sample_size"),
+    )
+    return summary

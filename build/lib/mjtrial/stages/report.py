@@ -1,0 +1,74 @@
+"""The report stage: the figures and `report.md`, every number formatted from the inputs."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from mjtrial import REPO_ROOT, report
+from mjtrial.physics import load_model
+from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
+from mjtrial.task import BoundTask, load_task
+
+log = logging.getLogger("mjtrial")
+
+
+def write_report_stage(
+    *,
+    config: Mapping[str, Any],
+    summary_path: Path,
+    manifest_path: Path,
+    rollout_tables: Mapping[str, Path],
+    shard_folders: Mapping[str, Sequence[Path]],
+    model_file: Path,
+    figures_dir: Path,
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> list[Path]:
+    """Draw the figures and write `report.md`; every number in them comes from the inputs.
+
+    `shard_folders` (condition -> its shards' folders of recordings, as the layout names them
+    for this run, none without recordings) hold the sample traces drawn: a folder an earlier
+    run left is never read;
+    `model_file` is the model the report describes (checked against the manifest's hash).
+    """
+    inputs = {
+        "summary": summary_path,
+        "manifest": manifest_path,
+        **model_inputs(model_file),
+        **task_inputs(config["task"], repo_root=repo_root),
+        **{f"rollout:{k}": v for k, v in rollout_tables.items()},
+        **{
+            f"recordings:{k}": [p for p in shard_folders[k] if Path(p).is_dir()]
+            for k in shard_folders
+        },
+    }
+    stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
+    summary = json.loads(Path(summary_path).read_text())
+    manifest = json.loads(Path(manifest_path).read_text())
+    bound = BoundTask.of(load_task(config["task"], repo_root=repo_root), load_model(model_file))
+    if bound.model.opt.timestep != manifest["model"]["timestep"]:
+        raise ValueError(f"{model_file}: its timestep differs from the manifest's")
+    figures = report.write_figures(
+        summary=summary,
+        bound=bound,
+        rollout_tables=rollout_tables,
+        recordings=shard_folders,
+        conditions=config["conditions"],
+        out_dir=figures_dir,
+        stamp=stamp,
+    )
+    report.write_report(
+        summary_path=summary_path,
+        config=dict(config),
+        manifest_path=manifest_path,
+        figure_paths=figures,
+        output=output,
+        stamp=stamp,
+        repo_root=repo_root,
+    )
+    log.info("report -> %s (%d figure files)", output, len(figures))
+    return figures

@@ -1,0 +1,116 @@
+"""The states stage: draw the evaluation (or development) states and write them."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from mjtrial import REPO_ROOT, provenance
+from mjtrial.stages.stamping import make_stage_stamp, task_inputs
+from mjtrial.states import generate_initial_states
+from mjtrial.task import load_task
+
+log = logging.getLogger("mjtrial")
+
+# The stamp's rule of each set of states: what a job that must read one of them checks.
+EVALUATION_RULE = "states"
+DEVELOPMENT_RULE = "states:development"
+
+
+def states_rule(*, development: bool, task: str | None = None) -> str:
+    """The stamp's rule of a set of states: an experiment's `states` or `states:development`;
+    a benchmark task's `states:evaluation:<task>` or `states:development:<task>`, so that each
+    task's states job is a job of its own in the crate and verify can tell whose they are."""
+    if task is None:
+        return DEVELOPMENT_RULE if development else EVALUATION_RULE
+    return f"states:{'development' if development else 'evaluation'}:{task}"
+
+
+def drawn_as(rule: object) -> str | None:
+    """The kind of states a stamp's rule (`states_rule`) drew: "development" or "evaluation";
+    None for a rule that draws no states."""
+    parts = rule.split(":") if isinstance(rule, str) else []
+    if not parts or parts[0] != "states":
+        return None
+    if len(parts) == 1:
+        return "evaluation"
+    return parts[1] if parts[1] in ("development", "evaluation") else None
+
+
+def check_drawn_as(path: Path, *, development: bool, reader: str) -> dict[str, Any]:
+    """The stamp of the states file `path`, which must be development (or evaluation) states;
+    a one-line ValueError naming the file and `reader` (the job that may read only those)."""
+    what = "development" if development else "evaluation"
+    try:
+        stamp = provenance.read_stamp(path)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: no readable stamp ({err}); expected {what} states") from None
+    if drawn_as(stamp.get("rule")) != what:
+        raise ValueError(
+            f"{path}: states drawn by {stamp.get('rule')!r}, not {what} states; "
+            f"{reader} reads {what} states only"
+        )
+    return stamp
+
+
+def build_states(
+    *,
+    states_slice: Mapping[str, Any],
+    output: Path,
+    development: bool = False,
+    rule: str | None = None,
+    repo_root: Path = REPO_ROOT,
+) -> pa.Table:
+    """Draw the evaluation states (or, with `development`, the tuning states) and write them.
+
+    Both sets are drawn, to refuse a configuration whose development and evaluation states
+    share a state: no reported number may come from a state used for tuning.
+    """
+    table, tuning = draw_states(states_slice, repo_root=repo_root)
+    stamp = make_stage_stamp(
+        rule or states_rule(development=development),
+        dict(states_slice),
+        task_inputs(states_slice["task"], repo_root=repo_root),
+        seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
+        repo_root=repo_root,
+    )
+    chosen, seed = (tuning, "development_seed") if development else (table, "seed")
+    provenance.write_parquet(chosen, output, stamp)
+    log.info(
+        "states: %d %s states (seed %d) -> %s",
+        chosen.num_rows,
+        "development" if development else "evaluation",
+        states_slice[seed],
+        output,
+    )
+    return chosen
+
+
+def draw_states(states_slice: Mapping[str, Any], *, repo_root: Path) -> tuple[pa.Table, pa.Table]:
+    """The evaluation and development states of a states slice, the task's parameters drawn
+    in its order; refused when the two sets share a state."""
+    parameters = [
+        p.name for p in load_task(states_slice["task"], repo_root=repo_root).state_parameters
+    ]
+    table, tuning = (
+        generate_initial_states(
+            seed=states_slice[key],
+            n=states_slice["n"],
+            ranges=states_slice["ranges"],
+            parameters=parameters,
+        )
+        for key in ("seed", "development_seed")
+    )
+    rows = {tuple(r) for r in np.column_stack([table.column(c) for c in parameters])}
+    dev_rows = np.column_stack([tuning.column(c) for c in parameters])
+    if any(tuple(r) in rows for r in dev_rows):
+        raise ValueError(
+            "states.development_seed: development and evaluation states overlap; "
+            "expected disjoint seeds"
+        )
+    return table, tuning

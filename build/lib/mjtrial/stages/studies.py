@@ -1,0 +1,189 @@
+"""The studies' stage: the sensitivity or dose-response summary, its figure and its report.
+
+Both read rollout tables only: the nominal model's are the built-in experiment's own, never
+run again.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+
+from mjtrial import REPO_ROOT, provenance
+from mjtrial.layout import NOMINAL, STUDY_FIGURES
+from mjtrial.report import studies as study_report
+from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
+from mjtrial.studies.dose_response import summarize_dose_response
+from mjtrial.studies.sensitivity import summarize_sensitivity
+from mjtrial.studies.variants import nominal_model_hash, variant_model
+from mjtrial.task import load_task
+
+log = logging.getLogger("mjtrial")
+
+
+def _columns(path: Path) -> dict[str, Any]:
+    table = pq.read_table(path)
+    return {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
+
+
+def run_sensitivity(
+    *,
+    study_slice: Mapping[str, Any],
+    tables: Mapping[str, Mapping[str, Path]],
+    model_file: Path,
+    output: Path,
+    report: Path,
+    figures_dir: Path,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """The falsifier judged under every variant (`analysis/sensitivity.json`), its forest plot
+    and its report.
+
+    Args:
+      tables: per variant (`NOMINAL` first), per condition, its rollout table.
+    """
+    summary = sensitivity_summary(study_slice=study_slice, tables=tables, model_file=model_file)
+    inputs = {f"{v}/{c}": p for v, by in tables.items() for c, p in by.items()}
+    return _write(
+        "sensitivity",
+        summary,
+        study_slice,
+        {**inputs, **model_inputs(model_file)},
+        output=output,
+        report=report,
+        figures_dir=figures_dir,
+        repo_root=repo_root,
+    )
+
+
+def run_dose_response(
+    *,
+    study_slice: Mapping[str, Any],
+    states_path: Path,
+    tables: Mapping[float, Path],
+    output: Path,
+    report: Path,
+    figures_dir: Path,
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """Success against the swept parameter on the same states (`analysis/dose_response.json`),
+    its curve and its report.
+
+    Args:
+      tables: per swept value, the rollout table of the condition that runs it.
+    """
+    summary = dose_response_summary(
+        study_slice=study_slice, states_path=states_path, tables=tables, repo_root=repo_root
+    )
+    inputs = {
+        "states": states_path,
+        **task_inputs(study_slice["task"], repo_root=repo_root),
+        **{f"{v:g}": p for v, p in tables.items()},
+    }
+    return _write(
+        "dose_response",
+        summary,
+        study_slice,
+        inputs,
+        output=output,
+        report=report,
+        figures_dir=figures_dir,
+        repo_root=repo_root,
+    )
+
+
+def _write(
+    study: str,
+    summary: dict[str, Any],
+    study_slice: Mapping[str, Any],
+    inputs: Mapping[str, Any],
+    *,
+    output: Path,
+    report: Path,
+    figures_dir: Path,
+    repo_root: Path,
+) -> dict[str, Any]:
+    stamp = make_stage_stamp(study, dict(study_slice), inputs, repo_root=repo_root)
+    provenance.write_json(summary, output, stamp)
+    figures = study_report.write_study_figures(
+        sensitivity=summary if study == "sensitivity" else None,
+        dose_response=summary if study == "dose_response" else None,
+        out_dir=figures_dir,
+        stamp=stamp,
+    )
+    text = study_report_text(study, summary, report=report, figures_dir=figures_dir)
+    provenance.write_markdown(text, report, stamp)
+    log.info("%s -> %s, %s, %d figure files", study, output, report, len(figures))
+    return summary
+
+
+def sensitivity_summary(
+    *,
+    study_slice: Mapping[str, Any],
+    tables: Mapping[str, Mapping[str, Path]],
+    model_file: Path,
+) -> dict[str, Any]:
+    """`analysis/sensitivity.json` from the rollout tables (`mjtrial verify` checks against
+    it)."""
+    variants = {}
+    for name, by_condition in tables.items():
+        overrides = {} if name == NOMINAL else study_slice["variants"][name]
+        if name == NOMINAL:
+            sha = nominal_model_hash(model_file)
+        else:
+            sha = variant_model(model_file, overrides, key_prefix=f"variants.{name}")[1]
+        variants[name] = {
+            "tables": {c: _columns(p) for c, p in by_condition.items()},
+            "overrides": overrides,
+            "model_sha256": sha,
+        }
+    summary = summarize_sensitivity(
+        variants, falsifier=study_slice["falsifier"], analysis=study_slice["analysis"]
+    )
+    return summary
+
+
+def dose_response_summary(
+    *,
+    study_slice: Mapping[str, Any],
+    states_path: Path,
+    tables: Mapping[float, Path],
+    repo_root: Path = REPO_ROOT,
+) -> dict[str, Any]:
+    """`analysis/dose_response.json` from the rollout tables (`mjtrial verify` checks against
+    it)."""
+    sweep = study_slice["sweep"]
+    (band_parameter, band_edges), *_ = study_slice["bands"].items()
+    task = load_task(study_slice["task"], repo_root=repo_root)
+    summary = summarize_dose_response(
+        {v: _columns(p) for v, p in tables.items()},
+        parameter=sweep["parameter"],
+        states=_columns(states_path),
+        band_parameter=band_parameter,
+        band_edges=band_edges,
+        analysis=study_slice["analysis"],
+        margin=sweep["margin"],
+        reference=sweep.get("reference"),
+        toward=sweep.get("toward"),
+        units={p: task.unit_of(p) for p in (sweep["parameter"], band_parameter)},
+    )
+    return summary
+
+
+def study_report_text(
+    study: str, summary: Mapping[str, Any], *, report: Path, figures_dir: Path
+) -> str:
+    """A study's report (its figure's PNG linked from the report's folder)."""
+    png = Path(figures_dir) / f"{STUDY_FIGURES[study]}.png"
+    figure = Path(os.path.relpath(png, Path(report).parent)).as_posix()
+    render = {
+        "sensitivity": study_report.render_sensitivity_section,
+        "dose_response": study_report.render_dose_response_section,
+    }[study]
+    return render(json.loads(json.dumps(summary)), figure=figure) + "\n"

@@ -1,0 +1,1 @@
+"""Studies beyond the built-in experiment: simulator sensitivity and a dose-response sweep."""

@@ -1,0 +1,204 @@
+"""Simulator variants: the committed model with a few attributes changed through `mujoco.MjSpec`.
+
+A variant is a mapping of overrides, each naming an attribute by its MJCF name:
+
+    {"option": {"timestep": 0.001, "integrator": "RK4", "cone": "pyramidal"},
+     "geom": {"floor": {"friction": [0.6, 0.003, 0.0001]}},
+     "actuator": {"motor": {"forcerange": [-15, 15]}},
+     "body": {"arm": {"gravcomp": 0.5}},
+     "joint": {"hinge": {"frictionloss": 0.2}}}
+
+(also `tendon`, `equality`, `sensor` and `site` attributes by element name).
+
+MuJoCo's own editing API applies them (no XML text is edited), the edited spec is compiled as
+it is, and the edited model is recorded as the sha256 of that compiled model
+(`physics.compiled_sha256`, its MJB bytes): the very model that runs, so "what was held fixed" is
+exact for each variant, and a function of the model's files and the edits alone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from numbers import Integral, Real
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from mjtrial.physics import ModelError, compiled_sha256, load_spec
+
+OVERRIDE_KINDS = (
+    *("option", "geom", "actuator", "body"),
+    *("joint", "tendon", "equality", "sensor", "site"),
+)
+
+# MJCF's keywords for the enumerated <option> attributes, in the order of their mjt enums
+# (mjtIntegrator, mjtCone, mjtSolver, mjtJacobian); MjSpec stores the enum's integer.
+OPTION_KEYWORDS: dict[str, tuple[str, ...]] = {
+    "integrator": ("Euler", "RK4", "implicit", "implicitfast"),
+    "cone": ("pyramidal", "elliptic"),
+    "solver": ("PGS", "CG", "Newton"),
+    "jacobian": ("dense", "sparse", "auto"),
+}
+# Bit fields (MJCF's <flag> element and actuator groups), not single values: not overridable.
+_OPTION_BITFIELDS = ("disableflags", "enableflags", "disableactuator")
+# Attributes MjSpec holds but a variant must not set: identity, and a body's inertial values,
+# which the compiler ignores while it infers inertia from the geoms (change a geom's mass).
+_NOT_SETTABLE = ("id", "signature", "mass", "inertia", "fullinertia", "ipos", "iquat")
+POSITIVE_OPTIONS = ("timestep", "impratio")
+
+
+def _fail(key: str, expectation: str) -> None:
+    raise ValueError(f"{key}: {expectation}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool) and np.isfinite(value)
+
+
+def _coerce(key: str, current: Any, value: Any) -> Any:
+    """`value` in the type and shape of the attribute's `current` value, or a `ValueError`."""
+    if isinstance(current, np.ndarray):
+        size = current.size
+        if isinstance(value, str | bytes) or not hasattr(value, "__len__"):
+            _fail(key, f"expected {size} numbers, got {value!r}")
+        if len(value) != size:
+            _fail(key, f"expected {size} numbers, got {len(value)}")
+        if not all(_is_number(v) for v in value):
+            _fail(key, f"expected {size} finite numbers, got {list(value)!r}")
+        return np.asarray(value, dtype=current.dtype).reshape(current.shape)
+    if isinstance(current, bool) or not isinstance(current, int | float):
+        _fail(key, f"expected a numeric attribute; {type(current).__name__} is not overridable")
+    if isinstance(current, int):
+        if isinstance(value, bool) or not isinstance(value, Integral):
+            _fail(key, f"expected an integer, got {value!r}")
+        return int(value)
+    if not _is_number(value):
+        _fail(key, f"expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _apply_option(spec: mujoco.MjSpec, name: str, value: Any, key: str) -> None:
+    settable = [a for a in dir(spec.option) if not a.startswith("_") and a not in _OPTION_BITFIELDS]
+    if name not in settable:
+        _fail(key, f"unknown option; expected one of {', '.join(sorted(settable))}")
+    if name in OPTION_KEYWORDS:
+        keywords = OPTION_KEYWORDS[name]
+        if value not in keywords:
+            _fail(key, f"expected one of {', '.join(keywords)}, got {value!r}")
+        setattr(spec.option, name, keywords.index(value))
+        return
+    coerced = _coerce(key, getattr(spec.option, name), value)
+    if name in POSITIVE_OPTIONS and not coerced > 0:
+        _fail(key, f"expected a positive number, got {value!r}")
+    setattr(spec.option, name, coerced)
+
+
+def _apply_element(element: Any, name: str, value: Any, key: str) -> None:
+    public = [a for a in dir(element) if not a.startswith("_")]
+    if name in _NOT_SETTABLE or name not in public:
+        _fail(key, "unknown or not overridable attribute")
+    setattr(element, name, _coerce(key, getattr(element, name), value))
+
+
+def apply_overrides(
+    spec: mujoco.MjSpec, overrides: Mapping[str, Any], *, key_prefix: str = "overrides"
+) -> None:
+    """Set every override on `spec` in place; a bad one raises a one-line `ValueError`.
+
+    The message names the key (`<key_prefix>.<kind>.<element>.<attribute>`) and what was
+    expected: an unknown kind, option, element or attribute, a wrongly shaped or typed value,
+    an unknown keyword (integrator, cone, solver, jacobian), a non-positive timestep or impratio.
+    """
+    if not isinstance(overrides, Mapping):
+        _fail(key_prefix, f"expected a mapping of {', '.join(OVERRIDE_KINDS)}")
+    for kind, entries in overrides.items():
+        where = f"{key_prefix}.{kind}"
+        if kind not in OVERRIDE_KINDS:
+            _fail(where, f"unknown override kind; expected one of {', '.join(OVERRIDE_KINDS)}")
+        if not isinstance(entries, Mapping) or not entries:
+            _fail(where, "expected a non-empty mapping")
+        if kind == "option":
+            for name, value in entries.items():
+                _apply_option(spec, name, value, f"{where}.{name}")
+            continue
+        find = getattr(spec, kind)  # spec.geom(name), spec.joint(name), spec.sensor(name), ...
+        for element_name, attributes in entries.items():
+            element = find(element_name)
+            if element is None:
+                _fail(f"{where}.{element_name}", f"the model has no {kind} of that name")
+            if not isinstance(attributes, Mapping) or not attributes:
+                _fail(f"{where}.{element_name}", "expected a non-empty mapping of attributes")
+            for name, value in attributes.items():
+                _apply_element(element, name, value, f"{where}.{element_name}.{name}")
+
+
+def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]:
+    # Compiled from the edited spec itself, never through `to_xml()`: the XML round trip is not
+    # exact (a quaternion from `fromto` came back 6e-17 apart) and its text depends on what the
+    # process did before (`physics.compiled_sha256`).
+    try:
+        model = spec.compile()
+    except ValueError as err:
+        text = str(err).strip().replace(str(Path.cwd().resolve()) + "/", "")
+        first = text.splitlines()[0] if text else "compile error"
+        raise ModelError(f"{source}: MuJoCo could not compile the model: {first}") from None
+    return model, compiled_sha256(model)
+
+
+def check_overrides(
+    overrides: Mapping[str, Any], *, model_file: Path | str, key_prefix: str
+) -> None:
+    """Raise a one-line `ValueError` naming the key if `overrides` cannot apply to the model.
+
+    Applies them to a fresh spec of `model_file` (nothing is compiled), so every element name
+    is checked against the model itself.
+    """
+    apply_overrides(load_spec(model_file), overrides, key_prefix=key_prefix)
+
+
+def variant_model(
+    model_file: Path | str,
+    overrides: Mapping[str, Any],
+    *,
+    key_prefix: str = "overrides",
+    then: Sequence[tuple[Mapping[str, Any], str]] = (),
+) -> tuple[mujoco.MjModel, str]:
+    """The model of `model_file` with `overrides` applied, and its sha256.
+
+    `then` are further edits, each with its key prefix, applied after `overrides` in order: a
+    variant's, then a condition's own (`conditions.<name>.model`). Returns the compiled model
+    and its hex sha256 (`physics.compiled_sha256`); with no edits this is the nominal model,
+    identical to `physics.load_model(model_file)`, and its hash (`nominal_model_hash`).
+    """
+    spec = load_spec(model_file)
+    apply_overrides(spec, overrides, key_prefix=key_prefix)
+    for edits, prefix in then:
+        apply_overrides(spec, edits, key_prefix=prefix)
+    return _compiled(spec, source=f"{model_file} ({key_prefix})")
+
+
+def nominal_model_hash(model_file: Path | str) -> str:
+    """The sha256 of the unedited compiled model, hashed as the variants' are."""
+    return variant_model(model_file, {})[1]
+
+
+def describe_edits(edits: Mapping[str, Any]) -> str:
+    """Edits in a line of the report: `joint hinge frictionloss 0.2; option timestep 0.001`."""
+    parts = []
+    for kind, entries in edits.items():
+        if kind == "option":
+            parts += [f"option {name} {_shown(v)}" for name, v in entries.items()]
+            continue
+        for element, attributes in entries.items():
+            parts += [f"{kind} {element} {name} {_shown(v)}" for name, v in attributes.items()]
+    return "; ".join(parts)
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, Sequence):
+        return " ".join(f"{v:g}" for v in value)
+    return f"{value:g}"

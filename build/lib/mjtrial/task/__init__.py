@@ -1,0 +1,94 @@
+"""The task interface: what a researcher writes for an experiment of their own, in one Python
+file beside its model.
+
+The vocabulary is dm_control's `Task` (initialize the episode, act before a step, observe) and
+gymnasium's `reset(seed=...)`, in declarations rather than callbacks where mjtrial must read them
+(to build the config schema, the states table, the preflight checks):
+
+- `model`: the MJCF file, relative to the task file;
+- `state_parameters`: the randomized initial state, each `StateParameter` with its unit, default
+  range and how it is applied (`BodyMass`, `JointPosition`, `JointVelocity`, a `Custom`
+  function, or `DISTURBANCE`: read by the closed-loop controller's `pushes`); the states
+  table's columns are their names, drawn in this order;
+- `protocol_parameters`: what conditions, sweeps and variants may set, with types and bounds;
+- `controller`: `OpenLoop` (a control sequence per condition, run by `mujoco.rollout`) or
+  `ClosedLoop` (a policy called on a batch of observations at the control rate);
+- `observations`: each with its real-world source, or privileged (`source=None`);
+- `success`, `measures` and the ordered `failure_categories` with their `thresholds`.
+
+A task is loaded from a file path (`tasks/<name>/task.py`, which defines `TASK`) or an importable
+name (`package.module`), or offered by an installed package through the entry point group
+`mjtrial.tasks`. Nothing in the package names a task's elements.
+"""
+
+from mjtrial.closest_calls import Margin
+from mjtrial.task.bound import BoundTask
+from mjtrial.task.declare import (
+    DISTURBANCE,
+    ENGINE_MEASURES,
+    FAILURE_CATEGORY,
+    NONFINITE,
+    STEPS_SIMULATED,
+    UNHEALTHY,
+    WARNING,
+    BodyMass,
+    ClosedLoop,
+    Custom,
+    Disturbance,
+    Episodes,
+    FailureCategory,
+    JointPosition,
+    JointVelocity,
+    Measure,
+    MocapPosition,
+    ModelCheckError,
+    ModelValue,
+    Observation,
+    OpenLoop,
+    ProtocolParameter,
+    Series,
+    SeriesRead,
+    StateParameter,
+    TaskError,
+    Threshold,
+)
+from mjtrial.task.definition import Task, call, expect_rows
+from mjtrial.task.load import ENTRY_POINT_GROUP, load_task, task_files
+
+__all__ = [
+    "DISTURBANCE",
+    "ENGINE_MEASURES",
+    "ENTRY_POINT_GROUP",
+    "FAILURE_CATEGORY",
+    "NONFINITE",
+    "STEPS_SIMULATED",
+    "UNHEALTHY",
+    "WARNING",
+    "BodyMass",
+    "BoundTask",
+    "ClosedLoop",
+    "Custom",
+    "Disturbance",
+    "Episodes",
+    "FailureCategory",
+    "JointPosition",
+    "JointVelocity",
+    "Margin",
+    "Measure",
+    "MocapPosition",
+    "ModelValue",
+    "ModelCheckError",
+    "Observation",
+    "OpenLoop",
+    "ProtocolParameter",
+    "Series",
+    "SeriesRead",
+    "StateParameter",
+    "Task",
+    "TaskError",
+    "Threshold",
+    "call",
+    "expect_rows",
+    "load_task",
+    "task_files",
+]

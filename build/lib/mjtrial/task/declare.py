@@ -1,0 +1,423 @@
+"""What a task declares: its state parameters and how each is applied, its protocol parameters,
+observations, controllers, measures, outcomes and failure categories, and the errors a task
+raises.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
+from mjtrial.physics import STATE_QPOS
+
+UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
+
+
+class TaskError(ValueError):
+    """A task file that cannot be loaded, or whose declarations or functions are wrong."""
+
+
+class ModelCheckError(TaskError):
+    """The task's `check_model` refused the model; `problem` says why, without the file."""
+
+    def __init__(self, model: Path, problem: str) -> None:
+        super().__init__(f"{model}: {problem}")
+        self.problem = problem
+
+
+def _element(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
+    index = mujoco.mj_name2id(model, kind, name)
+    if index < 0:
+        noun = kind.name.removeprefix("mjOBJ_").lower()
+        raise TaskError(f"expected a {noun} named {name!r} in the model")
+    return index
+
+
+# --------------------------------------------------------------------------------------------
+# State parameters and how each is applied
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BodyMass:
+    """Sets a body's mass (inertia as compiled); constants are recomputed (`mj_setConst`)."""
+
+    body: str
+    stage = "model"
+    sets = True  # writes its value whatever was there: a model copy can be reused
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        index = _element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            m.body_mass[index] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class JointPosition:
+    """Adds the value to a joint's position in the reset pose (a hinge's angle, a slide's
+    offset; `index` picks a component of a free or ball joint's qpos)."""
+
+    joint: str
+    index: int = 0
+    stage = "initial"
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        adr = model.jnt_qposadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, self.joint)] + self.index
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            d.qpos[adr] = d.qpos[adr] + value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class JointVelocity:
+    """Sets a joint's velocity (`index`: a component of a multi-dof joint's qvel)."""
+
+    joint: str
+    index: int = 0
+    stage = "initial"
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        adr = model.jnt_dofadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, self.joint)] + self.index
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            d.qvel[adr] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class ModelValue:
+    """Sets one number of an element of the episode's model, by MuJoCo's named accessor:
+    `ModelValue("geom", "target", "pos", 0)` sets `model.geom("target").pos[0]` (a goal's x).
+    `kind` is an `MjModel` accessor (`body`, `geom`, `site`, `joint`, `actuator`, `tendon`,
+    `eq`, `sensor`, ...), `attribute` that element's field without its prefix (`pos`, `size`,
+    `friction`, `damping`, `gear`), `index` the number within it. Applied before constants
+    are recomputed, like every model parameter."""
+
+    kind: str
+    name: str
+    attribute: str
+    index: int = 0
+    stage = "model"
+    sets = True  # writes its value whatever was there: a model copy can be reused
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        what = f"{self.kind} {self.name!r}"
+        try:
+            element = getattr(model, self.kind)(self.name)
+        except (AttributeError, TypeError):
+            raise TaskError(f"expected an MjModel element kind, got {self.kind!r}") from None
+        except KeyError:
+            raise TaskError(f"expected a {self.kind} named {self.name!r} in the model") from None
+        field_ = np.atleast_1d(getattr(element, self.attribute, None))
+        if field_.dtype.kind != "f" or not 0 <= self.index < field_.size:
+            raise TaskError(
+                f"{what}: expected a numeric field {self.attribute!r} with an "
+                f"index {self.index} (it has {field_.size} numbers)"
+            )
+        kind, name, attribute, index = self.kind, self.name, self.attribute, self.index
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            getattr(getattr(m, kind)(name), attribute)[index] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class MocapPosition:
+    """Sets a mocap body's position along one axis (0, 1, 2: x, y, z) in the reset data."""
+
+    body: str
+    axis: int
+    stage = "initial"
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        mocap = model.body_mocapid[_element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)]
+        if mocap < 0:
+            raise TaskError(f"expected body {self.body!r} to be a mocap body")
+        if self.axis not in (0, 1, 2):
+            raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
+        axis = self.axis
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            d.mocap_pos[mocap, axis] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class Custom:
+    """A function of the task's own: `fn(model, data, value)`, applied to the episode's model
+    (`stage="model"`, before constants are recomputed) or to its reset data (`"initial"`)."""
+
+    fn: Callable[[mujoco.MjModel, mujoco.MjData, float], None]
+    stage: str = "initial"
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        return self.fn
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """Read by the closed-loop controller's `pushes`, not applied to the initial state."""
+
+    stage = "disturbance"
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        return None
+
+
+DISTURBANCE = Disturbance()
+
+
+@dataclass(frozen=True)
+class StateParameter:
+    """One column of the states table: drawn uniformly in [low, high] (config `states.ranges`
+    may change the range), then applied to each episode."""
+
+    name: str
+    unit: str
+    low: float
+    high: float
+    apply: (
+        BodyMass | JointPosition | JointVelocity | ModelValue | MocapPosition | Custom | Disturbance
+    )
+    description: str = ""
+    nominal: float | None = None  # the careless evaluation's single state (default: mid-range)
+
+    @property
+    def nominal_value(self) -> float:
+        return (self.low + self.high) / 2 if self.nominal is None else self.nominal
+
+
+@dataclass(frozen=True)
+class ProtocolParameter:
+    """A value conditions, sweeps and variants may set; the config schema is built from it."""
+
+    name: str
+    unit: str
+    default: float
+    minimum: float | None = None
+    maximum: float | None = None
+    exclusive_minimum: bool = False  # minimum < value rather than minimum <= value
+    integer: bool = False
+    description: str = ""
+    required: bool = False  # every condition must set it (else the default applies)
+
+    def schema(self) -> dict[str, Any]:
+        """The JSON schema of the parameter's value."""
+        return _number_schema(self)
+
+
+def _number_schema(p: ProtocolParameter | Threshold) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "type": "integer" if getattr(p, "integer", False) else "number",
+        "description": f"{p.description} ({p.unit})".strip() if p.unit else p.description,
+    }
+    # a whole bound as an integer: the config's messages say "expected > 0", not "> 0.0"
+    if p.minimum is not None:
+        out["exclusiveMinimum" if p.exclusive_minimum else "minimum"] = _plain(p.minimum)
+    if p.maximum is not None:
+        out["maximum"] = _plain(p.maximum)
+    return out
+
+
+def _plain(value: float) -> float | int:
+    return int(value) if float(value).is_integer() else value
+
+
+# --------------------------------------------------------------------------------------------
+# Observations, controllers, outcomes
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Observation:
+    """A quantity the controller may read: `read(model)` gives a function from a batch of
+    mjSTATE_FULLPHYSICS rows (n, nstate) to (n, size) values, or `parameter` names a state
+    parameter whose per-episode value it is (`Observation.episode_value`). `source` names the
+    real sensor it stands for (encoder, IMU, camera pose estimate); None marks it privileged:
+    the simulator knows it, a robot would not."""
+
+    name: str
+    source: str | None
+    read: Callable[[mujoco.MjModel], Callable[[np.ndarray], np.ndarray]] | None
+    size: int = 1
+    parameter: str | None = None  # a state parameter's per-episode value (`episode_value`)
+
+    @classmethod
+    def episode_value(cls, name: str, parameter: str, *, source: str | None) -> Observation:
+        """A state parameter's value in each episode, as the robot is given it: a goal drawn
+        per episode and applied to the model (a target's position) is invisible in the physics
+        state, so a goal-conditioned policy reads it here. `source` says how a real robot
+        would know it ("the goal it is commanded", "motion capture"); None: privileged."""
+        return cls(name, source, None, 1, parameter)
+
+    @classmethod
+    def joint_position(cls, name: str, joint: str, *, source: str | None) -> Observation:
+        def read(model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
+            adr = model.jnt_qposadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+            column = STATE_QPOS + adr
+            return lambda states: states[:, column : column + 1]
+
+        return cls(name, source, read)
+
+    @classmethod
+    def joint_velocity(cls, name: str, joint: str, *, source: str | None) -> Observation:
+        def read(model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
+            adr = model.jnt_dofadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+            column = STATE_QPOS + model.nq + adr
+            return lambda states: states[:, column : column + 1]
+
+        return cls(name, source, read)
+
+
+@dataclass(frozen=True)
+class OpenLoop:
+    """A control sequence known before the episode: `controls(model, params)` gives the ctrl
+    applied before each physics step, (n_steps, nu)."""
+
+    controls: Callable[[mujoco.MjModel, Mapping[str, float]], np.ndarray]
+    # its length without building it (the budget checks run before any large array is made)
+    n_steps: Callable[[mujoco.MjModel, Mapping[str, float]], int] | None = None
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """A policy on observations at the control rate.
+
+    Attributes:
+      policy: `policy(model, params)`, built once per condition on the nominal model.
+      observations: the declared observations the policy reads, in the order it gets them.
+      timing: `timing(model, params)`: control period, episode length, sensing latency.
+      pushes: `pushes(model, values)`, the wrench pulse of each episode from the states'
+        `DISTURBANCE` columns (`values[name]` is an array over the batch), or None.
+    """
+
+    policy: Callable[[mujoco.MjModel, Mapping[str, float]], BatchPolicy]
+    observations: tuple[str, ...]
+    timing: Callable[[mujoco.MjModel, Mapping[str, float]], Timing]
+    pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
+
+
+SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""(rows (n, nstate) mjSTATE_FULLPHYSICS, sensors (n, nsensordata), ctrl (n, nu)) -> (n,)."""
+
+
+@dataclass(frozen=True)
+class Series:
+    """A signal the recordings plot beside the 3D scene.
+
+    Attributes:
+      name: the series' name in the recording and the viewer.
+      body: the body whose entity holds it (it shares that body's time-series chunk).
+      plot: the title of the plot it is drawn in, with its unit ("joint angle (rad)"); series
+        of one plot share it, in order of first appearance.
+      read: `read(model)` gives a function from a batch of logged rows to the values.
+    """
+
+    name: str
+    body: str
+    plot: str
+    read: Callable[[mujoco.MjModel], SeriesRead]
+
+    @classmethod
+    def joint_position(cls, name: str, joint: str, *, body: str, plot: str) -> Series:
+        def read(model: mujoco.MjModel) -> SeriesRead:
+            adr = model.jnt_qposadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+            return lambda rows, sensors, ctrl: rows[:, STATE_QPOS + adr]
+
+        return cls(name, body, plot, read)
+
+    @classmethod
+    def control(cls, name: str, actuator: str, *, body: str, plot: str) -> Series:
+        def read(model: mujoco.MjModel) -> SeriesRead:
+            index = _element(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator)
+            return lambda rows, sensors, ctrl: ctrl[:, index]
+
+        return cls(name, body, plot, read)
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """A threshold of the failure categories (config `failure_taxonomy.<name>`)."""
+
+    name: str
+    unit: str
+    default: float
+    description: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    exclusive_minimum: bool = False
+
+    def schema(self) -> dict[str, Any]:
+        """The JSON schema of the threshold's value."""
+        return _number_schema(self)
+
+
+@dataclass(frozen=True)
+class Measure:
+    """A per-episode number the rollout table keeps (a column), with its unit. `recorded`: also
+    a field of the episode's recording (shown when it is replayed)."""
+
+    name: str
+    unit: str
+    description: str = ""
+    recorded: bool = False
+
+
+# Columns the engine gives every task's rollout table; a task may place them among its measures
+# (by listing these), else they follow its measures in this order. Their values are the engine's.
+STEPS_SIMULATED = Measure(
+    "steps_simulated", "steps", "physics steps before a MuJoCo warning froze the episode"
+)
+NONFINITE = Measure("nonfinite", "", "the state went NaN or infinite")
+WARNING = Measure("warning", "", "the MuJoCo warnings that stopped the episode, by name")
+FAILURE_CATEGORY = Measure("failure_category", "", "the first failure category that applies")
+ENGINE_MEASURES = (STEPS_SIMULATED, NONFINITE, WARNING, FAILURE_CATEGORY)
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """What a task's outcome functions read about a batch of finished episodes.
+
+    Attributes:
+      model: the nominal model of the condition.
+      params: the condition's protocol parameters (defaults filled in).
+      physics: (n, n_steps, nstate) mjSTATE_FULLPHYSICS after each step.
+      sensordata: (n, n_steps, nsensordata) sensor values after each step.
+      healthy: (n,) False where a MuJoCo warning froze the episode or it went non-finite.
+      ctrl: (n, n_steps, nu) the ctrl applied before each step (open loop: one sequence for
+        every episode, broadcast).
+      values: state parameter -> (n,) each episode's value (a goal drawn per episode, applied
+        to the episode's own model, is read here: `model` is the condition's nominal one).
+    """
+
+    model: mujoco.MjModel
+    params: Mapping[str, float]
+    physics: np.ndarray
+    sensordata: np.ndarray
+    healthy: np.ndarray
+    ctrl: np.ndarray
+    values: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FailureCategory:
+    """A failure category: `test(measures, thresholds)` is True (n,) where it applies. Checked
+    in declaration order after "simulation unhealthy"; the first that applies wins."""
+
+    name: str
+    description: str
+    test: Callable[[Mapping[str, np.ndarray], Mapping[str, float]], np.ndarray]

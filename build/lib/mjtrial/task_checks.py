@@ -1,0 +1,157 @@
+"""The preflight of a task: its code run once on every condition's nominal episode before any
+rollout, so a mistake in it is one line naming the task file, the function and what was
+expected, and never a traceback in the middle of a run.
+
+Also the course's cheap test of a policy: an observation without a real-world source
+(privileged, `Observation.source is None`) is refused unless the config allows it with a reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import mujoco
+import numpy as np
+
+from mjtrial.closed_loop import PolicyError, check_batch_independence
+from mjtrial.engine import iter_batches
+from mjtrial.task import (
+    BoundTask,
+    ClosedLoop,
+    Episodes,
+    OpenLoop,
+    Task,
+    TaskError,
+    call,
+    expect_rows,
+)
+
+
+def _where(task: Task) -> str:
+    return str(task.source or task.name)
+
+
+def check_observations(task: Task, allowed: Mapping[str, str]) -> dict[str, str]:
+    """The privileged observations the policy reads with the config's allowance (name ->
+    reason); raises `TaskError` for an undeclared one, or a privileged one not allowed."""
+    controller = task.controller
+    if not isinstance(controller, ClosedLoop):
+        return {}
+    declared = {o.name: o for o in task.observations}
+    used: dict[str, str] = {}
+    for name in controller.observations:
+        if name not in declared:
+            raise TaskError(
+                f"{_where(task)}: the policy reads observation {name!r}, which is not declared "
+                f"in observations (declared: {sorted(declared)})"
+            )
+        if declared[name].source is None:
+            if name not in allowed:
+                raise TaskError(
+                    f"{_where(task)}: the policy reads {name!r}, a privileged observation (no "
+                    "real-world source); give it its sensor, or allow it in the config's "
+                    f"privileged_observations with a reason"
+                )
+            used[name] = allowed[name]
+    return used
+
+
+def nominal_values(task: Task) -> dict[str, np.ndarray]:
+    return {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
+
+
+def run_task_code(
+    bound: BoundTask,
+    conditions: Mapping[str, Mapping[str, float]],
+    *,
+    thresholds: Mapping[str, float],
+    allowed_privileged: Mapping[str, str] | None = None,
+) -> None:
+    """Run the task's code on each condition's nominal episode and check what it returns; then
+    check that every state parameter changes the episode. Raises `TaskError` (one line)."""
+    task = bound.task
+    check_observations(task, allowed_privileged or {})
+    for name, condition in conditions.items():
+        params = task.parameters(condition)
+        controller = task.controller
+        if isinstance(controller, OpenLoop):
+            ctrl = np.asarray(call(task, "controls", controller.controls, bound.model, params))
+            if ctrl.ndim != 2 or ctrl.shape[1] != bound.model.nu:
+                raise TaskError(
+                    f"{_where(task)}: controls: expected (n_steps, {bound.model.nu}), "
+                    f"got {ctrl.shape}"
+                )
+            if not np.isfinite(ctrl).all():
+                raise TaskError(f"{_where(task)}: controls: non-finite values for condition {name}")
+        else:
+            policy = call(task, "policy", controller.policy, bound.model, params)
+            call(task, "timing", controller.timing, bound.model, params)
+            probe = np.random.default_rng(0).normal(
+                size=(
+                    4,
+                    sum(o.size for o in task.observations if o.name in controller.observations),
+                )
+            )
+            try:
+                check_batch_independence(policy, probe)
+            except PolicyError as err:
+                raise TaskError(f"{_where(task)}: {err}") from None
+        try:
+            batch = next(
+                iter_batches(bound, nominal_values(task), condition, thresholds=thresholds)
+            )
+        except TaskError:  # the policy's too (`iter_batches` names the task file)
+            raise
+        except Exception as err:  # noqa: BLE001 - an error in the task's functions
+            raise TaskError(
+                f"{_where(task)}: condition {name}: the nominal episode raised "
+                f"{type(err).__name__}: {err}"
+            ) from None
+        _check_outcome(task, batch.episodes, thresholds)
+    _check_parameters_applied(bound)
+
+
+def _check_outcome(task: Task, episodes: Episodes, thresholds: Mapping[str, float]) -> None:
+    n = len(episodes.physics)
+    expect_rows(task, "success", call(task, "success", task.success, episodes), n, dtype=bool)
+    measures = call(task, "measure", task.measure, episodes)
+    for m in task.own_measures:
+        if m.name not in measures:
+            raise TaskError(f"{_where(task)}: measure: expected a value for {m.name!r}")
+        expect_rows(task, f"measure[{m.name!r}]", measures[m.name], n)
+    for c in task.failure_categories:
+        hit = call(task, f"failure category {c.name!r}", c.test, measures, thresholds)
+        expect_rows(task, f"failure category {c.name!r}", hit, n, dtype=bool)
+
+
+def _model_fingerprint(model) -> bytes:
+    """Every numeric array of a model, as bytes: equal fingerprints, equal physics."""
+    arrays = (getattr(model, name) for name in sorted(dir(model)) if not name.startswith("_"))
+    return b"".join(a.tobytes() for a in arrays if isinstance(a, np.ndarray))
+
+
+def _check_parameters_applied(bound: BoundTask) -> None:
+    """Each state parameter at its low and at its high value, the others nominal: the episode's
+    model, initial state or push must differ, or the parameter is never applied."""
+    task = bound.task
+    pushes = getattr(task.controller, "pushes", None)
+    scratch = mujoco.MjData(bound.model)
+    for p in task.state_parameters:
+        seen = []
+        for value in (p.low, p.high):
+            values = {k: v[0] for k, v in nominal_values(task).items()} | {p.name: value}
+            model, state = call(
+                task, f"state parameter {p.name!r}", bound.episode, values, scratch=scratch
+            )
+            push = (
+                pushes(bound.model, {k: np.array([v]) for k, v in values.items()})
+                if pushes
+                else None
+            )
+            seen.append((_model_fingerprint(model), state.tobytes(), repr(push)))
+        if seen[0] == seen[1]:
+            raise TaskError(
+                f"{_where(task)}: state parameter {p.name!r}: the episode is the same at its low "
+                f"and high values; expected its apply ({type(p.apply).__name__}) to change the "
+                "initial state, the model or a push"
+            )

@@ -1,0 +1,526 @@
+"""Recompute, do not trust the seal: what `mjtrial verify` checks beyond the stamps.
+
+A stamp or a seal records what a file was when it was written, not that it is right: a
+forged `summary.json` restamped, or a report edited with its seal deleted, passes every check
+on stamps. So verify also rebuilds, in memory, every output that is cheap to rebuild from its
+own inputs (the states, each condition's table from its shards, the analysis, the manifest,
+the report's text, the studies' summaries and reports) and compares; compares every recorded
+episode's outcome and measures (its recording's `episode` property) with its table row; and
+re-simulates a sample of episodes of every shard (`resimulate` per shard), each episode alone,
+against its table. The sample is drawn from a seed chosen at verify time (printed, `--seed`
+repeats it): a forger who can read the code cannot know which rows it will be, and an episode
+whose result depends on its batch is not re-confirmed in the batch that made it. By
+induction a forged link anywhere in the chain is named: each output is what its inputs give,
+and the roots (states, episodes) are what the seeds and the simulator give.
+
+Only outputs the stamps judge current are recomputed: for a stale one (a config value, the
+code or the model changed) a difference is expected, and the rebuild fixes it.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import zlib
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mjtrial import provenance
+from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.crate.check import crate_differences
+from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
+from mjtrial.recording import list_recordings
+from mjtrial.report import report_text
+from mjtrial.report.traces import record_difference
+from mjtrial.stages.analysis import summarize_tables
+from mjtrial.stages.manifest import manifest_record
+from mjtrial.stages.rollout import (
+    condition_batches,
+    condition_task,
+    nominal_episode,
+    read_state_values,
+    rollout_columns,
+)
+from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.states import draw_states
+from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
+from mjtrial.verify.chain import dict_diff
+
+__all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
+
+# Episodes re-simulated per shard by default: at the built-in N = 200 (one shard per
+# condition) verify takes a few seconds more; at 100,000 states (200 shards) about a minute.
+DEFAULT_RESIMULATE = 20
+
+# How many differing keys, lines or rows a reason names.
+_SHOWN = 3
+
+
+@dataclass
+class Recomputation:
+    """What the recomputation found: per output (repository-relative), why it differs."""
+
+    differs: dict[str, str] = field(default_factory=dict)
+    recomputed: int = 0
+    resimulated: int = 0
+    recorded: int = 0  # recorded episodes compared with their rows
+    seed: int = 0  # the re-simulated sample's
+
+    def line(self) -> str:
+        return (
+            f"recomputed {self.recomputed} outputs from their inputs, compared "
+            f"{self.recorded} recorded episodes with their rows and re-simulated "
+            f"{self.resimulated} episodes (sample seed {self.seed}: --seed {self.seed} draws "
+            f"it again): {len(self.differs)} differ"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Comparing an output with its recomputation
+# --------------------------------------------------------------------------------------------
+
+
+def _json_payload(path: Path) -> dict[str, Any]:
+    obj = json.loads(provenance.read_output_text(path))
+    return {k: v for k, v in obj.items() if k != "provenance"}
+
+
+def _roundtrip(obj: Any) -> Any:
+    """`obj` as JSON gives it back (tuples as lists, numpy scalars as numbers)."""
+    return json.loads(json.dumps(obj, default=lambda v: v.item()))
+
+
+def json_difference(path: Path, expected: Mapping[str, Any]) -> str | None:
+    """Why a JSON output is not `expected` (its stamp aside), or None."""
+    have, want = _json_payload(path), _roundtrip(dict(expected))
+    if json.dumps(have, sort_keys=True) == json.dumps(want, sort_keys=True):
+        return None
+    diff = dict_diff(have, want) or ["(in a value that compares equal)"]
+    more = f" and {len(diff) - _SHOWN} more" if len(diff) > _SHOWN else ""
+    return f"{'; '.join(diff[:_SHOWN])}{more} (file -> recomputed)"
+
+
+def markdown_difference(path: Path, expected: str) -> str | None:
+    """Why a Markdown output's text is not `expected` (its front matter aside), or None."""
+    _, body = provenance.formats._split_front_matter(provenance.read_output_text(path))
+    if body == expected:
+        return None
+    have, want = body.splitlines(), expected.splitlines()
+    for i in range(max(len(have), len(want))):
+        a = have[i] if i < len(have) else "(end of file)"
+        b = want[i] if i < len(want) else "(end of text)"
+        if a != b:
+            return f"line {i + 1}: {a[:60]!r} in the file, {b[:60]!r} recomputed"
+    return "differs in line endings"
+
+
+def _column_equal(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Element-wise equality, NaN equal to NaN and None to None."""
+    if a.dtype.kind == "f" and b.dtype.kind == "f":
+        return (a == b) | (np.isnan(a) & np.isnan(b))
+    return np.array([x == y for x, y in zip(a.tolist(), b.tolist(), strict=True)], dtype=bool)
+
+
+def table_difference(
+    table: pa.Table, expected: Mapping[str, np.ndarray], *, what: str = "rows"
+) -> str | None:
+    """Why `table`'s rows are not `expected` (column -> values, state ids aligned), or None."""
+    if table.num_rows != len(next(iter(expected.values()))):
+        return f"{table.num_rows} rows, {len(next(iter(expected.values())))} recomputed"
+    bad_rows = np.zeros(table.num_rows, dtype=bool)
+    bad_columns = []
+    for name, values in expected.items():
+        if name not in table.column_names:
+            return f"no column {name!r}"
+        have = table.column(name).to_numpy(zero_copy_only=False)
+        unequal = ~_column_equal(have, np.asarray(values))
+        if unequal.any():
+            bad_columns.append(name)
+            bad_rows |= unequal
+    if not bad_columns:
+        return None
+    ids = table.column("state_id").to_numpy()[bad_rows].tolist()
+    shown = ", ".join(map(str, ids[:_SHOWN])) + (
+        f" and {len(ids) - _SHOWN} more" if len(ids) > _SHOWN else ""
+    )
+    return f"{what} for states {shown} differ in {', '.join(bad_columns)}"
+
+
+def _platform_note(stamp: Mapping[str, Any]) -> str:
+    """Where the record was made, when that is not here: another CPU or MuJoCo build may
+    explain a re-simulation that differs."""
+    then = (stamp.get("versions", {}).get("mujoco"), stamp.get("platform", {}).get("cpu_model"))
+    now = (provenance.library_versions()["mujoco"], provenance.platform_fingerprint()["cpu_model"])
+    if then == now:
+        return ""
+    return (
+        f" (recorded with MuJoCo {then[0]} on {then[1]}; re-simulated with MuJoCo {now[0]} "
+        f"on {now[1]})"
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# The recomputation
+# --------------------------------------------------------------------------------------------
+
+
+def fresh_seed() -> int:
+    """A seed for the re-simulated sample, drawn from the system's entropy at verify time."""
+    return int(np.random.SeedSequence().entropy % 2**32)
+
+
+def sample_ids(first: int, stop: int, k: int, *, seed: int, key: str) -> list[int]:
+    """A sample of `k` state ids in [first, stop), fixed by `seed` and `key` (the shard)."""
+    ids = np.arange(first, stop)
+    if k >= ids.size:
+        return ids.tolist()
+    rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
+    return sorted(rng.choice(ids, size=k, replace=False).tolist())
+
+
+class _Checker:
+    """Runs each check whose outputs the stamps judged current, recording differences."""
+
+    def __init__(
+        self,
+        layout: Layout,
+        config: Mapping[str, Any],
+        repo_root: Path,
+        current: Iterable[str],
+        command_line: Mapping[str, Any],
+        command: str,
+    ) -> None:
+        self.layout, self.config, self.repo_root = layout, config, repo_root
+        self.command_line, self.command = command_line, command
+        self.current = set(current)
+        self.model_file = repo_root / config["model"]
+        self.found = Recomputation()
+        self.config_file = CONFIG_FILE
+
+    def rel(self, path: Path) -> str:
+        return Path(path).relative_to(self.repo_root).as_posix()
+
+    def is_current(self, *paths: Path) -> bool:
+        return all(self.rel(p) in self.current for p in paths)
+
+    def check(self, path: Path, difference: Callable[[], str | None]) -> None:
+        if not self.is_current(path):
+            return
+        self.found.recomputed += 1
+        try:
+            why = difference()
+        except Exception as err:  # noqa: BLE001 - an output that cannot be read back is named
+            why = f"cannot be recomputed ({type(err).__name__}: {' '.join(str(err).split())[:100]})"
+        if why:
+            self.add(path, f"differs from its recomputation: {why}")
+
+    def add(self, path: Path, why: str) -> None:
+        """Record why an output differs (after what an earlier check found in it)."""
+        rel = self.rel(path)
+        self.found.differs[rel] = (
+            f"{self.found.differs[rel]}; {why}" if rel in self.found.differs else why
+        )
+
+    # -- the checks --------------------------------------------------------------------------
+
+    def states(self) -> None:
+        states = config_slice("states", self.config)
+        drawn = {}
+
+        def difference(path: Path, development: bool) -> str | None:
+            if not drawn:
+                drawn["tables"] = draw_states(states, repo_root=self.repo_root)
+            table = drawn["tables"][1 if development else 0]
+            expected = {c: table.column(c).to_numpy() for c in table.column_names}
+            return table_difference(pq.read_table(path), expected)
+
+        self.check(self.layout.states, lambda: difference(self.layout.states, False))
+        self.check(
+            self.layout.development_states,
+            lambda: difference(self.layout.development_states, True),
+        )
+
+    def conditions(self) -> Iterable[tuple[str, str]]:
+        """(variant, condition) of every rollout the config names."""
+        for c in all_conditions(self.config):
+            yield NOMINAL, c
+        for v in variant_names(self.config):
+            for c in self.config["conditions"]:
+                yield v, c
+
+    def rollouts(self, resimulate: int) -> None:
+        n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
+        shards = shard_ids(n, size)
+        recorded = self.config["recording"]["episodes"]
+        for variant, condition in self.conditions():
+            qualified = condition if variant == NOMINAL else f"{variant}/{condition}"
+            slice_ = config_slice("rollout", self.config, condition=qualified)
+            tables = [self.layout.shard_table(condition, s, variant) for s in shards]
+            gathered = self.layout.rollout_table(condition, variant)
+            if self.is_current(*tables):
+
+                def concatenated(
+                    tables: list[Path] = tables, gathered: Path = gathered
+                ) -> str | None:
+                    parts = [pq.read_table(p) for p in tables]
+                    expected = {
+                        c: np.concatenate(
+                            [t.column(c).to_numpy(zero_copy_only=False) for t in parts]
+                        )
+                        for c in parts[0].column_names
+                    }
+                    return table_difference(
+                        pq.read_table(gathered), expected, what="rows of its shards"
+                    )
+
+                self.check(gathered, concatenated)
+            nominal = self.layout.nominal_episode(condition, variant)
+            self.check(
+                nominal,
+                lambda s=slice_, p=nominal: json_difference(
+                    p, nominal_episode(s, self.model_file, repo_root=self.repo_root)
+                ),
+            )
+            for shard, table in zip(shards, tables, strict=True):
+                folder = self.layout.shard_recordings(condition, shard, variant)
+                if recorded != "none" and self.is_current(table, folder):
+                    self.recordings(table, folder, condition, only_failed=recorded == "failed")
+                if resimulate > 0:
+                    first, stop = shard_range(shard, size, n)
+                    ids = sample_ids(
+                        first, stop, resimulate, seed=self.found.seed, key=self.rel(table)
+                    )
+                    self.check(table, lambda s=slice_, t=table, i=ids: self.resimulated(s, t, i))
+
+    def recordings(self, table_path: Path, folder: Path, condition: str, *, only_failed: bool):
+        """Compare every recorded episode's outcome and measures (its recording's `episode`
+        property, no trajectory read) with its row of the shard's table, and check that every
+        episode the config records has a recording: a row edited under a fresh stamp is named
+        though it lies outside the re-simulated sample."""
+        try:
+            table = pq.read_table(table_path)
+            records = {
+                r["state_id"]: r for r in list_recordings(folder) if r.get("condition") == condition
+            }
+        except (OSError, ValueError) as err:
+            self.add(
+                table_path, f"its recordings cannot be read ({' '.join(str(err).split())[:100]})"
+            )
+            return
+        columns = {c: table.column(c).to_pylist() for c in table.column_names}
+        differ, unrecorded = [], []
+        for i, state_id in enumerate(columns["state_id"]):
+            row = {c: v[i] for c, v in columns.items()}
+            record = records.pop(state_id, None)
+            if record is None:
+                if not (only_failed and row["success"]):
+                    unrecorded.append(state_id)
+                continue
+            self.found.recorded += 1
+            why = record_difference(record, row)
+            if why:
+                differ.append(f"state {state_id}: {why} in the table")
+        for state_id in records:
+            differ.append(f"state {state_id}: recorded, but the table has no row for it")
+        if unrecorded:
+            differ.append(f"no recording of states {unrecorded[:_SHOWN]} in {self.rel(folder)}")
+        if differ:
+            more = f" and {len(differ) - _SHOWN} more" if len(differ) > _SHOWN else ""
+            self.add(
+                table_path,
+                f"its recorded episodes say otherwise: {'; '.join(differ[:_SHOWN])}{more}",
+            )
+
+    def resimulated(
+        self, slice_: Mapping[str, Any], table_path: Path, ids: list[int]
+    ) -> str | None:
+        table = pq.read_table(table_path)
+        rows = {sid: i for i, sid in enumerate(table.column("state_id").to_numpy().tolist())}
+        missing = [i for i in ids if i not in rows]
+        if missing:
+            return f"no row for states {missing[:_SHOWN]}"
+        bound = condition_task(slice_, self.model_file, repo_root=self.repo_root)
+        every = read_state_values(self.layout.states, bound.task)
+        values = {k: v[ids] for k, v in every.items()}
+        columns = rollout_columns(bound.task)
+        outcome: dict[str, list[np.ndarray]] = {c: [] for c in columns}
+        # Each episode alone: not the batch it ran in (`mjtrial.engine.BATCH_SIZE` rows or the
+        # shard's), so a result that depends on its batch is not confirmed.
+        for batch in condition_batches(bound, slice_, values, nthread=1, batch_size=1):
+            outcome["state_id"].append(batch.values["state_id"])
+            for c in columns[1:]:
+                outcome[c].append(batch.outcome[c])
+        self.found.resimulated += len(ids)
+        sampled = table.take(pa.array([rows[i] for i in ids]))
+        why = table_difference(
+            sampled,
+            {c: np.concatenate(v) for c, v in outcome.items()},
+            what="re-simulated episodes",
+        )
+        return why and why + _platform_note(provenance.read_stamp(table_path))
+
+    def analysis(self) -> None:
+        layout, conditions = self.layout, list(self.config["conditions"])
+        self.check(
+            layout.summary,
+            lambda: json_difference(
+                layout.summary,
+                summarize_tables(
+                    states_path=layout.states,
+                    rollout_tables={c: layout.rollout_table(c) for c in conditions},
+                    nominal_files={c: layout.nominal_episode(c) for c in conditions},
+                    analysis_slice=config_slice("analysis", self.config),
+                    repo_root=self.repo_root,
+                ),
+            ),
+        )
+
+    def manifest(self) -> None:
+        layout, conditions = self.layout, list(self.config["conditions"])
+        shards = shard_ids(self.config["states"]["n"], self.config["rollout"]["shard_size"])
+        recorded = self.config["recording"]["episodes"] != "none"
+        outputs = [layout.states]
+        for c in conditions:
+            outputs += [layout.rollout_table(c), layout.nominal_episode(c)]
+            outputs += layout.shard_outputs(c, shards, recorded=recorded)
+        if recorded:
+            outputs += [layout.failures, layout.failures_table]
+        if not self.is_current(layout.summary, *outputs):
+            return
+        self.check(
+            layout.manifest,
+            lambda: json_difference(
+                layout.manifest,
+                manifest_record(
+                    config=config_slice("manifest", self.config),
+                    command_line=self.command_line,
+                    command=self.command,
+                    config_file=self.config_file,
+                    summary_path=layout.summary,
+                    outputs=outputs,
+                    model_file=self.model_file,
+                    repo_root=self.repo_root,
+                )[0],
+            ),
+        )
+
+    def report(self) -> None:
+        layout = self.layout
+        if not self.is_current(layout.summary, layout.manifest):
+            return
+        self.check(
+            layout.report,
+            lambda: markdown_difference(
+                layout.report,
+                report_text(
+                    summary_path=layout.summary,
+                    config=config_slice("report", self.config),
+                    manifest_path=layout.manifest,
+                    figure_paths=layout.figure_files(),
+                    output=layout.report,
+                    repo_root=self.repo_root,
+                ),
+            ),
+        )
+
+    def crate(self, stamps: Mapping[str, Mapping[str, Any]]) -> None:
+        """The crate and its copy of the sources, rebuilt from the folder (`mjtrial.crate`)."""
+        layout = self.layout
+        if not self.is_current(layout.crate):
+            return
+        self.found.recomputed += 2
+        try:
+            differs = crate_differences(layout, repo_root=self.repo_root, stamps=stamps)
+        except (OSError, ValueError) as err:
+            why = " ".join(str(err).split())[:160]
+            differs = {self.rel(layout.crate): f"cannot be recomputed ({why})"}
+        for path, why in differs.items():
+            self.found.differs[path] = f"differs from its recomputation: {why}"
+
+    def studies(self) -> None:
+        layout, config = self.layout, self.config
+        for study in STUDIES:
+            summary_path, report_path = layout.study_summary(study), layout.study_report(study)
+            if study == "sensitivity":
+                if not variant_names(config):
+                    continue
+                falsifier = config["design"]["falsifier"]
+                pair = [falsifier["treatment"], falsifier["baseline"]]
+                tables = {
+                    v: {c: layout.rollout_table(c, v) for c in pair}
+                    for v in [NOMINAL, *variant_names(config)]
+                }
+                inputs = [p for by in tables.values() for p in by.values()]
+
+                def summarize(tables: Any = tables) -> dict[str, Any]:
+                    return sensitivity_summary(
+                        study_slice=config_slice("sensitivity", config),
+                        tables=tables,
+                        model_file=self.model_file,
+                    )
+            else:
+                sweep = sweep_conditions(config)
+                if not sweep:
+                    continue
+                tables = {v: layout.rollout_table(c) for v, c in sweep.items()}
+                inputs = [layout.states, *tables.values()]
+
+                def summarize(tables: Any = tables) -> dict[str, Any]:
+                    return dose_response_summary(
+                        study_slice=config_slice("dose_response", config),
+                        states_path=layout.states,
+                        tables=tables,
+                        repo_root=self.repo_root,
+                    )
+
+            if not self.is_current(*inputs):
+                continue
+            summary = functools.cache(summarize)
+            self.check(summary_path, lambda p=summary_path, f=summary: json_difference(p, f()))
+            self.check(
+                report_path,
+                lambda s=study, p=report_path, f=summary: markdown_difference(
+                    p, study_report_text(s, f(), report=p, figures_dir=layout.figures_dir)
+                ),
+            )
+
+
+def recompute(
+    layout: Layout,
+    config: Mapping[str, Any],
+    *,
+    repo_root: Path,
+    current: Iterable[str],
+    resimulate: int = DEFAULT_RESIMULATE,
+    seed: int | None = None,
+    command_line: Mapping[str, Any] | None = None,
+    command: str = "snakemake -c2",
+    config_file: str = CONFIG_FILE,
+    stamps: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Recomputation:
+    """Recompute every light output of `layout` that the stamps judged current (`current`,
+    repository-relative paths) and re-simulate `resimulate` episodes per shard, drawn with
+    `seed` (None: a fresh one, `fresh_seed`).
+
+    `command_line` and `command` are what the manifest records of the run's command line
+    (`mjtrial.stages.manifest`): the config values it was given, and the command itself;
+    `config_file` the run's config file, repository-relative; `stamps` the stamps verify read
+    (repository-relative path -> stamp), from which the crate is rebuilt.
+    """
+    checker = _Checker(layout, config, Path(repo_root), current, command_line or {}, command)
+    checker.config_file = config_file
+    checker.found.seed = fresh_seed() if seed is None else seed
+    checker.states()
+    checker.rollouts(resimulate)
+    checker.analysis()
+    checker.manifest()
+    checker.report()
+    checker.studies()
+    checker.crate(stamps or {})
+    return checker.found
