@@ -17,6 +17,7 @@ from mjtrial.task import (
     MocapPosition,
     ModelValue,
     Observation,
+    Rotation,
     StateParameter,
     TaskError,
     load_task,
@@ -180,3 +181,79 @@ def test_a_custom_model_parameter_gets_a_fresh_copy_every_episode(reacher):
     values = {p.name: 0.1 for p in parameters}
     model, _ = bound.episode(values, scratch=mujoco.MjData(bound.model), model=slot)
     assert model is not slot
+
+
+ROTATED = """<mujoco><worldbody>
+  <body name="arm" pos="0.1 0 0" {body}><joint type="hinge" axis="0 0 1"/>
+    <geom name="marker" type="box" size=".05 .02 .01" pos=".1 0 0" {geom}/>
+    <site name="tip" pos=".2 0 0" {site}/></body>
+  <body name="goal" mocap="true" {goal}><geom size=".01"/></body>
+</worldbody></mujoco>"""
+
+
+def _rotated(**euler: str) -> mujoco.MjModel:
+    """The model with MuJoCo's own `euler` attribute (radians, the default xyz sequence of
+    intrinsic rotations) written on the named elements: the reference for `Rotation`."""
+    attrs = {k: f'euler="{v}"' for k, v in euler.items()}
+    xml = ROTATED.format(**{k: attrs.get(k, "") for k in ("body", "geom", "site", "goal")})
+    return mujoco.MjModel.from_xml_string(
+        xml.replace("<mujoco>", '<mujoco><compiler angle="radian"/>')
+    )
+
+
+@pytest.mark.parametrize(
+    ("kind", "name", "key", "axis"),
+    [
+        ("body", "arm", "body", 2),
+        ("geom", "marker", "geom", 1),
+        ("site", "tip", "site", 0),
+        ("body", "goal", "goal", 2),
+    ],
+)
+def test_a_rotation_turns_an_element_as_the_models_own_euler_attribute_does(kind, name, key, axis):
+    angles = ["0", "0", "0"]
+    angles[axis] = "0.7"
+    reference = _rotated(**{key: " ".join(angles)})
+    model = _rotated()
+    data = mujoco.MjData(model)
+    apply = Rotation(kind, name, axis).bind(model)
+    apply(model, data, 0.3)  # a reused copy: the value is set from the nominal, not added
+    apply(model, data, 0.7)
+    mujoco.mj_forward(model, data)
+    expected = mujoco.MjData(reference)
+    mujoco.mj_forward(reference, expected)
+    for field in ("xquat", "geom_xmat", "site_xpos", "site_xmat", "geom_xpos"):
+        np.testing.assert_allclose(getattr(data, field), getattr(expected, field), atol=1e-12)
+    if name == "goal":
+        np.testing.assert_allclose(data.mocap_quat[0], reference.body_quat[2], atol=1e-12)
+
+
+def test_a_rotation_names_a_wrong_kind_axis_or_element():
+    model = _rotated()
+    with pytest.raises(TaskError, match="kind: expected one of"):
+        Rotation("joint", "arm", 0).bind(model)
+    with pytest.raises(TaskError, match="axis: expected 0, 1 or 2, got 3"):
+        Rotation("body", "arm", 3).bind(model)
+    with pytest.raises(TaskError, match="marker2"):
+        Rotation("geom", "marker2", 0).bind(model)
+
+
+def test_a_model_value_moves_a_geom_compiled_at_its_bodys_frame():
+    """MuJoCo's compiler marks a geom or site without a pos or quat of its own as sharing its
+    body's frame, and kinematics then ignores its pos: a moved goal would stay put."""
+    plain = '<mujoco><worldbody><body name="b" pos=".1 0 0"><geom name="g" size=".01"/>'
+    plain += '<site name="s"/></body></worldbody></mujoco>'
+    model = mujoco.MjModel.from_xml_string(plain)
+    data = mujoco.MjData(model)
+    ModelValue("geom", "g", "pos", 1).bind(model)(model, data, 0.25)
+    ModelValue("site", "s", "pos", 2).bind(model)(model, data, -0.5)
+    mujoco.mj_forward(model, data)
+    reference = mujoco.MjModel.from_xml_string(
+        plain.replace('name="g"', 'name="g" pos="0 .25 0"').replace(
+            'name="s"', 'name="s" pos="0 0 -.5"'
+        )
+    )
+    expected = mujoco.MjData(reference)
+    mujoco.mj_forward(reference, expected)
+    np.testing.assert_allclose(data.geom_xpos, expected.geom_xpos, atol=1e-15)
+    np.testing.assert_allclose(data.site_xpos, expected.site_xpos, atol=1e-15)

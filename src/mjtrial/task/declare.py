@@ -47,6 +47,14 @@ def _element(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
 # --------------------------------------------------------------------------------------------
 
 
+def _own_frame(model: mujoco.MjModel, kind: str, index: int) -> None:
+    """Make the compiler's shortcut forget a geom's or site's frame: one compiled at its body's
+    frame (`geom_sameframe`, `site_sameframe`) has its `pos` and `quat` ignored by
+    `mj_kinematics`, so a position or orientation set per episode would not move it."""
+    if kind in ("geom", "site"):
+        getattr(model, f"{kind}_sameframe")[index] = 0
+
+
 @dataclass(frozen=True)
 class BodyMass:
     """Sets a body's mass (inertia as compiled); constants are recomputed (`mj_setConst`)."""
@@ -130,9 +138,13 @@ class ModelValue:
                 f"index {self.index} (it has {field_.size} numbers)"
             )
         kind, name, attribute, index = self.kind, self.name, self.attribute, self.index
+        moves = attribute in ("pos", "quat")
 
         def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            getattr(getattr(m, kind)(name), attribute)[index] = value
+            target = getattr(m, kind)(name)
+            getattr(target, attribute)[index] = value
+            if moves:
+                _own_frame(m, kind, target.id)
 
         return apply
 
@@ -160,6 +172,48 @@ class MocapPosition:
         def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
             m.body_pos[body, axis] = value
             d.mocap_pos[mocap, axis] = value
+
+        return apply
+
+
+@dataclass(frozen=True)
+class Rotation:
+    """Turns a body, geom or site by `value` radians about one of its own axes (0, 1, 2: x, y,
+    z) from its orientation in the model as loaded: `Rotation("geom", "target", 2)` yaws a goal
+    marker. The quaternion is set from the nominal one each time (`q = q0 * (cos v/2, sin v/2
+    along the axis)`), so a reused model copy gets the value a fresh one would; a mocap body's
+    pose is set in the reset data too, as `MocapPosition` does."""
+
+    kind: str
+    name: str
+    axis: int
+    stage = "model"
+    sets = True  # from the nominal orientation, whatever was there: a model copy can be reused
+
+    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
+        kinds = {
+            "body": (mujoco.mjtObj.mjOBJ_BODY, "body_quat"),
+            "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_quat"),
+            "site": (mujoco.mjtObj.mjOBJ_SITE, "site_quat"),
+        }
+        if self.kind not in kinds:
+            raise TaskError(f"kind: expected one of {list(kinds)}, got {self.kind!r}")
+        if self.axis not in (0, 1, 2):
+            raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
+        obj, field_ = kinds[self.kind]
+        index = _element(model, obj, self.name)
+        nominal = getattr(model, field_)[index].copy()
+        mocap = model.body_mocapid[index] if self.kind == "body" else -1
+        kind, axis = self.kind, self.axis
+
+        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
+            turn = np.zeros(4)
+            turn[0], turn[1 + axis] = np.cos(value / 2), np.sin(value / 2)
+            quat = getattr(m, field_)[index]
+            mujoco.mju_mulQuat(quat, nominal, turn)
+            _own_frame(m, kind, index)
+            if mocap >= 0:
+                d.mocap_quat[mocap] = quat
 
         return apply
 
