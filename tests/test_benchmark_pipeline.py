@@ -2,7 +2,9 @@
 report is built and a second run does nothing; adding a seed runs only that seed's training and
 evaluation, and what reads every seed; the fixed method's outcomes equal the gantry's plain
 `mj_step` reference on the same evaluation states; both overall rates in the summary equal
-sums done here from the evaluation tables."""
+sums done here from the evaluation tables. The ES-trained MLP runs one policy file per training
+seed on the cart-pole only: its IQM is over those files, the gantry says it was not run, and a
+file edited after the run fails verify naming the file."""
 
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ N_STATES = 16
 CARTPOLE = "config/cartpole_latency.yaml"
 CARTPOLE_SHARD = 6
 CLOSEST_K = 3
+MLP = "policies/cartpole_mlp/seed-{}.onnx"
 
 
 def edit_yaml(path: Path, edit) -> None:
@@ -44,6 +47,8 @@ def small(config):
     bench["methods"]["tuned"]["episodes_per_candidate"] = 4
     bench["analysis"]["n_resamples"] = 200
     bench["closest_calls"] = CLOSEST_K
+    # the MLP's checkpoints of the 3 seeds: the glob names one file per seed
+    bench["methods"]["mlp_es"]["tasks"]["cartpole_latency"]["policy"] = MLP.format("[1-3]")
 
 
 @pytest.fixture(scope="module")
@@ -82,17 +87,25 @@ def test_the_benchmark_builds_its_report_and_a_second_run_does_nothing(bench):
 
 
 def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_every_seed(bench):
+    def policy(pattern):
+        def edit(c):
+            c["benchmark"]["methods"]["mlp_es"]["tasks"]["cartpole_latency"]["policy"] = pattern
+
+        return edit
+
     edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].append(4))
+    edit_yaml(bench / CONFIG, policy(MLP.format("[1-4]")))
     try:
         jobs = planned(bench)
     finally:
         edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].remove(4))
-    # 2 tasks x 2 methods for seed 4 (the gantry's evaluations in 1 shard, the cart-pole's in
-    # 3), then what reads every seed, and the seal and crate
+        edit_yaml(bench / CONFIG, policy(MLP.format("[1-3]")))
+    # 2 tasks x 2 methods for seed 4 and the MLP's fourth file on the cart-pole (the gantry's
+    # evaluations in 1 shard, the cart-pole's in 3), then what reads every seed, seal and crate
     assert jobs == {
-        "train": 4,
-        "evaluate": 2 * 1 + 2 * 3,
-        "evaluate_gather": 4,
+        "train": 5,
+        "evaluate": 2 * 1 + 3 * 3,
+        "evaluate_gather": 5,
         "benchmark_summary": 1,
         "closest_calls": 1,
         "benchmark_report": 1,
@@ -610,3 +623,102 @@ def test_a_benchmark_diffs_with_its_evaluations_and_comparisons(bench, tmp_path,
     groups = {p.relative_to(results / "evaluation").with_suffix("").as_posix() for p in evaluations}
     assert set(diff["conditions"]) == groups
     assert diff["made"]["config"] == [] and diff["outputs"]["differ"] == []
+
+
+def _naive_iqm(scores: list[float]) -> float:
+    """rliable's IQM by hand: the mean of the middle half of the sorted scores, the quartile
+    boundaries' scores weighted by the fraction of them inside (scipy's trim_mean for n % 4 = 0)."""
+    x = np.sort(np.asarray(scores, dtype=float))
+    n = len(x)
+    lo, hi = n / 4, 3 * n / 4
+    weights = np.clip(np.minimum(np.arange(1, n + 1), hi) - np.maximum(np.arange(n), lo), 0, 1)
+    return float(np.sum(weights * x) / np.sum(weights))
+
+
+def test_the_mlp_runs_one_file_per_seed_on_the_cartpole_only_and_its_iqm_is_over_them(bench):
+    from scipy.stats import trim_mean
+
+    summary = json.loads((bench / LAYOUT.summary).read_text())
+    rates = []
+    for seed in (1, 2, 3):
+        file = MLP.format(seed)
+        record = json.loads(
+            (bench / LAYOUT.parameters("cartpole_latency", "mlp_es", seed)).read_text()
+        )
+        assert record["policy"]["path"] == file and record["episodes_used"] == 0
+        assert record["policy"]["sha256"] == provenance.file_sha256(bench / file)
+        assert record["parameters"] == {"latency": 0.02}  # the benchmark's condition
+        train = provenance.read_stamp(bench / LAYOUT.parameters("cartpole_latency", "mlp_es", seed))
+        shards = (bench / LAYOUT.evaluation("cartpole_latency", "mlp_es", seed)).with_suffix("")
+        stamps = [train] + [provenance.read_stamp(p) for p in sorted(shards.glob("*.parquet"))]
+        for stamp in stamps:  # graph and contract, with their sha256, in every stamp
+            assert [r["path"] for r in stamp["inputs"]["policy"]] == [
+                file,
+                "policies/cartpole_mlp/policy.yaml",
+            ]
+            assert stamp["inputs"]["policy"][0]["sha256"] == record["policy"]["sha256"]
+        assert stamps[1]["config_slice"]["policy"] == file
+        assert "policy_runtime" in stamps[1]["extra"]
+        success = pq.read_table(bench / LAYOUT.evaluation("cartpole_latency", "mlp_es", seed))
+        rates.append(float(np.mean(success.column("success").to_numpy())))
+    mlp = summary["overall"]["mlp_es"]
+    assert mlp["tasks"] == ["cartpole_latency"] and summary["not_run"] == {
+        "mlp_es": ["gantry_lift"]
+    }
+    assert "mlp_es" not in summary["per_task"]["gantry_lift"]
+    assert mlp["iqm"]["estimate"] == pytest.approx(trim_mean(rates, 0.25))
+    assert mlp["iqm"]["estimate"] == pytest.approx(_naive_iqm(rates))
+    assert [mlp["task_mean"]["per_seed"][str(s)]["estimate"] for s in (1, 2, 3)] == (
+        pytest.approx(rates)
+    )
+    spread = summary["per_task"]["cartpole_latency"]["mlp_es"]["spread_over_seeds"]
+    assert (spread["min"], spread["max"]) == (pytest.approx(min(rates)), pytest.approx(max(rates)))
+    assert {
+        (c["a"], c["b"], c["task"]) for c in summary["comparisons"] if "mlp_es" in (c["a"], c["b"])
+    } == {
+        ("as_designed", "mlp_es", "cartpole_latency"),
+        ("tuned", "mlp_es", "cartpole_latency"),
+    }
+    # the tuned methods' numbers are over both tasks, as without the MLP
+    assert "tasks" not in summary["overall"]["tuned"]
+    report = (bench / LAYOUT.report).read_text()
+    assert "| gantry_lift | mlp_es | not run on this task | |" in report
+    assert "- mlp_es (cartpole_latency only): " in report
+    for seed in (1, 2, 3):
+        sha = provenance.file_sha256(bench / MLP.format(seed))[:12]
+        assert f"| cartpole_latency | mlp_es | {seed} | {MLP.format(seed)} | {sha} |" in report
+    # the crate lists each file the run read (and its copy of the sources holds it)
+    entities = {e["@id"]: e for e in json.loads((bench / LAYOUT.crate).read_text())["@graph"]}
+    for file in [MLP.format(s) for s in (1, 2, 3)] + ["policies/cartpole_mlp/policy.yaml"]:
+        assert entities[f"source/{file}"]["sha256"] == provenance.file_sha256(bench / file)
+
+
+def test_a_policy_file_edited_after_the_run_reruns_its_seed_and_fails_verify(bench, tmp_path):
+    """One byte of the second seed's graph changed (a weight): the plan reruns that seed's
+    training and evaluation and what reads every seed, nothing else; verify names the file."""
+    workdir = _copy(bench, tmp_path)
+    file = workdir / MLP.format(2)
+    data = bytearray(file.read_bytes())
+    at = data.index(b"w1J") + 3  # the initializer w1's raw data (field 9): its length, then floats
+    while data[at] & 0x80:
+        at += 1
+    data[at + 1] ^= 0x01  # the low bit of its first weight: a valid graph, another network
+    file.write_bytes(bytes(data))
+    assert planned(workdir) == {
+        "train": 1,
+        "evaluate": 3,
+        "evaluate_gather": 1,
+        "benchmark_summary": 1,
+        "closest_calls": 1,
+        "benchmark_report": 1,
+        "benchmark_seal": 1,
+        "benchmark_crate": 1,
+        "all": 1,
+    }
+    done = verify(workdir)
+    assert done.returncode == 1, done.stdout + done.stderr
+    problems = [line for line in done.stdout.splitlines() if line.startswith("problem")]
+    assert problems[0].startswith(
+        f"problem  {MLP.format(2)}: policy file changed since the run "
+        f"({LAYOUT.parameters('cartpole_latency', 'mlp_es', 2).as_posix()} read it with sha256 "
+    ), done.stdout

@@ -23,7 +23,6 @@ LAYOUT = BenchmarkLayout.of(config["experiment"])
 BENCH = config["benchmark"]
 TASKS = list(BENCHMARK_TASKS)
 METHODS = list(BENCH["methods"])
-SEEDS = [str(s) for s in BENCH["seeds"]]
 # a method marked `none` on a task has no run there
 RUNS = [(t, m, str(s)) for t, m, s in benchmark_runs(config)]
 
@@ -57,8 +56,8 @@ def task_content_of(wildcards):
 
 
 def policy_files_of(wildcards):
-    """The run's policy file and its contract (a method that runs one per training seed), or
-    none: inputs of its training and evaluation, so that editing either reruns exactly them."""
+    """The run's policy file and its contract (a method that runs one per training seed),
+    or none: inputs of its training and evaluation, so editing either reruns just them."""
     files = BENCHMARK_TASKS[wildcards.task].policies.get(wildcards.method, {})
     policy = files.get(int(wildcards.seed))
     return [] if policy is None else [policy, str(contract_path(Path(policy)))]

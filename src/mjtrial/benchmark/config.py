@@ -32,7 +32,7 @@ from mjtrial.config import (
 )
 from mjtrial.crate.description import crate_description
 from mjtrial.layout import shard_ids, shard_range
-from mjtrial.policy_file import PolicyFileError, load_policy_file
+from mjtrial.policy_file import load_policy_file, policy_task
 from mjtrial.task import Task, TaskError, load_task
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "benchmark.schema.yaml"
@@ -77,6 +77,8 @@ def checkpoint_files(pattern: str, seeds: list[int], *, repo_root: Path) -> dict
     """The policy file of each training seed: the files `pattern` matches (relative to
     `repo_root`), each holding its seed as the last number of its name (`seed-3.onnx`: seed 3).
     `ValueError` (the expectation, one line) unless exactly one file per seed matches."""
+    if Path(pattern).is_absolute() or ".." in Path(pattern).parts:
+        raise ValueError("expected a glob inside the repository, relative to it")
     found = sorted(glob.glob(pattern, root_dir=repo_root))
     by_seed: dict[int, list[str]] = {}
     for name in found:
@@ -256,9 +258,9 @@ def _policy_files(
         fail(f"{key}.policy", f"{spec['policy']!r}: {err}")
     for path in files.values():
         try:
-            load_policy_file(repo_root / path, bt.task)
-        except PolicyFileError as err:
-            fail(f"{key}.policy", str(err))
+            policy_task(bt.task, load_policy_file(repo_root / path, bt.task))
+        except TaskError as err:  # a PolicyFileError, or observations the task cannot give
+            fail(f"{key}.policy", str(err).replace(f"{repo_root}/", ""))
     return files
 
 

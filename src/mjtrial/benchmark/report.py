@@ -208,8 +208,9 @@ def _closest_calls(rows: Sequence[Mapping[str, Any]]) -> list[str]:
         "Watch these before trusting a rate (`rerun replay/closest_calls.rrd`): per task, the "
         "successes that passed by the smallest margin and the episodes of largest margin, the "
         "task's highest scores, where a success test passed the wrong way shows. Each was "
-        "re-simulated and reproduced its evaluation row; a method that tunes nothing ran the "
-        "same episodes under every seed, so its first seed stands for all.",
+        "re-simulated and reproduced its evaluation row; a method that tunes nothing and runs "
+        "no policy file of its own per seed ran the same episodes under every seed, so its "
+        "first seed stands for all.",
         "",
     ]
     if not rows:
