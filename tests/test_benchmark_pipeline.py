@@ -395,11 +395,17 @@ def test_the_solvability_check_runs_the_corners_under_the_reference_and_lists_fa
 def _margins_by_hand(bench: Path, task: str) -> list[tuple[float, bool, str, int, int]]:
     """(margin, success, method, seed, state) of every candidate episode, from the evaluation
     tables and the tasks' success tests as their modules state them (the fixed method ran the
-    same episodes under every seed: its first seed's)."""
+    same episodes under every seed: its first seed's; the MLP's seeds are files of their own,
+    run on the cart-pole only)."""
     from gantry_lift.protocol import PROTOCOL
 
     rows = []
-    for method in ("as_designed", "tuned"):
+    methods = (
+        ("as_designed", "tuned", "mlp_es")
+        if task == "cartpole_latency"
+        else ("as_designed", "tuned")
+    )
+    for method in methods:
         for seed in (1,) if method == "as_designed" else (1, 2, 3):
             table = pq.read_table(bench / LAYOUT.evaluation(task, method, seed)).to_pylist()
             for r in table:
@@ -571,8 +577,9 @@ def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench
     done = mjtrial(bench, "verify", folder)
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"verified: {folder}:" in done.stdout
-    # every state of every evaluation: 20 by default, more than any shard holds
-    assert "re-simulated 192 evaluation episodes" in done.stdout
+    # every state of every evaluation: 20 by default, more than any shard holds; 16 states x
+    # 3 seeds x (2 methods x 2 tasks, and the MLP's files on the cart-pole)
+    assert f"re-simulated {16 * 3 * 5} evaluation episodes" in done.stdout
     workdir = _copy(bench, tmp_path)
     shard = LAYOUT.evaluation_shard("cartpole_latency", "tuned", 2, "00001")
     table = pq.read_table(workdir / shard)
@@ -584,8 +591,9 @@ def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench
     provenance.write_parquet(flipped, workdir / shard, provenance.read_stamp(workdir / shard))
     done = mjtrial(workdir, "verify", folder, "--resimulate", "2")
     assert done.returncode == 1, done.stdout + done.stderr
-    # 2 of each shard: 1 shard of the gantry's and 3 of the cart-pole's, 6 runs each
-    assert "re-simulated 48 evaluation episodes (sample seed " in done.stdout
+    # 2 of each shard: 1 shard of the gantry's (6 runs) and 3 of the cart-pole's (9 runs: the
+    # MLP's 3 files too)
+    assert f"re-simulated {2 * (6 * 1 + 9 * 3)} evaluation episodes (sample seed " in done.stdout
     resimulated = [line for line in done.stdout.splitlines() if "re-simulated episodes" in line]
     assert len(resimulated) == 1, done.stdout
     found = re.fullmatch(
@@ -626,13 +634,11 @@ def test_a_benchmark_diffs_with_its_evaluations_and_comparisons(bench, tmp_path,
 
 
 def _naive_iqm(scores: list[float]) -> float:
-    """rliable's IQM by hand: the mean of the middle half of the sorted scores, the quartile
-    boundaries' scores weighted by the fraction of them inside (scipy's trim_mean for n % 4 = 0)."""
-    x = np.sort(np.asarray(scores, dtype=float))
-    n = len(x)
-    lo, hi = n / 4, 3 * n / 4
-    weights = np.clip(np.minimum(np.arange(1, n + 1), hi) - np.maximum(np.arange(n), lo), 0, 1)
-    return float(np.sum(weights * x) / np.sum(weights))
+    """The interquartile mean as rliable takes it (scipy's trim_mean at 0.25), by hand: the mean
+    of the sorted scores without the lowest and highest quarter (floor(n / 4) each)."""
+    x = sorted(scores)
+    cut = len(x) // 4
+    return float(np.mean(x[cut : len(x) - cut]))
 
 
 def test_the_mlp_runs_one_file_per_seed_on_the_cartpole_only_and_its_iqm_is_over_them(bench):
