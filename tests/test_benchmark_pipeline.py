@@ -728,3 +728,20 @@ def test_a_policy_file_edited_after_the_run_reruns_its_seed_and_fails_verify(ben
         f"problem  {MLP.format(2)}: policy file changed since the run "
         f"({LAYOUT.parameters('cartpole_latency', 'mlp_es', 2).as_posix()} read it with sha256 "
     ), done.stdout
+    # an evaluation of the old record with the edited file is refused before any episode
+    from mjtrial.stages.evaluate import evaluate_method
+
+    parameters = workdir / LAYOUT.parameters("cartpole_latency", "mlp_es", 2)
+    with pytest.raises(ValueError) as err:
+        evaluate_method(
+            states=workdir / LAYOUT.task("cartpole_latency").states,
+            parameters=parameters,
+            model_file=workdir / "tasks" / "cartpole_latency" / "cartpole.xml",
+            evaluate_slice={"task": "tasks/cartpole_latency/task.py"},
+            output=tmp_path / "never.parquet",
+            repo_root=workdir,
+        )
+    assert str(err.value).startswith(
+        f"{parameters}: {MLP.format(2)} is not the file its training recorded (sha256 differs)"
+    )
+    assert not (tmp_path / "never.parquet").exists()
