@@ -96,7 +96,7 @@ CASES = {
     ),
     "a task neither an entry nor none": (
         _set(MLP_TASKS + ("gantry_lift",), "skip"),
-        "benchmark.methods.mlp_es.tasks.gantry_lift: ",
+        "benchmark.methods.mlp_es.tasks.gantry_lift: expected one of ['none'], got 'skip'",
     ),
     "a glob matching fewer files than seeds": (
         _set(("seeds",), [1, 2, 3, 4, 5, 6]),
