@@ -48,7 +48,7 @@ def evaluation_states():
 
 
 SNAKEMAKE = str(Path(__import__("sys").executable).parent / "snakemake")
-WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")
+WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "tasks", "profiles", "policies")
 
 
 def copy_workflow(workdir: Path) -> Path:

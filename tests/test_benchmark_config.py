@@ -23,6 +23,11 @@ def test_the_shipped_benchmark_is_runnable():
     assert list(tasks) == ["gantry_lift", "cartpole_latency"]
     assert tasks["cartpole_latency"].condition == {"latency": 0.02}
     assert tasks["gantry_lift"].task.name == "gantry_lift"
+    # the MLP's training seeds are its files, each named by its seed; not run on the gantry
+    assert tasks["cartpole_latency"].policies == {
+        "mlp_es": {s: f"policies/cartpole_mlp/seed-{s}.onnx" for s in (1, 2, 3, 4, 5)}
+    }
+    assert tasks["gantry_lift"].policies == {}
     assert is_benchmark(SHIPPED) and not is_benchmark(
         read_config_file(REPO_ROOT / "config/config.yaml")
     )
@@ -55,6 +60,8 @@ def _delete(path):
 
 
 TUNE = ("methods", "tuned", "tasks", "gantry_lift", "tune")
+MLP_TASKS = ("methods", "mlp_es", "tasks")
+MLP_POLICY = "benchmark.methods.mlp_es.tasks.cartpole_latency.policy"
 CASES = {
     "headline": (
         _set(("headline",), "best_seed"),
@@ -80,8 +87,44 @@ CASES = {
     ),
     "a method without a task": (
         _delete(("methods", "as_designed", "tasks", "cartpole_latency")),
-        "benchmark.methods.as_designed.tasks.cartpole_latency: missing; every method runs on "
-        "every task",
+        "benchmark.methods.as_designed.tasks.cartpole_latency: missing; expected what the "
+        "method does on every task ('none' where it does not apply)",
+    ),
+    "a method on no task": (
+        _set(MLP_TASKS + ("cartpole_latency",), "none"),
+        "benchmark.methods.mlp_es.tasks: expected at least one task the method runs on",
+    ),
+    "a task neither an entry nor none": (
+        _set(MLP_TASKS + ("gantry_lift",), "skip"),
+        "benchmark.methods.mlp_es.tasks.gantry_lift: expected one of ['none'], got 'skip'",
+    ),
+    "a glob matching fewer files than seeds": (
+        _set(("seeds",), [1, 2, 3, 4, 5, 6]),
+        f"{MLP_POLICY}: 'policies/cartpole_mlp/seed-*.onnx': expected one file per training seed "
+        "[1, 2, 3, 4, 5, 6], each with its seed as the last number of its name, got 5: "
+        "policies/cartpole_mlp/seed-1.onnx, policies/cartpole_mlp/seed-2.onnx, ",
+    ),
+    "a glob whose files are not the seeds": (
+        _set(("seeds",), [1, 2, 3, 4, 6]),
+        f"{MLP_POLICY}: 'policies/cartpole_mlp/seed-*.onnx': expected one file per training seed "
+        "[1, 2, 3, 4, 6], each with its seed as the last number of its name, got 5: ",
+    ),
+    "a glob matching no file": (
+        _set(MLP_TASKS + ("cartpole_latency",), {"policy": "policies/nowhere/seed-*.onnx"}),
+        f"{MLP_POLICY}: 'policies/nowhere/seed-*.onnx': expected one file per training seed "
+        "[1, 2, 3, 4, 5], each with its seed as the last number of its name, got 0: no file",
+    ),
+    "a policy file trained for another task": (
+        _set(MLP_TASKS + ("gantry_lift",), {"policy": "policies/cartpole_mlp/seed-*.onnx"}),
+        "benchmark.methods.mlp_es.tasks.gantry_lift.policy: policies/cartpole_mlp/policy.yaml: ",
+    ),
+    "a policy method that tunes": (
+        _set(
+            MLP_TASKS + ("cartpole_latency",),
+            {"policy": "policies/cartpole_mlp/seed-*.onnx", "tune": {"latency": [0.0, 0.05]}},
+        ),
+        "benchmark.methods.mlp_es.tasks.cartpole_latency.tune: a method that runs policy files "
+        "tunes nothing; expected no tune",
     ),
     "a task no benchmark task": (
         _set(("methods", "as_designed", "tasks", "pendulum"), {}),

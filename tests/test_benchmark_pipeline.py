@@ -2,7 +2,9 @@
 report is built and a second run does nothing; adding a seed runs only that seed's training and
 evaluation, and what reads every seed; the fixed method's outcomes equal the gantry's plain
 `mj_step` reference on the same evaluation states; both overall rates in the summary equal
-sums done here from the evaluation tables."""
+sums done here from the evaluation tables. The ES-trained MLP runs one policy file per training
+seed on the cart-pole only: its IQM is over those files, the gantry says it was not run, and a
+file edited after the run fails verify naming the file."""
 
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ N_STATES = 16
 CARTPOLE = "config/cartpole_latency.yaml"
 CARTPOLE_SHARD = 6
 CLOSEST_K = 3
+MLP = "policies/cartpole_mlp/seed-{}.onnx"
 
 
 def edit_yaml(path: Path, edit) -> None:
@@ -44,6 +47,8 @@ def small(config):
     bench["methods"]["tuned"]["episodes_per_candidate"] = 4
     bench["analysis"]["n_resamples"] = 200
     bench["closest_calls"] = CLOSEST_K
+    # the MLP's checkpoints of the 3 seeds: the glob names one file per seed
+    bench["methods"]["mlp_es"]["tasks"]["cartpole_latency"]["policy"] = MLP.format("[1-3]")
 
 
 @pytest.fixture(scope="module")
@@ -82,17 +87,25 @@ def test_the_benchmark_builds_its_report_and_a_second_run_does_nothing(bench):
 
 
 def test_adding_a_seed_runs_only_its_training_and_evaluation_and_what_reads_every_seed(bench):
+    def policy(pattern):
+        def edit(c):
+            c["benchmark"]["methods"]["mlp_es"]["tasks"]["cartpole_latency"]["policy"] = pattern
+
+        return edit
+
     edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].append(4))
+    edit_yaml(bench / CONFIG, policy(MLP.format("[1-4]")))
     try:
         jobs = planned(bench)
     finally:
         edit_yaml(bench / CONFIG, lambda c: c["benchmark"]["seeds"].remove(4))
-    # 2 tasks x 2 methods for seed 4 (the gantry's evaluations in 1 shard, the cart-pole's in
-    # 3), then what reads every seed, and the seal and crate
+        edit_yaml(bench / CONFIG, policy(MLP.format("[1-3]")))
+    # 2 tasks x 2 methods for seed 4 and the MLP's fourth file on the cart-pole (the gantry's
+    # evaluations in 1 shard, the cart-pole's in 3), then what reads every seed, seal and crate
     assert jobs == {
-        "train": 4,
-        "evaluate": 2 * 1 + 2 * 3,
-        "evaluate_gather": 4,
+        "train": 5,
+        "evaluate": 2 * 1 + 3 * 3,
+        "evaluate_gather": 5,
         "benchmark_summary": 1,
         "closest_calls": 1,
         "benchmark_report": 1,
@@ -382,11 +395,17 @@ def test_the_solvability_check_runs_the_corners_under_the_reference_and_lists_fa
 def _margins_by_hand(bench: Path, task: str) -> list[tuple[float, bool, str, int, int]]:
     """(margin, success, method, seed, state) of every candidate episode, from the evaluation
     tables and the tasks' success tests as their modules state them (the fixed method ran the
-    same episodes under every seed: its first seed's)."""
+    same episodes under every seed: its first seed's; the MLP's seeds are files of their own,
+    run on the cart-pole only)."""
     from gantry_lift.protocol import PROTOCOL
 
     rows = []
-    for method in ("as_designed", "tuned"):
+    methods = (
+        ("as_designed", "tuned", "mlp_es")
+        if task == "cartpole_latency"
+        else ("as_designed", "tuned")
+    )
+    for method in methods:
         for seed in (1,) if method == "as_designed" else (1, 2, 3):
             table = pq.read_table(bench / LAYOUT.evaluation(task, method, seed)).to_pylist()
             for r in table:
@@ -558,8 +577,9 @@ def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench
     done = mjtrial(bench, "verify", folder)
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"verified: {folder}:" in done.stdout
-    # every state of every evaluation: 20 by default, more than any shard holds
-    assert "re-simulated 192 evaluation episodes" in done.stdout
+    # every state of every evaluation: 20 by default, more than any shard holds; 16 states x
+    # 3 seeds x (2 methods x 2 tasks, and the MLP's files on the cart-pole)
+    assert f"re-simulated {16 * 3 * 5} evaluation episodes" in done.stdout
     workdir = _copy(bench, tmp_path)
     shard = LAYOUT.evaluation_shard("cartpole_latency", "tuned", 2, "00001")
     table = pq.read_table(workdir / shard)
@@ -571,8 +591,9 @@ def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench
     provenance.write_parquet(flipped, workdir / shard, provenance.read_stamp(workdir / shard))
     done = mjtrial(workdir, "verify", folder, "--resimulate", "2")
     assert done.returncode == 1, done.stdout + done.stderr
-    # 2 of each shard: 1 shard of the gantry's and 3 of the cart-pole's, 6 runs each
-    assert "re-simulated 48 evaluation episodes (sample seed " in done.stdout
+    # 2 of each shard: 1 shard of the gantry's (6 runs) and 3 of the cart-pole's (9 runs: the
+    # MLP's 3 files too)
+    assert f"re-simulated {2 * (6 * 1 + 9 * 3)} evaluation episodes (sample seed " in done.stdout
     resimulated = [line for line in done.stdout.splitlines() if "re-simulated episodes" in line]
     assert len(resimulated) == 1, done.stdout
     found = re.fullmatch(
@@ -610,3 +631,117 @@ def test_a_benchmark_diffs_with_its_evaluations_and_comparisons(bench, tmp_path,
     groups = {p.relative_to(results / "evaluation").with_suffix("").as_posix() for p in evaluations}
     assert set(diff["conditions"]) == groups
     assert diff["made"]["config"] == [] and diff["outputs"]["differ"] == []
+
+
+def _naive_iqm(scores: list[float]) -> float:
+    """The interquartile mean as rliable takes it (scipy's trim_mean at 0.25), by hand: the mean
+    of the sorted scores without the lowest and highest quarter (floor(n / 4) each)."""
+    x = sorted(scores)
+    cut = len(x) // 4
+    return float(np.mean(x[cut : len(x) - cut]))
+
+
+def test_the_mlp_runs_one_file_per_seed_on_the_cartpole_only_and_its_iqm_is_over_them(bench):
+    from scipy.stats import trim_mean
+
+    summary = json.loads((bench / LAYOUT.summary).read_text())
+    rates = []
+    for seed in (1, 2, 3):
+        file = MLP.format(seed)
+        record = json.loads(
+            (bench / LAYOUT.parameters("cartpole_latency", "mlp_es", seed)).read_text()
+        )
+        assert record["policy"]["path"] == file and record["episodes_used"] == 0
+        assert record["policy"]["sha256"] == provenance.file_sha256(bench / file)
+        assert record["parameters"] == {"latency": 0.02}  # the benchmark's condition
+        train = provenance.read_stamp(bench / LAYOUT.parameters("cartpole_latency", "mlp_es", seed))
+        shards = (bench / LAYOUT.evaluation("cartpole_latency", "mlp_es", seed)).with_suffix("")
+        stamps = [train] + [provenance.read_stamp(p) for p in sorted(shards.glob("*.parquet"))]
+        for stamp in stamps:  # graph and contract, with their sha256, in every stamp
+            assert [r["path"] for r in stamp["inputs"]["policy"]] == [
+                file,
+                "policies/cartpole_mlp/policy.yaml",
+            ]
+            assert stamp["inputs"]["policy"][0]["sha256"] == record["policy"]["sha256"]
+        assert stamps[1]["config_slice"]["policy"] == file
+        assert "policy_runtime" in stamps[1]["extra"]
+        success = pq.read_table(bench / LAYOUT.evaluation("cartpole_latency", "mlp_es", seed))
+        rates.append(float(np.mean(success.column("success").to_numpy())))
+    mlp = summary["overall"]["mlp_es"]
+    assert mlp["tasks"] == ["cartpole_latency"] and summary["not_run"] == {
+        "mlp_es": ["gantry_lift"]
+    }
+    assert "mlp_es" not in summary["per_task"]["gantry_lift"]
+    assert mlp["iqm"]["estimate"] == pytest.approx(trim_mean(rates, 0.25))
+    assert mlp["iqm"]["estimate"] == pytest.approx(_naive_iqm(rates))
+    assert [mlp["task_mean"]["per_seed"][str(s)]["estimate"] for s in (1, 2, 3)] == (
+        pytest.approx(rates)
+    )
+    spread = summary["per_task"]["cartpole_latency"]["mlp_es"]["spread_over_seeds"]
+    assert (spread["min"], spread["max"]) == (pytest.approx(min(rates)), pytest.approx(max(rates)))
+    assert {
+        (c["a"], c["b"], c["task"]) for c in summary["comparisons"] if "mlp_es" in (c["a"], c["b"])
+    } == {
+        ("as_designed", "mlp_es", "cartpole_latency"),
+        ("tuned", "mlp_es", "cartpole_latency"),
+    }
+    # the tuned methods' numbers are over both tasks, as without the MLP
+    assert "tasks" not in summary["overall"]["tuned"]
+    report = (bench / LAYOUT.report).read_text()
+    assert "| gantry_lift | mlp_es | not run on this task | |" in report
+    assert "- mlp_es (cartpole_latency only): " in report
+    for seed in (1, 2, 3):
+        sha = provenance.file_sha256(bench / MLP.format(seed))[:12]
+        assert f"| cartpole_latency | mlp_es | {seed} | {MLP.format(seed)} | {sha} |" in report
+    # the crate lists each file the run read (and its copy of the sources holds it)
+    entities = {e["@id"]: e for e in json.loads((bench / LAYOUT.crate).read_text())["@graph"]}
+    for file in [MLP.format(s) for s in (1, 2, 3)] + ["policies/cartpole_mlp/policy.yaml"]:
+        assert entities[f"source/{file}"]["sha256"] == provenance.file_sha256(bench / file)
+
+
+def test_a_policy_file_edited_after_the_run_reruns_its_seed_and_fails_verify(bench, tmp_path):
+    """One byte of the second seed's graph changed (a weight): the plan reruns that seed's
+    training and evaluation and what reads every seed, nothing else; verify names the file."""
+    workdir = _copy(bench, tmp_path)
+    file = workdir / MLP.format(2)
+    data = bytearray(file.read_bytes())
+    at = data.index(b"w1J") + 3  # the initializer w1's raw data (field 9): its length, then floats
+    while data[at] & 0x80:
+        at += 1
+    data[at + 1] ^= 0x01  # the low bit of its first weight: a valid graph, another network
+    file.write_bytes(bytes(data))
+    assert planned(workdir) == {
+        "train": 1,
+        "evaluate": 3,
+        "evaluate_gather": 1,
+        "benchmark_summary": 1,
+        "closest_calls": 1,
+        "benchmark_report": 1,
+        "benchmark_seal": 1,
+        "benchmark_crate": 1,
+        "all": 1,
+    }
+    done = verify(workdir)
+    assert done.returncode == 1, done.stdout + done.stderr
+    problems = [line for line in done.stdout.splitlines() if line.startswith("problem")]
+    assert problems[0].startswith(
+        f"problem  {MLP.format(2)}: policy file changed since the run "
+        f"({LAYOUT.parameters('cartpole_latency', 'mlp_es', 2).as_posix()} read it with sha256 "
+    ), done.stdout
+    # an evaluation of the old record with the edited file is refused before any episode
+    from mjtrial.stages.evaluate import evaluate_method
+
+    parameters = workdir / LAYOUT.parameters("cartpole_latency", "mlp_es", 2)
+    with pytest.raises(ValueError) as err:
+        evaluate_method(
+            states=workdir / LAYOUT.task("cartpole_latency").states,
+            parameters=parameters,
+            model_file=workdir / "tasks" / "cartpole_latency" / "cartpole.xml",
+            evaluate_slice={"task": "tasks/cartpole_latency/task.py"},
+            output=tmp_path / "never.parquet",
+            repo_root=workdir,
+        )
+    assert str(err.value).startswith(
+        f"{parameters}: {MLP.format(2)} is not the file its training recorded (sha256 differs)"
+    )
+    assert not (tmp_path / "never.parquet").exists()

@@ -143,3 +143,52 @@ def test_the_performance_profile_figure_draws_each_methods_profile_and_band():
         np.testing.assert_allclose(line.get_xdata(), taus)
         np.testing.assert_allclose(line.get_ydata(), expected[method], atol=1e-12)
     assert len([c for c in ax.collections if isinstance(c, PolyCollection)]) == 2
+
+
+def test_a_method_not_run_on_a_task_has_no_cell_and_its_rates_are_over_its_own_tasks():
+    """Method `c` (a policy trained for task x) is not run on y: its overall rates and IQM are
+    over x alone (scipy's trimmed mean of its per-seed rates there), labelled; it is compared
+    with the others on x only; the others' numbers are those of a summary without it."""
+    rng = np.random.default_rng(1)
+    n, seeds = 30, range(5)
+    table = {
+        "x": {
+            m: {s: rng.random(n) < p for s in seeds}
+            for m, p in (("a", 0.8), ("b", 0.5), ("c", 0.6))
+        },
+        "y": {m: {s: rng.random(n) < p for s in seeds} for m, p in (("a", 0.3), ("b", 0.4))},
+    }
+
+    def summary_of(table, methods):
+        used = {t: {m: dict.fromkeys(seeds, 0) for m in ms} for t, ms in table.items()}
+        return summarize_benchmark(
+            outcomes_of(table),
+            methods=methods,
+            budgets=dict.fromkeys(methods, 0),
+            episodes_used=used,
+            headline="task_mean",
+            unequal_budgets=None,
+            analysis=ANALYSIS,
+        )
+
+    summary = summary_of(table, ["a", "b", "c"])
+    rates = [float(np.mean(table["x"]["c"][s])) for s in seeds]
+    c = summary["overall"]["c"]
+    assert c["tasks"] == ["x"] and summary["not_run"] == {"c": ["y"]}
+    assert c["iqm"]["estimate"] == pytest.approx(sps.trim_mean(rates, 0.25))
+    assert [c["task_mean"]["per_seed"][str(s)]["estimate"] for s in seeds] == pytest.approx(rates)
+    assert set(summary["per_task"]["y"]) == {"a", "b"}
+    assert {(k["a"], k["b"], k["task"]) for k in summary["comparisons"]} == {
+        ("a", "b", "x"),
+        ("a", "b", "y"),
+        ("a", "c", "x"),
+        ("b", "c", "x"),
+    }
+    assert summary["budgets"]["c"]["used"] == {"x": dict.fromkeys(map(str, seeds), 0)}
+    without = summary_of(
+        {t: {m: v for m, v in ms.items() if m != "c"} for t, ms in table.items()}, ["a", "b"]
+    )
+    for m in ("a", "b"):
+        assert "tasks" not in summary["overall"][m]
+        assert summary["overall"][m] == without["overall"][m]
+    assert "not_run" not in without

@@ -3,6 +3,7 @@
 # development states only, and an evaluation job on the evaluation states; then the summary
 # and the report. Adding a seed adds only its jobs, and what reads every seed.
 from mjtrial.benchmark.config import (
+    benchmark_runs,
     closest_calls_slice,
     crate_slice,
     evaluate_slice,
@@ -13,6 +14,7 @@ from mjtrial.benchmark.config import (
     train_slice,
 )
 from mjtrial.layout import BenchmarkLayout
+from mjtrial.policy_file import contract_path
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.stages.stamping import config_slice, stage_code_hash
 from mjtrial.task import task_files
@@ -21,8 +23,8 @@ LAYOUT = BenchmarkLayout.of(config["experiment"])
 BENCH = config["benchmark"]
 TASKS = list(BENCHMARK_TASKS)
 METHODS = list(BENCH["methods"])
-SEEDS = [str(s) for s in BENCH["seeds"]]
-RUNS = [(t, m, s) for t in TASKS for m in METHODS for s in SEEDS]
+# a method marked `none` on a task has no run there
+RUNS = [(t, m, str(s)) for t, m, s in benchmark_runs(config)]
 
 
 wildcard_constraints:
@@ -51,6 +53,19 @@ def task_content(task):
 
 def task_content_of(wildcards):
     return task_content(wildcards.task)
+
+
+def policy_files_of(wildcards):
+    """The run's policy file and its contract (a method that runs one per training seed),
+    or none: inputs of its training and evaluation, so editing either reruns just them."""
+    files = BENCHMARK_TASKS[wildcards.task].policies.get(wildcards.method, {})
+    policy = files.get(int(wildcards.seed))
+    return [] if policy is None else [policy, str(contract_path(Path(policy)))]
+
+
+def policy_content_of(wildcards):
+    """Content of the run's policy files, so a `touch` reruns nothing."""
+    return ",".join(file_sha256(p) for p in policy_files_of(wildcards))
 
 
 rule benchmark_states:
@@ -87,6 +102,7 @@ rule train:
     input:
         development_states=LAYOUT.task("{task}").development_states,
         model=model_of,
+        policy=policy_files_of,
     output:
         LAYOUT.parameters("{task}", "{method}", "{seed}"),
     log:
@@ -98,6 +114,7 @@ rule train:
         ),
         model_sha256=lambda w: model_sha256(model_of(w)),
         task_sha256=task_content_of,
+        policy_sha256=policy_content_of,
         code=stage_code_hash("train"),
     script:
         "../scripts/train.py"
@@ -108,6 +125,7 @@ rule evaluate:
         states=LAYOUT.task("{task}").states,
         parameters=LAYOUT.parameters("{task}", "{method}", "{seed}"),
         model=model_of,
+        policy=policy_files_of,
     output:
         LAYOUT.evaluation_shard("{task}", "{method}", "{seed}", "{shard}"),
     log:
@@ -120,6 +138,7 @@ rule evaluate:
         shard=lambda w: evaluation_shard_range(BENCHMARK_TASKS, w.task, w.shard),
         model_sha256=lambda w: model_sha256(model_of(w)),
         task_sha256=task_content_of,
+        policy_sha256=policy_content_of,
         code=stage_code_hash("evaluate"),
     script:
         "../scripts/evaluate.py"

@@ -8,6 +8,9 @@ work: a task's own config is checked as an experiment's is, and named when it fa
 
 from __future__ import annotations
 
+import dataclasses
+import glob
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +32,7 @@ from mjtrial.config import (
 )
 from mjtrial.crate.description import crate_description
 from mjtrial.layout import shard_ids, shard_range
+from mjtrial.policy_file import load_policy_file, policy_task
 from mjtrial.task import Task, TaskError, load_task
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "benchmark.schema.yaml"
@@ -43,6 +47,50 @@ class BenchmarkTask:
     config: dict[str, Any]
     task: Task
     condition: dict[str, float]  # what every method runs with, under its own values
+    # method -> training seed -> its policy file, for a method that runs policy files here
+    policies: Mapping[str, Mapping[int, str]] = dataclasses.field(default_factory=dict)
+
+
+NOT_RUN = "none"  # a method's entry for a task it does not apply to
+
+
+def method_tasks(config: Mapping[str, Any], method: str) -> list[str]:
+    """The tasks a method runs on: every task its entry does not mark `none`."""
+    given = config["benchmark"]["methods"][method]["tasks"]
+    return [t for t in config["benchmark"]["tasks"] if given.get(t) != NOT_RUN]
+
+
+def benchmark_runs(config: Mapping[str, Any]) -> list[tuple[str, str, int]]:
+    """Every (task, method, training seed) the benchmark trains and evaluates, in task,
+    method, seed order: a method marked `none` on a task has no run there."""
+    bench = config["benchmark"]
+    return [
+        (t, m, s)
+        for t in bench["tasks"]
+        for m in bench["methods"]
+        if t in method_tasks(config, m)
+        for s in bench["seeds"]
+    ]
+
+
+def checkpoint_files(pattern: str, seeds: list[int], *, repo_root: Path) -> dict[int, str]:
+    """The policy file of each training seed: the files `pattern` matches (relative to
+    `repo_root`), each holding its seed as the last number of its name (`seed-3.onnx`: seed 3).
+    `ValueError` (the expectation, one line) unless exactly one file per seed matches."""
+    if Path(pattern).is_absolute() or ".." in Path(pattern).parts:
+        raise ValueError("expected a glob inside the repository, relative to it")
+    found = sorted(glob.glob(pattern, root_dir=repo_root))
+    by_seed: dict[int, list[str]] = {}
+    for name in found:
+        numbers = re.findall(r"\d+", Path(name).stem)
+        by_seed.setdefault(int(numbers[-1]) if numbers else -1, []).append(name)
+    if sorted(by_seed) != sorted(seeds) or any(len(v) > 1 for v in by_seed.values()):
+        got = ", ".join(found) if found else "no file"
+        raise ValueError(
+            f"expected one file per training seed {sorted(seeds)}, each with its seed as the "
+            f"last number of its name, got {len(found)}: {got}"
+        )
+    return {s: Path(by_seed[s][0]).as_posix() for s in seeds}
 
 
 def is_benchmark(config: Mapping[str, Any]) -> bool:
@@ -82,7 +130,11 @@ def check_benchmark_config(
         for name, entry in bench["tasks"].items()
     }
     for name, method in bench["methods"].items():
-        _check_method(name, method, tasks, fail=fail)
+        policies = _check_method(name, method, tasks, seeds, repo_root=Path(repo_root), fail=fail)
+        for task, files in policies.items():
+            tasks[task] = dataclasses.replace(
+                tasks[task], policies={**tasks[task].policies, name: files}
+            )
     budgets = {name: m["budget"] for name, m in bench["methods"].items()}
     if len(set(budgets.values())) > 1 and "unequal_budgets" not in bench:
         fail(
@@ -119,22 +171,43 @@ def _benchmark_task(name: str, entry: Mapping[str, Any], *, repo_root: Path, fai
 
 
 def _check_method(
-    name: str, method: Mapping[str, Any], tasks: Mapping[str, BenchmarkTask], *, fail
-) -> None:
+    name: str,
+    method: Mapping[str, Any],
+    tasks: Mapping[str, BenchmarkTask],
+    seeds: list[int],
+    *,
+    repo_root: Path,
+    fail,
+) -> dict[str, dict[int, str]]:
+    """Check one method; its policy files per task and training seed (none: {})."""
     key = f"benchmark.methods.{name}"
     given = method["tasks"]
     missing = [t for t in tasks if t not in given]
     if missing:
-        fail(f"{key}.tasks.{missing[0]}", "missing; every method runs on every task")
+        fail(
+            f"{key}.tasks.{missing[0]}",
+            f"missing; expected what the method does on every task ({NOT_RUN!r} where it "
+            "does not apply)",
+        )
     unknown = [t for t in given if t not in tasks]
     if unknown:
         fail(
             f"{key}.tasks.{unknown[0]}",
             f"not a task of the benchmark; expected one of {list(tasks)}",
         )
-    tunes = False
+    if all(spec == NOT_RUN for spec in given.values()):
+        fail(
+            f"{key}.tasks", f"expected at least one task the method runs on, got {NOT_RUN!r} on all"
+        )
+    tunes, policies = False, {}
     for task_name, spec in given.items():
+        if spec == NOT_RUN:
+            continue
         bt = tasks[task_name]
+        if "policy" in spec:
+            policies[task_name] = _policy_files(
+                spec, bt, seeds, key=f"{key}.tasks.{task_name}", repo_root=repo_root, fail=fail
+            )
         fixed = {**bt.condition, **spec.get("fixed", {})}
         tune = spec.get("tune", {})
         fixed = {k: v for k, v in fixed.items() if k not in tune}
@@ -163,6 +236,32 @@ def _check_method(
         fail(f"{key}.budget", f"expected 0 for a method that tunes nothing, got {method['budget']}")
     if tunes and "episodes_per_candidate" not in method:
         fail(f"{key}.episodes_per_candidate", "missing; a method that tunes needs it")
+    return policies
+
+
+def _policy_files(
+    spec: Mapping[str, Any],
+    bt: BenchmarkTask,
+    seeds: list[int],
+    *,
+    key: str,
+    repo_root: Path,
+    fail,
+) -> dict[int, str]:
+    """A method's policy files on one task, one per training seed, each checked against the
+    task and its graph (`load_policy_file`) before any work."""
+    if "tune" in spec:
+        fail(f"{key}.tune", "a method that runs policy files tunes nothing; expected no tune")
+    try:
+        files = checkpoint_files(spec["policy"], seeds, repo_root=repo_root)
+    except ValueError as err:
+        fail(f"{key}.policy", f"{spec['policy']!r}: {err}")
+    for path in files.values():
+        try:
+            policy_task(bt.task, load_policy_file(repo_root / path, bt.task))
+        except TaskError as err:  # a PolicyFileError, or observations the task cannot give
+            fail(f"{key}.policy", str(err).replace(f"{repo_root}/", ""))
+    return files
 
 
 def _search_problem(err: ValueError, prefix: str) -> tuple[str, str]:
@@ -185,6 +284,9 @@ def train_slice(
     budget and what it fixes and tunes on this task, the seed. Nothing else reruns it."""
     spec = config["benchmark"]["methods"][method]
     experiment = tasks[task].config
+    given = {k: v for k, v in spec["tasks"][task].items() if v}
+    if "policy" in given:  # the seed's own file: the other seeds' files do not rerun it
+        given["policy"] = tasks[task].policies[method][seed]
     return {
         "task": experiment["task"],
         "failure_taxonomy": dict(experiment.get("failure_taxonomy", {})),
@@ -198,7 +300,7 @@ def train_slice(
                 if "episodes_per_candidate" in spec
                 else {}
             ),
-            **{k: v for k, v in spec["tasks"][task].items() if v},
+            **given,
         },
         "seed": seed,
     }
@@ -239,14 +341,20 @@ def crate_slice(config: Mapping[str, Any], *, command: str, config_file: str) ->
 
 
 def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
-    """What the summary depends on: the tasks, methods (budgets, descriptions), seeds, the
+    """What the summary depends on: the tasks, methods (budgets, descriptions, the tasks of
+    one that does not run on every task), seeds, the
     headline, the reason for unequal budgets and the analysis settings."""
     bench = config["benchmark"]
     return {
         "question": bench["question"],
         "tasks": list(bench["tasks"]),
         "methods": {
-            m: {"description": spec["description"], "budget": spec["budget"]}
+            m: {
+                "description": spec["description"],
+                "budget": spec["budget"],
+                # a method that does not run on every task: the tasks it runs on
+                **({"tasks": method_tasks(config, m)} if _skips_a_task(config, m) else {}),
+            }
             for m, spec in bench["methods"].items()
         },
         "seeds": list(bench["seeds"]),
@@ -254,6 +362,10 @@ def summary_slice(config: Mapping[str, Any]) -> dict[str, Any]:
         "unequal_budgets": bench.get("unequal_budgets"),
         "analysis": dict(bench["analysis"]),
     }
+
+
+def _skips_a_task(config: Mapping[str, Any], method: str) -> bool:
+    return method_tasks(config, method) != list(config["benchmark"]["tasks"])
 
 
 # Episodes of each kind (closest successes, highest scores) per task in replay/closest_calls.rrd

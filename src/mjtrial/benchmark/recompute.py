@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 from mjtrial import provenance
 from mjtrial.benchmark.config import (
     BenchmarkTask,
+    benchmark_runs,
     closest_calls_slice,
     evaluate_slice,
     evaluation_shard_range,
@@ -79,7 +80,8 @@ def record_problems(record: Mapping[str, Any], train: Mapping[str, Any]) -> list
     """Why a parameter file's record is not what a training of the slice `train` chooses.
 
     Consistent means: a method that tunes nothing runs the slice's fixed values (the benchmark's
-    condition under the method's `fixed`) and nothing else; a method that tunes runs those
+    condition under the method's `fixed`) and nothing else, with the seed's policy file if the
+    slice names one; a method that tunes runs those
     fixed values with the parameters of its best finalist (the first of highest score, the
     tuning's final choice), `score_on_development` is that finalist's score, and the record's
     `fixed` and `tuned` are the slice's.
@@ -92,6 +94,9 @@ def record_problems(record: Mapping[str, Any], train: Mapping[str, Any]) -> list
     if not tune:
         if not _same(parameters, fixed):
             return [f"parameters {parameters} are not the method's fixed values {fixed}"]
+        named = (record.get("policy") or {}).get("path")
+        if named != method.get("policy"):
+            return [f"policy {named!r} is not the seed's policy file {method.get('policy')!r}"]
         return []
     problems = []
     if not _same(record.get("fixed"), fixed) or not _same(record.get("tuned"), tune):
@@ -123,8 +128,7 @@ class _Recompute:
     ) -> None:
         self.config, self.tasks, self.repo_root, self.found = config, tasks, repo_root, found
         self.layout = BenchmarkLayout.of(config["experiment"])
-        bench = config["benchmark"]
-        self.runs = [(t, m, s) for t in tasks for m in bench["methods"] for s in bench["seeds"]]
+        self.runs = benchmark_runs(config)
 
     def path(self, rel: Path) -> Path:
         return self.repo_root / rel

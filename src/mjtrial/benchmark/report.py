@@ -1,6 +1,8 @@
 """The benchmark's report (markdown) from its summary: the headline rate first, both overall
 rates in tables of their own, the IQM over seeds, every task's rates with their spread over
-seeds, the paired differences, the budgets (an asymmetry flagged) and the tuned parameters."""
+seeds, the paired differences, the budgets (an asymmetry flagged), the tuned parameters and
+each policy file a method ran. A method not run on a task says so in that task's rows, and its
+overall rates carry the tasks they are over."""
 
 from __future__ import annotations
 
@@ -25,6 +27,11 @@ def _spread(rec: Mapping[str, float]) -> str:
     return f"{_pct(rec['min'])} / {_pct(rec['median'])} / {_pct(rec['max'])}"
 
 
+def _labelled(method: str, rec: Mapping[str, Any]) -> str:
+    """A method's name, with the tasks its overall rates are over if not every task."""
+    return f"{method} ({', '.join(rec['tasks'])} only)" if "tasks" in rec else method
+
+
 def _overall_table(summary: Mapping[str, Any], rate: str) -> list[str]:
     seeds = [str(s) for s in summary["seeds"]]
     lines = [
@@ -38,7 +45,9 @@ def _overall_table(summary: Mapping[str, Any], rate: str) -> list[str]:
     for method, rec in summary["overall"].items():
         cells = [_ci(rec[rate]["per_seed"][s]) for s in seeds]
         lines.append(
-            f"| {method} | {_spread(rec[rate]['spread_over_seeds'])} | " + " | ".join(cells) + " |"
+            f"| {_labelled(method, rec)} | {_spread(rec[rate]['spread_over_seeds'])} | "
+            + " | ".join(cells)
+            + " |"
         )
     return lines + [""]
 
@@ -63,10 +72,18 @@ def benchmark_report(
     ]
     out += [f"- **{m}**: {summary['method_descriptions'][m]}" for m in methods]
     out += ["", f"## Headline: {RATE_NAMES[headline].split(' (')[0].lower()}", ""]
+    not_run = summary.get("not_run", {})
+    if not_run:
+        skipped = "; ".join(f"{m} not on {', '.join(t)}" for m, t in not_run.items())
+        out += [
+            f"Each method's rates are over the tasks it ran ({skipped}): a method labelled with "
+            "its tasks is not compared with the others over every task; compare them per task.",
+            "",
+        ]
     for method, rec in summary["overall"].items():
         out.append(
-            f"- {method}: {_spread(rec[headline]['spread_over_seeds'])} (min / median / max over "
-            f"seeds); IQM over seeds and tasks {_ci(rec['iqm'])}"
+            f"- {_labelled(method, rec)}: {_spread(rec[headline]['spread_over_seeds'])} (min / "
+            f"median / max over seeds); IQM over seeds and tasks {_ci(rec['iqm'])}"
         )
     out += ["", "## Solvability", ""]
     for task, rec in summary["solvability"].items():
@@ -100,7 +117,7 @@ def benchmark_report(
         "| method | IQM |",
         "| --- | --- |",
     ]
-    out += [f"| {m} | {_ci(rec['iqm'])} |" for m, rec in summary["overall"].items()]
+    out += [f"| {_labelled(m, rec)} | {_ci(rec['iqm'])} |" for m, rec in summary["overall"].items()]
     out += [
         "",
         "## Per task",
@@ -110,6 +127,9 @@ def benchmark_report(
     ]
     for task in tasks:
         for method in methods:
+            if method not in summary["per_task"][task]:
+                out.append(f"| {task} | {method} | not run on this task | |")
+                continue
             rec = summary["per_task"][task][method]
             pooled = rec["pooled_over_seeds"]
             out.append(
@@ -151,8 +171,32 @@ def benchmark_report(
         task, method, seed = key.split(":")
         shown = ", ".join(f"{k} {v:.4g}" for k, v in params.items())
         out.append(f"| {task} | {method} | {seed} | {shown} |")
+    out += _policy_files(summary.get("policy_files", {}))
     out += _closest_calls(closest_calls)
     return "\n".join(out) + "\n"
+
+
+def _policy_files(files: Mapping[str, Mapping[str, str]]) -> list[str]:
+    """The section naming each policy file a run evaluated, one per training seed."""
+    if not files:
+        return []
+    out = [
+        "",
+        "## Policy files",
+        "",
+        "Each training seed of a method that runs trained policies is one file, evaluated as its "
+        "contract says (sha256 of the graph and of the contract).",
+        "",
+        "| task | method | seed | file | sha256 | contract | contract sha256 |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for key, rec in files.items():
+        task, method, seed = key.split(":")
+        out.append(
+            f"| {task} | {method} | {seed} | {rec['path']} | {rec['sha256'][:12]} "
+            f"| {rec['contract']} | {rec['contract_sha256'][:12]} |"
+        )
+    return out
 
 
 def _closest_calls(rows: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -164,8 +208,9 @@ def _closest_calls(rows: Sequence[Mapping[str, Any]]) -> list[str]:
         "Watch these before trusting a rate (`rerun replay/closest_calls.rrd`): per task, the "
         "successes that passed by the smallest margin and the episodes of largest margin, the "
         "task's highest scores, where a success test passed the wrong way shows. Each was "
-        "re-simulated and reproduced its evaluation row; a method that tunes nothing ran the "
-        "same episodes under every seed, so its first seed stands for all.",
+        "re-simulated and reproduced its evaluation row; a method that tunes nothing and runs "
+        "no policy file of its own per seed ran the same episodes under every seed, so its "
+        "first seed stands for all.",
         "",
     ]
     if not rows:

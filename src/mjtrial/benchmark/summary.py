@@ -5,11 +5,16 @@ in state order (the same states for every method and seed: paired). The summary 
 overall rates apart, each labelled (`episode_mean`, `task_mean`), gives the rliable aggregates
 over training seeds, the spread over seeds (never the best seed alone), paired differences per
 task with Holm-adjusted McNemar tests, and every method's budget with any asymmetry flagged.
+
+A method need not run on every task (`outcomes[task]` may lack it: a policy file trained for
+one task). Its cells there are absent, never filled: its overall rates and IQM are over the
+tasks it ran, which its entry then lists (`overall.<method>.tasks`, and `not_run`), and two
+methods are compared on the tasks both ran.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -41,23 +46,26 @@ def summarize_benchmark(
     headline: str,
     unequal_budgets: str | None,
     analysis: Mapping[str, Any],
+    methods: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """The summary (JSON-able). `episodes_used[task][method][seed]`: what each training spent.
-    `analysis`: `confidence`, `n_resamples`, `seed`."""
+    `analysis`: `confidence`, `n_resamples`, `seed`. `methods`: every method, in order
+    (default: the first task's)."""
     confidence, n_resamples, seed = (
         analysis["confidence"],
         analysis["n_resamples"],
         analysis["seed"],
     )
     tasks = list(outcomes)
-    methods = list(next(iter(outcomes.values())))
-    seeds = sorted(next(iter(next(iter(outcomes.values())).values())))
+    methods = list(next(iter(outcomes.values())) if methods is None else methods)
+    ran = {m: [t for t in tasks if m in outcomes[t]] for m in methods}
+    seeds = sorted(outcomes[ran[methods[0]][0]][methods[0]])
     label = bstats.seed_count_label(len(seeds))
 
     per_task: dict[str, Any] = {}
     for task in tasks:
         per_task[task] = {}
-        for method in methods:
+        for method in (m for m in methods if task in ran[m]):
             by_seed = outcomes[task][method]
             rates = [float(np.mean(by_seed[s])) for s in seeds]
             spread = bstats.seed_spread(rates)
@@ -73,18 +81,19 @@ def summarize_benchmark(
 
     overall: dict[str, Any] = {}
     for i, method in enumerate(methods):
+        own = ran[method]  # the tasks it ran: its overall rates are over these
         per_seed = {
             str(s): {
                 "episode_mean": _interval(
-                    *bstats.episode_mean([outcomes[t][method][s] for t in tasks], confidence)
+                    *bstats.episode_mean([outcomes[t][method][s] for t in own], confidence)
                 ),
                 "task_mean": _interval(
-                    *bstats.task_mean([outcomes[t][method][s] for t in tasks], confidence)
+                    *bstats.task_mean([outcomes[t][method][s] for t in own], confidence)
                 ),
             }
             for s in seeds
         }
-        scores = np.array([[np.mean(outcomes[t][method][s]) for t in tasks] for s in seeds])
+        scores = np.array([[np.mean(outcomes[t][method][s]) for t in own] for s in seeds])
         iqm = bstats.stratified_bootstrap_ci(
             scores, n_resamples=n_resamples, confidence=confidence, seed=seed + i
         )
@@ -92,6 +101,7 @@ def summarize_benchmark(
             scores, PROFILE_TAUS, n_resamples=n_resamples, confidence=confidence, seed=seed + i
         )
         overall[method] = {
+            **({"tasks": own} if own != tasks else {}),
             "episode_mean": {
                 "per_seed": {s: v["episode_mean"] for s, v in per_seed.items()},
                 "spread_over_seeds": _spread(
@@ -116,8 +126,11 @@ def summarize_benchmark(
     comparisons = []
     for i, a in enumerate(methods):
         for b in methods[i + 1 :]:
-            pooled_a = {t: np.concatenate([outcomes[t][a][s] for s in seeds]) for t in tasks}
-            pooled_b = {t: np.concatenate([outcomes[t][b][s] for s in seeds]) for t in tasks}
+            both = [t for t in tasks if t in ran[a] and t in ran[b]]
+            if not both:
+                continue
+            pooled_a = {t: np.concatenate([outcomes[t][a][s] for s in seeds]) for t in both}
+            pooled_b = {t: np.concatenate([outcomes[t][b][s] for s in seeds]) for t in both}
             for c in bstats.compare_methods(pooled_a, pooled_b, alpha=1 - confidence):
                 comparisons.append(
                     {
@@ -136,15 +149,22 @@ def summarize_benchmark(
                     }
                 )
 
+    not_run = {m: [t for t in tasks if t not in ran[m]] for m in methods if ran[m] != tasks}
     return {
         "tasks": tasks,
         "methods": methods,
+        **({"not_run": not_run} if not_run else {}),
         "seeds": seeds,
         "result": label,
         "headline": headline,
         "overall_rates": {
             "episode_mean": "every episode of every task pooled: more states, more weight",
             "task_mean": "the mean of the per-task rates: every task weighs the same",
+            **(
+                {"tasks": "each method's over the tasks it ran (not_run: the others)"}
+                if not_run
+                else {}
+            ),
         },
         "per_task": per_task,
         "overall": overall,
@@ -156,7 +176,7 @@ def summarize_benchmark(
         "budgets": {
             m: {
                 "episodes": budgets[m],
-                "used": {t: {str(s): episodes_used[t][m][s] for s in seeds} for t in tasks},
+                "used": {t: {str(s): episodes_used[t][m][s] for s in seeds} for t in ran[m]},
             }
             for m in methods
         },

@@ -7,7 +7,9 @@ training's stamp names the task's development states, with their sha256 of now; 
 evaluation's stamp names the task's evaluation states and the parameter file, with their
 sha256 of now; the stamps of the summary and of the closest calls (table and replay file) name
 every evaluation and parameter file as they are; the report's names the summary and the
-closest calls' table. A training that read anything but its development states fails.
+closest calls' table. A training that read anything but its development states fails. A
+policy file (graph or contract) a training or an evaluation read is named when it is not, now,
+the file its stamp records: it was edited after the run.
 
 Then every derived output is recomputed from the evaluation tables, each parameter file checked
 against its training's record of it, and a sample of evaluation episodes re-simulated
@@ -28,7 +30,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from mjtrial import provenance
-from mjtrial.benchmark.config import BenchmarkTask, evaluation_shards
+from mjtrial.benchmark.config import BenchmarkTask, benchmark_runs, evaluation_shards
 from mjtrial.benchmark.recompute import recompute_benchmark
 from mjtrial.crate.check import covered_seals, crate_differences
 from mjtrial.crate.record import input_records
@@ -75,7 +77,6 @@ def verify_benchmark(
     repo_root = Path(repo_root)
     layout = BenchmarkLayout.of(config["experiment"])
     verdict = BenchmarkVerdict(layout.root.as_posix())
-    bench = config["benchmark"]
 
     def rel(path: Path) -> str:
         return Path(path).as_posix()
@@ -98,6 +99,26 @@ def verify_benchmark(
         ):
             verdict.problems.append(f"{rel(owner)}: {rel(path)} changed since it was read")
 
+    named: set[str] = set()
+
+    def policies_of(task: str, method: str) -> bool:
+        return method in tasks[task].policies
+
+    def policy_changed(stamp, owner: Path) -> None:
+        """Each policy file the stamp records, as it is now: edited after the run, it is
+        named once."""
+        for record in stamp.get("inputs", {}).get("policy", []):
+            path = record.get("path") if isinstance(record, Mapping) else None
+            if path is None or path in named:
+                continue
+            file = repo_root / path
+            if not file.is_file() or provenance.file_sha256(file) != record.get("sha256"):
+                named.add(path)
+                verdict.problems.append(
+                    f"{path}: policy file changed since the run ({rel(owner)} read it with "
+                    f"sha256 {str(record.get('sha256'))[:12]}); rerun what uses it"
+                )
+
     for task in tasks:
         development, evaluation = layout.task(task).development_states, layout.task(task).states
         for path, rule in (
@@ -114,37 +135,44 @@ def verify_benchmark(
             verdict.problems.append(
                 f"{rel(development)}: {shared} state(s) also among the evaluation states"
             )
-        for method in bench["methods"]:
-            for seed in bench["seeds"]:
-                parameters = layout.parameters(task, method, seed)
-                stamp = stamp_of(parameters)
-                if stamp is not None:
-                    expect_input(stamp, "development_states", development, parameters)
-                outcome = layout.evaluation(task, method, seed)
-                stamp = stamp_of(outcome)
-                if stamp is not None:
-                    expect_input(stamp, "states", evaluation, outcome)
-                    expect_input(stamp, "parameters", parameters, outcome)
+    runs = benchmark_runs(config)
+    for task, method, seed in runs:
+        parameters = layout.parameters(task, method, seed)
+        stamp = stamp_of(parameters)
+        if stamp is not None:
+            expect_input(
+                stamp, "development_states", layout.task(task).development_states, parameters
+            )
+            policy_changed(stamp, parameters)
+        outcome = layout.evaluation(task, method, seed)
+        stamp = stamp_of(outcome)
+        if stamp is not None:
+            expect_input(stamp, "states", layout.task(task).states, outcome)
+            expect_input(stamp, "parameters", parameters, outcome)
+        for shard in evaluation_shards(tasks, task) if policies_of(task, method) else ():
+            path = layout.evaluation_shard(task, method, seed, shard)
+            stamp = stamp_of(path)
+            if stamp is not None:
+                policy_changed(stamp, path)
     # what reads every run: the summary, and the closest calls (their table and replay file)
     for owner in (layout.summary, layout.closest_calls_table, layout.closest_calls):
         stamp = stamp_of(owner)
         if stamp is None:
             continue
-        for task in tasks:
-            for method in bench["methods"]:
-                for seed in bench["seeds"]:
-                    key = f"{task}:{method}:{seed}"
-                    for name, path in (
-                        ("evaluation", layout.evaluation(task, method, seed)),
-                        ("parameters", layout.parameters(task, method, seed)),
-                    ):
-                        expect_input(stamp, f"{name}:{key}", path, owner)
+        for task, method, seed in runs:
+            key = f"{task}:{method}:{seed}"
+            for name, path in (
+                ("evaluation", layout.evaluation(task, method, seed)),
+                ("parameters", layout.parameters(task, method, seed)),
+            ):
+                expect_input(stamp, f"{name}:{key}", path, owner)
     stamp = stamp_of(layout.report)
     if stamp is not None:
         expect_input(stamp, "summary", layout.summary, layout.report)
         expect_input(stamp, "closest_calls", layout.closest_calls_table, layout.report)
-    runs = [(t, m, str(s)) for t in tasks for m in bench["methods"] for s in bench["seeds"]]
-    outputs = layout.benchmark_outputs(runs, {t: evaluation_shards(tasks, t) for t in tasks})
+    outputs = layout.benchmark_outputs(
+        [(t, m, str(s)) for t, m, s in runs], {t: evaluation_shards(tasks, t) for t in tasks}
+    )
     verdict.problems += _seal_problems(layout, outputs, repo_root)
     verdict.checked += 1
     if all((repo_root / p).is_file() for p in outputs):  # a missing one is named above

@@ -397,6 +397,10 @@ def figure_performance_profile(*, summary: Mapping[str, Any]) -> Figure:
     stratified bootstrap band; a method that fails outright on one task shows as a step."""
     methods = list(summary["overall"])
     colors, markers = condition_colors(methods), _markers(methods)
+
+    def rec_tasks(method: str) -> list[str]:  # a method not run on every task: its tasks
+        return summary["overall"][method].get("tasks", [])
+
     fig = _figure(SINGLE_COLUMN, 2.6)
     ax = fig.add_subplot()
     for method in methods:
@@ -412,13 +416,14 @@ def figure_performance_profile(*, summary: Mapping[str, Any]) -> Figure:
             color=colors[method],
             marker=markers[method],
             markersize=3,
-            label=method,
+            label=method + (f" ({', '.join(tasks)})" if (tasks := rec_tasks(method)) else ""),
         )
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("Success rate threshold \N{GREEK SMALL LETTER TAU}")
     n_runs = len(summary["seeds"]) * len(summary["tasks"])
-    ax.set_ylabel(f"Fraction of {n_runs} runs above \N{GREEK SMALL LETTER TAU}")
+    runs = "each method's runs" if "not_run" in summary else f"{n_runs} runs"
+    ax.set_ylabel(f"Fraction of {runs} above \N{GREEK SMALL LETTER TAU}")
     ax.set_title(f"Performance profiles ({pct(summary['intervals']['confidence'])} bands)")
     ax.grid(color=_SHADE, linewidth=0.6, zorder=0)
     ax.legend(loc="lower left")

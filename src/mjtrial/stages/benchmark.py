@@ -54,7 +54,8 @@ def write_summary(
 ) -> dict[str, Any]:
     """`evaluations` and `parameters`: `<task>:<method>:<seed>` -> file, for every task,
     method and seed of `summary_slice` (`tasks`, `methods` with their budgets, `seeds`,
-    `headline`, `unequal_budgets`, `analysis`)."""
+    `headline`, `unequal_budgets`, `analysis`); a method whose entry lists its `tasks` runs
+    on those only."""
     tasks, methods, seeds = summary_slice["tasks"], summary_slice["methods"], summary_slice["seeds"]
     outcomes: dict[str, dict[str, dict[int, np.ndarray]]] = {}
     used: dict[str, dict[str, dict[int, int]]] = {}
@@ -62,6 +63,8 @@ def write_summary(
         outcomes[task], used[task] = {}, {}
         reference_ids = None
         for method in methods:
+            if task not in methods[method].get("tasks", tasks):
+                continue  # not run on this task: no cell, and the summary says so
             outcomes[task][method], used[task][method] = {}, {}
             for seed in seeds:
                 key = _key(task, method, seed)
@@ -78,6 +81,7 @@ def write_summary(
                 used[task][method][seed] = int(record["episodes_used"])
     summary = summarize_benchmark(
         outcomes,
+        methods=list(methods),
         budgets={m: spec["budget"] for m, spec in methods.items()},
         episodes_used=used,
         headline=summary_slice["headline"],
@@ -87,10 +91,11 @@ def write_summary(
     summary["question"] = summary_slice["question"]
     summary["solvability"] = {task: solvability_record(solvability[task]) for task in tasks}
     summary["method_descriptions"] = {m: spec["description"] for m, spec in methods.items()}
-    summary["tuned_parameters"] = {
-        key: json.loads(Path(path).read_text(encoding="utf-8"))["parameters"]
-        for key, path in parameters.items()
-    }
+    records = {k: json.loads(Path(p).read_text(encoding="utf-8")) for k, p in parameters.items()}
+    summary["tuned_parameters"] = {key: r["parameters"] for key, r in records.items()}
+    policies = {key: r["policy"] for key, r in records.items() if "policy" in r}
+    if policies:  # each run's policy file, named in the report
+        summary["policy_files"] = policies
     inputs = {f"solvability:{k}": Path(v) for k, v in solvability.items()}
     inputs |= {f"evaluation:{k}": Path(v) for k, v in evaluations.items()}
     inputs |= {f"parameters:{k}": Path(v) for k, v in parameters.items()}

@@ -2,8 +2,9 @@
 episodes of largest margin over every method and training seed, re-simulated with their
 trajectories into `replay/closest_calls.rrd`, listed in `replay/closest_calls.parquet`.
 
-A task that declares no margin has none. Runs whose parameters are equal (a method that tunes
-nothing, under every seed) ran the same episodes: only the first seed's are candidates. Each
+A task that declares no margin has none. Runs whose parameters and policy file are equal (a
+method that tunes nothing and runs no file of its own per seed, under every seed) ran the same
+episodes: only the first seed's are candidates. Each
 chosen episode is re-simulated alone and must reproduce its evaluation row's success and margin
 exactly, else the stage fails: the file shows the episodes the tables scored.
 """
@@ -22,6 +23,7 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, engine, provenance
 from mjtrial.closest_calls import choose, margins
+from mjtrial.policy_file import policy_inputs
 from mjtrial.recording.failures import write_episodes_rrd
 from mjtrial.recording.names import (
     CLOSEST_CALLS_PREFIX,
@@ -33,6 +35,7 @@ from mjtrial.stages.evaluate import evaluation_condition
 from mjtrial.stages.rollout import (
     condition_batches,
     condition_parameters,
+    condition_policy_inputs,
     condition_task,
     episode_records,
     read_state_values,
@@ -64,13 +67,12 @@ def _condition_name(task: str, method: str, seed: int) -> str:
 def _candidates(
     runs: Sequence[tuple[str, int]], parameters: Mapping[tuple[str, int], Path]
 ) -> list[tuple[str, int]]:
-    """The runs whose episodes are candidates: the first of each set of equal parameters."""
+    """The runs whose episodes are candidates: the first of each set of equal parameters
+    (and policy file: a method's training seeds' files differ)."""
     seen, kept = set(), []
     for run in runs:
-        key = json.dumps(
-            json.loads(Path(parameters[run]).read_text(encoding="utf-8"))["parameters"],
-            sort_keys=True,
-        )
+        record = json.loads(Path(parameters[run]).read_text(encoding="utf-8"))
+        key = json.dumps([record["parameters"], record.get("policy")], sort_keys=True)
         if key not in seen:
             seen.add(key)
             kept.append(run)
@@ -143,13 +145,14 @@ def _task_calls(
     groups = []
     for run, picks in wanted.items():
         _, condition, params = candidates[picks[0]]
+        run_bound = condition_task(condition, model, repo_root=repo_root)  # its policy file
         by_state = {int(state_ids[i]): i for i in picks}
         rows_of = [position[s] for s in sorted(by_state)]
         subset = {c: v[rows_of] for c, v in values.items()}
         episodes = []
-        for batch in condition_batches(bound, condition, subset, nthread=1):
+        for batch in condition_batches(run_bound, condition, subset, nthread=1):
             again = task.margin.of(batch.outcome[task.margin.measure], params)
-            for j, episode in enumerate(episode_records(task, batch)):
+            for j, episode in enumerate(episode_records(run_bound.task, batch)):
                 i = by_state[episode.state_id]
                 if bool(success[i]) != episode.success or margin[i] != again[j]:
                     raise ValueError(
@@ -158,9 +161,13 @@ def _task_calls(
                         f"{bool(success[i])} and {margin[i]!r}"
                     )
                 episodes.append(episode)
-        stamp_inputs = {"evaluation": evaluations[run], "parameters": parameters[run]}
+        stamp_inputs = {
+            "evaluation": evaluations[run],
+            "parameters": parameters[run],
+            **condition_policy_inputs(condition, repo_root=repo_root),
+        }
         builder = EpisodeStores(
-            recording_spec(bound, engine.episode_steps(bound, params), spec["rate_hz"]),
+            recording_spec(run_bound, engine.episode_steps(run_bound, params), spec["rate_hz"]),
             condition=_condition_name(task_name, *run),
             stamp=make_stage_stamp(rule, dict(condition), stamp_inputs, repo_root=repo_root),
         )
@@ -216,6 +223,10 @@ def write_closest_calls(
         inputs |= {f"{task_name}:{key}": v for key, v in task_files.items()}
     inputs |= {f"evaluation:{key}": Path(v) for key, v in evaluations.items()}
     inputs |= {f"parameters:{key}": Path(v) for key, v in parameters.items()}
+    for key, path in parameters.items():  # the policy files the re-simulations ran
+        policy = json.loads(Path(path).read_text(encoding="utf-8")).get("policy")
+        if policy:
+            inputs[f"policy:{key}"] = policy_inputs([Path(repo_root) / policy["path"]])["policy"]
     stamp = make_stage_stamp(rule, dict(closest_slice), inputs, repo_root=repo_root)
     n = write_episodes_rrd(
         output_rrd,

@@ -4,7 +4,9 @@ seeds by state id; in shards of the task's `rollout.shard_size` states, gathered
 
 The evaluation states are refused unless their stamp says the states stage drew them as
 evaluation states, and the parameter file is an input of the stamp: the table names the
-training it judges.
+training it judges. A parameter file that names a policy file (a method that runs one per
+training seed) runs it through the policy-file condition path (`conditions.POLICY`), and only
+while the file is the one its training recorded.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.conditions import POLICY
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import check_drawn_as
@@ -28,14 +31,32 @@ def evaluation_condition(
     record: Mapping[str, Any], evaluate_slice: Mapping[str, Any]
 ) -> dict[str, Any]:
     """The condition a parameter file (`record`, its JSON) runs on a task's evaluation states;
-    named `<method>/seed-<seed>`, nothing recorded."""
+    named `<method>/seed-<seed>`, nothing recorded; with its policy file, if it names one."""
     return {
         "condition": f"{record['method']}/seed-{record['seed']}",
         "task": evaluate_slice["task"],
         **record["parameters"],
+        **({POLICY: record["policy"]["path"]} if "policy" in record else {}),
         "failure_taxonomy": dict(evaluate_slice.get("failure_taxonomy", {})),
         "recording": {"rate_hz": 0, "episodes": "none"},
     }
+
+
+def changed_policy_files(record: Mapping[str, Any], repo_root: Path) -> list[str]:
+    """The policy files (graph, contract) a parameter record names whose sha256 is not the
+    one it records: edited since the training (a missing file counts)."""
+    policy = record.get("policy")
+    if not policy:
+        return []
+    changed = []
+    for path, sha in (
+        (policy["path"], policy["sha256"]),
+        (policy["contract"], policy["contract_sha256"]),
+    ):
+        file = Path(repo_root) / path
+        if not file.is_file() or provenance.file_sha256(file) != sha:
+            changed.append(path)
+    return changed
 
 
 def evaluate_method(
@@ -58,6 +79,12 @@ def evaluate_method(
     """
     check_drawn_as(Path(states), development=False, reader="an evaluation job")
     record = json.loads(Path(parameters).read_text(encoding="utf-8"))
+    changed = changed_policy_files(record, repo_root)
+    if changed:
+        raise ValueError(
+            f"{parameters}: {changed[0]} is not the file its training recorded (sha256 differs); "
+            "expected it unchanged, or the training rerun"
+        )
     stop = pq.read_metadata(states).num_rows if stop is None else stop
     return run_shard(
         condition_slice=evaluation_condition(record, evaluate_slice),

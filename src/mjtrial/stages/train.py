@@ -7,6 +7,10 @@ stamp of the parameter file records that file's sha256, so `mjtrial verify` can 
 machine, that no training read an evaluation state; and the sha256 of the parameter file's own
 record (`record_sha256`): the evaluations' stamps record the file as they read it, so only this
 names a file edited after training and evaluated again.
+
+A method that runs trained policy files (`policy`, one file per training seed) spends no
+episode: its record names the seed's file with the sha256 of its graph and contract, and the
+evaluation runs that file; both stamps record the two files as inputs.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.benchmark.tuning import tune, tuned_parameter_record
+from mjtrial.policy_file import load_policy_file, policy_inputs
 from mjtrial.stages.rollout import condition_task, read_state_values, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.stages.states import check_drawn_as
@@ -30,6 +35,18 @@ def record_sha256(record: Mapping[str, Any]) -> str:
     """sha256 of a parameter file's record (its JSON without the stamp), as read back."""
     payload = {k: v for k, v in record.items() if k != "provenance"}
     return provenance.config_hash(json.loads(json.dumps(payload)))
+
+
+def policy_record(path: str, task: Any, repo_root: Path) -> dict[str, str]:
+    """What a parameter record says of its policy file: the file (as the config names it) and
+    the sha256 of its graph and of its contract, checked against the task."""
+    checked = load_policy_file(Path(repo_root) / path, task)
+    return {
+        "path": path,
+        "sha256": checked.sha256,
+        "contract": provenance.repo_relative(checked.contract.source, repo_root),
+        "contract_sha256": checked.contract_sha256,
+    }
 
 
 def train_method(
@@ -53,6 +70,7 @@ def train_method(
     values = read_state_values(Path(development_states), bound.task)
     values.pop("state_id")
     method = train_slice["method"]
+    policy = method.get("policy")  # the seed's policy file: nothing to tune
     tuned = {k: tuple(v) for k, v in method.get("tune", {}).items()}
     fixed = {**train_slice.get("condition", {}), **method.get("fixed", {})}
     fixed = {k: float(v) for k, v in fixed.items() if k not in tuned}
@@ -79,6 +97,9 @@ def train_method(
             "task": bound.task.name,
             "method": method["name"],
             "parameters": dict(fixed),  # the task's defaults for the rest, as tuned ones have
+            **(
+                {"policy": policy_record(method["policy"], bound.task, repo_root)} if policy else {}
+            ),
             "budget_episodes": 0,
             "episodes_used": 0,
             "seed": train_slice["seed"],
@@ -87,6 +108,7 @@ def train_method(
         "development_states": Path(development_states),
         **model_inputs(Path(model_file)),
         **task_inputs(train_slice["task"], repo_root=repo_root),
+        **policy_inputs([Path(repo_root) / policy] if policy else []),
     }
     stamp = make_stage_stamp(
         rule,
