@@ -14,7 +14,12 @@ import yaml
 from conftest import REPO_ROOT, SNAKEMAKE, copy_workflow, run_snakemake
 
 from mjtrial import recording
+from mjtrial.physics import load_model
 from mjtrial.replay import replay_episode
+from mjtrial.report.traces import sample_traces
+from mjtrial.stages.rollout import condition_task
+from mjtrial.stages.stamping import config_slice
+from mjtrial.task import BoundTask, load_task
 
 COARSE = 0.004  # s: twice the gantry's 2 ms
 RESULTS = Path("results") / "coarse_step"
@@ -59,3 +64,22 @@ def test_a_replay_of_the_coarse_condition_is_timed_on_its_own_timestep(run):
     # every physics step logged (full rate), each 4 ms after the one before
     assert np.array_equal(logged["step"], np.arange(len(logged["step"])))
     assert np.allclose(np.diff(logged["time"]), COARSE, atol=1e-9)
+
+
+def test_the_traces_time_axis_is_the_recorded_one(run):
+    config = yaml.safe_load((run / "config" / "config.yaml").read_text())
+    model_file = run / config["model"]
+    fast = condition_task(
+        config_slice("rollout", config, condition="fast"), model_file, repo_root=run
+    )
+    rollouts = run / RESULTS / "rollouts"
+    traces = sample_traces(
+        bound=BoundTask.of(load_task(config["task"], repo_root=run), load_model(model_file)),
+        rollout_tables={"fast": rollouts / "fast.parquet"},
+        recordings={"fast": sorted((rollouts / "fast").glob("shard-*"))},
+        conditions={"fast": config["conditions"]["fast"]},
+        condition_bounds={"fast": fast},
+    )["fast"]
+    [state_id, *_] = traces.state_ids
+    logged = recording.read_episode(rollouts / "fast", condition="fast", state_id=state_id)
+    assert np.allclose(traces.time, logged["time"], atol=1e-9)
