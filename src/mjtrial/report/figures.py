@@ -465,6 +465,7 @@ def write_figures(
     conditions: Mapping[str, Mapping[str, float]],
     out_dir: Path,
     stamp: Mapping[str, Any],
+    condition_bounds: Mapping[str, BoundTask] | None = None,
 ) -> list[Path]:
     """Write every figure of `mjtrial.layout.FIGURES` as `<out_dir>/<name>.png` and `.svg`.
 
@@ -477,6 +478,8 @@ def write_figures(
       conditions: condition -> its protocol parameters (config `conditions`).
       out_dir: the figures' folder.
       stamp: the provenance stamp of every file written.
+      condition_bounds: condition -> its task on its own model, where it is not `bound`'s
+        (`sample_traces`).
 
     Returns the paths written, PNG then SVG for each figure, in `FIGURES` order.
     """
@@ -495,6 +498,7 @@ def write_figures(
         rollout_tables=rollout_tables,
         recordings=recordings,
         conditions={name: conditions[name] for name in summary["conditions"]},
+        condition_bounds=condition_bounds,
     )
     figures["sample_traces"] = figure_sample_traces(traces=traces, summary=summary, task=task)
     paths: list[Path] = []

@@ -80,6 +80,7 @@ def sample_traces(
     recordings: Mapping[str, Sequence[Path]],
     conditions: Mapping[str, Mapping[str, float]],
     per_outcome: int = TRACES_PER_OUTCOME,
+    condition_bounds: Mapping[str, BoundTask] | None = None,
 ) -> dict[str, SampleTraces]:
     """Read up to `per_outcome` successes and failures of each condition from its recordings.
 
@@ -90,18 +91,22 @@ def sample_traces(
         names them: a folder an earlier run left is never read).
       conditions: condition -> its protocol parameters (config `conditions.<name>`).
       per_outcome: episodes of each outcome per condition.
+      condition_bounds: condition -> its task on its own model (`stages.rollout.condition_task`),
+        where it edits the model or names a policy file: its steps and time axis are its own
+        (another timestep, other steps). A condition not in it ran `bound`.
 
     Raises:
       ValueError: a recording's episode record disagrees with its table row (the figure would
         label a trajectory with an outcome it did not have), its logged steps are not the
         condition's, or the chosen episodes were logged at different steps.
     """
-    task, model = bound.task, bound.model
-    series = task.trace_series
-    timestep = float(model.opt.timestep)
+    series = bound.task.trace_series
     traces = {}
     for name, table_path in rollout_tables.items():
-        n_steps = episode_steps(bound, conditions[name])
+        ran = (condition_bounds or {}).get(name, bound)
+        task, model = ran.task, ran.model
+        timestep = float(model.opt.timestep)
+        n_steps = episode_steps(ran, conditions[name])
         params = task.parameters(conditions[name])
         marks = (
             dict(call(task, "trace_marks", task.trace_marks, model, params))

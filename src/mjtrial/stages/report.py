@@ -9,7 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, report
+from mjtrial.conditions import model_edits, policy_path
 from mjtrial.physics import load_model
+from mjtrial.stages.rollout import condition_task
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.task import BoundTask, load_task
 
@@ -60,6 +62,7 @@ def write_report_stage(
         conditions=config["conditions"],
         out_dir=figures_dir,
         stamp=stamp,
+        condition_bounds=_own_bounds(config, model_file, repo_root=repo_root),
     )
     report.write_report(
         summary_path=summary_path,
@@ -72,3 +75,19 @@ def write_report_stage(
     )
     log.info("report -> %s (%d figure files)", output, len(figures))
     return figures
+
+
+def _own_bounds(
+    config: Mapping[str, Any], model_file: Path, *, repo_root: Path
+) -> dict[str, BoundTask]:
+    """The conditions that edit the model or name a policy file, each on what it ran (its
+    timestep sets its episodes' steps and time axis)."""
+    return {
+        name: condition_task(
+            {"condition": name, "task": config["task"], **condition},
+            model_file,
+            repo_root=repo_root,
+        )
+        for name, condition in config["conditions"].items()
+        if model_edits(condition) or policy_path(condition)
+    }
