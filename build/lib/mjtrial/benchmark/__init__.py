@@ -1,1 +1,0 @@
-"""The benchmark: tasks x methods x training seeds, tuned on development states."""

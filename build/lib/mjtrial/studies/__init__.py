@@ -1,1 +1,0 @@
-"""Studies beyond the built-in experiment: simulator sensitivity and a dose-response sweep."""
