@@ -1,14 +1,15 @@
-"""Snakemake adapter: a condition's pilot table from its shards (gather_pilot)."""
+"""Snakemake adapter: a condition's pilot table from its shards, gathered as any condition's
+(mjtrial.stages.rollout.gather_condition), stamped `pilot_gather:<condition>`."""
 
 from pathlib import Path
 
-from mjtrial.stages.pilot import gather_pilot
+from mjtrial.stages.rollout import gather_condition
 from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
 run_job(
     snakemake,
-    gather_pilot,
+    gather_condition,
     rule=f"pilot_gather:{snakemake.params.slice['condition']}",
     condition_slice=snakemake.params.slice,
     shard_tables=[Path(p) for p in snakemake.input.shards],

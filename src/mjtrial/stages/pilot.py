@@ -12,7 +12,7 @@ states not drawn as development states, and the analysis refuses the pilot's tab
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, analysis, provenance
 from mjtrial.conditions import condition_record
-from mjtrial.stages.rollout import gather_condition, run_shard
+from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.stages.states import check_drawn_as
 from mjtrial.task import load_task
@@ -59,29 +59,6 @@ def run_pilot_shard(
         stop=stop,
         output_table=Path(output_table),
         nthread=nthread,
-        rule=rule,
-        repo_root=repo_root,
-    )
-
-
-def gather_pilot(
-    *,
-    condition_slice: Mapping[str, Any],
-    shard_tables: Sequence[Path],
-    model_file: Path,
-    output_table: Path,
-    output_nominal: Path,
-    rule: str,
-    repo_root: Path = REPO_ROOT,
-) -> pa.Table:
-    """A condition's pilot table from its shards (`gather_condition`), stamped `rule`
-    (`pilot_gather:<condition>`)."""
-    return gather_condition(
-        condition_slice=condition_slice,
-        shard_tables=shard_tables,
-        model_file=Path(model_file),
-        output_table=Path(output_table),
-        output_nominal=Path(output_nominal),
         rule=rule,
         repo_root=repo_root,
     )
