@@ -57,7 +57,8 @@ def task_content_of(wildcards):
 
 def policy_files_of(wildcards):
     """The run's policy file and its contract (a method that runs one per training seed),
-    or none: inputs of its training and evaluation, so editing either reruns just them."""
+    or none: inputs of its training and evaluation, so editing either reruns just them.
+    """
     files = BENCHMARK_TASKS[wildcards.task].policies.get(wildcards.method, {})
     policy = files.get(int(wildcards.seed))
     return [] if policy is None else [policy, str(contract_path(Path(policy)))]
