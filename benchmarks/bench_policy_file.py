@@ -6,7 +6,7 @@ exported with the `onnx` package, read through its contract (`mjtrial.policy_fil
 baseline is the plain loop: one `MjData` per episode, the session called once per control step
 on that episode's observation (a batch of one), `mj_step` in a Python loop in between, the push
 set per step, success checked at every step of the last second, nothing recorded. The engine is
-what the pipeline calls, `mjtrial.engine.iter_batches` in its batches of `engine.BATCH_SIZE`,
+what the pipeline calls, `mjtrial.engine.iter_batches` in its batches (`engine.batch_size_for`),
 which also records every physics step, replays each batch's first instants in other batches
 (`closed_loop.check_replayed`) and computes the task's measures and categories. Episodes: the
 cart-pole of `tasks/cartpole_latency/` under its defaults (3 s, a 10 ms control period),
@@ -39,7 +39,7 @@ import yaml
 from onnx import TensorProto, helper, numpy_helper
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import BATCH_SIZE, iter_batches
+from mjtrial.engine import batch_size_for, episode_steps, iter_batches
 from mjtrial.physics import FULLPHYSICS
 from mjtrial.policy_file import load_policy_file, policy_task
 from mjtrial.task import BoundTask, load_task
@@ -140,7 +140,7 @@ def engine(bound: BoundTask, values, nthread: int, batch_size: int) -> tuple[int
     return sum(int(b.outcome["success"].sum()) for b in batches), finals
 
 
-def call_times(path: Path) -> None:
+def call_times(path: Path, batch_size: int) -> None:
     """Median µs of one session call per batch size, graph optimizations on and off."""
     for level in ("ORT_ENABLE_ALL", "ORT_DISABLE_ALL"):
         options = onnxruntime.SessionOptions()
@@ -148,7 +148,7 @@ def call_times(path: Path) -> None:
         options.graph_optimization_level = getattr(onnxruntime.GraphOptimizationLevel, level)
         session = onnxruntime.InferenceSession(str(path), options, ["CPUExecutionProvider"])
         times = []
-        for n in (1, BATCH_SIZE, 200):
+        for n in sorted({1, batch_size, 200}):
             rows = np.zeros((n, 2), np.float32)
             spent = []
             for _ in range(300):
@@ -167,8 +167,8 @@ def main() -> None:
     parser.add_argument(
         "--batch-size",
         type=int,
-        default=BATCH_SIZE,
-        help="the engine's episodes per batch (default: the pipeline's)",
+        default=None,
+        help="the engine's episodes per batch (default: the pipeline's, `batch_size_for`)",
     )
     args = parser.parse_args()
     task = load_task(TASK)
@@ -178,16 +178,17 @@ def main() -> None:
     bound = BoundTask.of(policy_task(task, policy))
     params = task.parameters(CONDITION)
     timing = task.controller.timing(bound.model, params)
+    batch_size = args.batch_size or batch_size_for(bound.model, episode_steps(bound, CONDITION))
     rng = np.random.default_rng(0)
     n = args.episodes
     values = {p.name: rng.uniform(p.low, p.high, n) for p in task.state_parameters}
     print(
         f"{n} cart-pole episodes, {timing.n_controls} control instants each, latency "
         f"{CONDITION['latency'] * 1e3:.0f} ms; MLP 2-{args.hidden}-{args.hidden}-1 through "
-        f"onnxruntime {onnxruntime.__version__}; engine batches of {args.batch_size}; "
+        f"onnxruntime {onnxruntime.__version__}; engine batches of {batch_size}; "
         f"{args.repeats} repeats"
     )
-    call_times(path)
+    call_times(path, batch_size)
     loop_s: list[float] = []
     engine_s: dict[int, list[float]] = {1: [], 2: []}
     ratios: dict[int, list[float]] = {1: [], 2: []}
@@ -196,9 +197,7 @@ def main() -> None:
         for threads in (1, 2):
             runs = {
                 "loop": lambda: plain_loop(bound, policy.session, values, timing),
-                "engine": lambda t=threads: engine(
-                    bound, values, t if t > 1 else 0, args.batch_size
-                ),
+                "engine": lambda t=threads: engine(bound, values, t if t > 1 else 0, batch_size),
             }
             order = ["loop", "engine"] if repeat % 2 == 0 else ["engine", "loop"]
             seconds = {}

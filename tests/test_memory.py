@@ -10,7 +10,11 @@ import re
 import subprocess
 import sys
 
-from mjtrial import REPO_ROOT
+import numpy as np
+
+from mjtrial import REPO_ROOT, engine
+from mjtrial.engine import iter_batches
+from mjtrial.task import BoundTask, load_task
 
 # Libraries no job of Snakemake's process needs: pycma (which imports scipy.stats and
 # matplotlib, 52 MB) tunes a method in the train job, a process of its own; statsmodels is the
@@ -52,3 +56,31 @@ def test_a_job_process_reports_its_own_peak_not_its_parents():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     peak = float(re.search(r"peak rss (\d+) MB", proc.stdout).group(1))
     assert 0 < peak < held_mb / 2, proc.stdout  # the child imports little: tens of MB
+
+
+def _array_bytes(batch) -> int:
+    e = batch.episodes
+    return e.physics.nbytes + e.sensordata.nbytes + np.asarray(e.ctrl).nbytes
+
+
+def test_a_batch_holds_what_its_size_was_chosen_for_and_a_short_episode_runs_many():
+    """The engine sizes a batch by bytes (`engine.BATCH_BYTES`, counting each array twice:
+    the engine's and the recording writer's): the arrays a batch really holds stay within half
+    of it, and are more than half of it when another episode would have fit; the cart-pole's
+    short episodes run many to a batch (a closed-loop policy is called once per batch)."""
+    cases = {}
+    for name in ("gantry_lift", "cartpole_latency"):
+        bound = BoundTask.of(load_task(REPO_ROOT / "tasks" / name / "task.py"))
+        rng = np.random.default_rng(0)
+        n = 300
+        values = {p.name: rng.uniform(p.low, p.high, n) for p in bound.task.state_parameters}
+        thresholds = {t.name: t.default for t in bound.task.thresholds}
+        first = next(iter_batches(bound, values, {}, thresholds=thresholds))
+        size = len(first.outcome["success"])
+        held = _array_bytes(first)
+        assert held <= engine.BATCH_BYTES / 2
+        if size < min(n, engine.MAX_BATCH):
+            assert held + held / size > engine.BATCH_BYTES / 2
+        cases[name] = size
+    assert cases["cartpole_latency"] >= 100
+    assert cases["gantry_lift"] < cases["cartpole_latency"]

@@ -16,9 +16,7 @@ import mujoco
 import psutil
 
 from mjtrial import engine
-from mjtrial.engine import BATCH_SIZE
 from mjtrial.layout import shard_ids
-from mjtrial.physics import FULLPHYSICS
 from mjtrial.task import BoundTask, call
 
 # Steps of one episode: the preflight steps every condition's nominal episode, and a batch holds
@@ -39,10 +37,9 @@ def job_memory_limit() -> float:
 
 
 def batch_bytes(model: mujoco.MjModel, steps: int) -> float:
-    """A batch's trajectories, states and sensor values, held twice (the engine's output and
-    the recording's copy)."""
-    per_step = mujoco.mj_stateSize(model, FULLPHYSICS) + model.nsensordata
-    return 2.0 * BATCH_SIZE * steps * per_step * 8
+    """A batch's trajectories, sensor values and controls, held twice (the engine's output and
+    the recording's copy): `engine.BATCH_BYTES`, or one episode's when that is more."""
+    return engine.batch_size_for(model, steps) * engine.episode_bytes(model, steps)
 
 
 def episode_problems(
@@ -77,8 +74,9 @@ def episode_problems(
         if need > limit:
             yield timestep_key, (
                 f"condition {name!r}: a rollout job would need about {need / 1e9:.1f} GB "
-                f"({steps:,} steps per episode at {dt:g} s, batches of {BATCH_SIZE}); expected at "
-                f"most {limit / 1e9:.1f} GB, half this machine's memory"
+                f"({steps:,} steps per episode at {dt:g} s, batches of "
+                f"{engine.batch_size_for(model, steps)}); expected at most {limit / 1e9:.1f} GB, "
+                "half this machine's memory"
             )
         logged_every = max(1, round(1.0 / (rate_hz * dt)))
         if logged_every >= steps:

@@ -280,6 +280,7 @@ def run_batch(
             nstep=s + extra,
             state=step_states,
             sensordata=step_sensors,
+            chunk_size=-(-n // len(datas)),
         )
         physics[:, k * s : (k + 1) * s] = step_states[:, :s]
         sensordata[:, k * s : (k + 1) * s] = step_sensors[:, :s]

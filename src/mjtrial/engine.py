@@ -34,11 +34,15 @@ from mjtrial.task import (
     expect_rows,
 )
 
-# Episodes per batch in the pipeline. Each episode of a batch holds its own model copy and
-# trajectories until the batch is classified and handed to the recording writer: 16 keep a
-# rollout job's working memory near 20-30 MB (64 took about 85 MB), and the per-call cost is
-# still small beside 16 episodes' stepping.
-BATCH_SIZE = 16
+# Episodes per batch in the pipeline, sized by memory: a batch's trajectories, held twice (the
+# engine's output and the recording writer's copy), fill at most BATCH_BYTES. The gantry's long
+# episodes (about 1 MB each) then run about 25 at a time, as a rollout job's working memory
+# allows; the cart-pole's (0.2 MB) about 130, which a closed-loop policy needs: every control
+# instant costs a policy call and a `rollout` call whose threads cost about 130 µs to start, so
+# 16 episodes of 5 steps ran slower on 2 threads than on 1 (bench_policy_file.py). Beyond
+# MAX_BATCH episodes nothing got faster.
+BATCH_BYTES = 24 * 2**20
+MAX_BATCH = 256
 UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
 
 
@@ -100,6 +104,17 @@ def classify(
     return category
 
 
+def episode_bytes(model: mujoco.MjModel, steps: int) -> float:
+    """An episode's trajectory, sensor values and controls, held twice (see BATCH_BYTES)."""
+    per_step = mujoco.mj_stateSize(model, FULLPHYSICS) + model.nsensordata + model.nu
+    return 2.0 * steps * per_step * 8
+
+
+def batch_size_for(model: mujoco.MjModel, steps: int) -> int:
+    """Episodes per batch: as many as BATCH_BYTES holds, at least 1, at most MAX_BATCH."""
+    return int(max(1, min(MAX_BATCH, BATCH_BYTES // episode_bytes(model, steps))))
+
+
 def episode_steps(bound: BoundTask, condition: Mapping[str, float]) -> int:
     """Physics steps of an episode under a condition."""
     task, model = bound.task, bound.model
@@ -126,7 +141,7 @@ def iter_batches(
     *,
     thresholds: Mapping[str, float],
     nthread: int = 0,
-    batch_size: int = BATCH_SIZE,
+    batch_size: int | None = None,
 ) -> Iterator[Batch]:
     """Run the episodes whose state values are the columns `values`, `batch_size` at a time.
 
@@ -136,9 +151,11 @@ def iter_batches(
       condition: the condition's protocol parameters (defaults are filled in).
       thresholds: the failure categories' thresholds by name.
       nthread: rollout threads (0: the calling thread).
-      batch_size: episodes per batch (memory is bounded by it).
+      batch_size: episodes per batch (memory is bounded by it); by default `batch_size_for`.
     """
     task, model = bound.task, bound.model
+    if batch_size is None:
+        batch_size = batch_size_for(model, episode_steps(bound, condition))
     if any(p.apply.stage == "model" for p in task.state_parameters):
         # each batch slot holds a copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))

@@ -11,14 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mjtrial.engine import iter_batches
+from mjtrial.engine import batch_size_for, episode_steps, iter_batches
 from mjtrial.policy_file import PolicyFile, load_policy_file, policy_task
 from mjtrial.task import BoundTask, Task
 from mjtrial.task_checks import nominal_values
 
 INVARIANCE_STATES = 8  # episodes run together and each alone
 TIMED_CALLS = 200  # calls per timed batch size (the median is reported)
-TIMED_BATCHES = (1, 16)  # a reference episode's batch, and the engine's (`engine.BATCH_SIZE`)
 
 
 @dataclass(frozen=True)
@@ -30,7 +29,7 @@ class PolicyCheck:
       privileged: the privileged observations it reads (a config must allow each).
       nominal: the nominal episode's outcome: "success" or its failure category.
       invariant: every episode the same bits alone as in a batch of `INVARIANCE_STATES`.
-      call_seconds: batch size -> median seconds per call.
+      call_seconds: batch size -> median seconds per call (1 row, and the engine's batch).
     """
 
     policy: PolicyFile
@@ -91,7 +90,8 @@ def check_policy_file(
     batch_policy = policy.policy(bound.model, task.parameters(condition))
     width = sum(declared[n].size for n in policy.observations)
     call_seconds = {}
-    for n in TIMED_BATCHES:
+    # a reference episode's batch, and the engine's for this task
+    for n in sorted({1, batch_size_for(bound.model, episode_steps(bound, condition))}):
         rows = rng.normal(size=(n, width))
         batch_policy.reset(n)
         spent = []

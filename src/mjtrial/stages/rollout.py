@@ -16,7 +16,6 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, atomic, engine, provenance, recording
 from mjtrial.conditions import model_edits, policy_path
-from mjtrial.engine import BATCH_SIZE
 from mjtrial.physics import load_model
 from mjtrial.policy_file import load_policy_file, policy_inputs, policy_task, runtime_settings
 from mjtrial.recording.series import Signal
@@ -171,7 +170,7 @@ def condition_batches(
     values: Mapping[str, np.ndarray],
     *,
     nthread: int,
-    batch_size: int = BATCH_SIZE,
+    batch_size: int | None = None,
 ) -> Iterator[engine.Batch]:
     """The condition's episodes of the states `values`, in batches, with their outcomes."""
     return engine.iter_batches(
@@ -268,7 +267,7 @@ def run_shard(
     unrecorded: Path | None = None,
     nthread: int,
     rule: str,
-    batch_size: int = BATCH_SIZE,
+    batch_size: int | None = None,
     repo_root: Path = REPO_ROOT,
     extra_inputs: Mapping[str, Any] | None = None,
 ) -> pa.Table:

@@ -372,8 +372,8 @@ class _Checker:
         values = {k: v[ids] for k, v in every.items()}
         columns = rollout_columns(bound.task)
         outcome: dict[str, list[np.ndarray]] = {c: [] for c in columns}
-        # Each episode alone: not the batch it ran in (`mjtrial.engine.BATCH_SIZE` rows or the
-        # shard's), so a result that depends on its batch is not confirmed.
+        # Each episode alone: not the batch it ran in (`mjtrial.engine.batch_size_for` rows or
+        # the shard's), so a result that depends on its batch is not confirmed.
         for batch in condition_batches(bound, slice_, values, nthread=1, batch_size=1):
             outcome["state_id"].append(batch.values["state_id"])
             for c in columns[1:]:
