@@ -35,12 +35,12 @@ from mjtrial.task import (
 )
 
 # Episodes per batch in the pipeline, sized by memory: a batch's trajectories, held twice (the
-# engine's output and the recording writer's copy), fill at most BATCH_BYTES. The gantry's long
-# episodes (about 1 MB each) then run about 25 at a time, as a rollout job's working memory
-# allows; the cart-pole's (0.2 MB) about 130, which a closed-loop policy needs: every control
-# instant costs a policy call and a `rollout` call whose threads cost about 130 µs to start, so
-# 16 episodes of 5 steps ran slower on 2 threads than on 1 (bench_policy_file.py). Beyond
-# MAX_BATCH episodes nothing got faster.
+# engine's output and the recording writer's copy), fill at most BATCH_BYTES. Long episodes
+# (about 1 MB each: a 2,100-step episode of a 24-number state) then run about 25 at a time, as a
+# rollout job's working memory allows; short ones (0.2 MB) about 130, which a closed-loop policy
+# needs: every control instant costs a policy call and a `rollout` call whose threads cost about
+# 130 µs to start, so 16 episodes of 5 steps ran slower on 2 threads than on 1
+# (benchmarks/bench_policy_file.py). Beyond MAX_BATCH episodes nothing got faster.
 BATCH_BYTES = 24 * 2**20
 MAX_BATCH = 256
 UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
