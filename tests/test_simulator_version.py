@@ -16,6 +16,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
@@ -26,6 +27,7 @@ from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
 from mjtrial.layout import NOMINAL, Layout
 from mjtrial.studies.sensitivity import flipped_episodes
+from mjtrial.verify import Status, verify_results
 
 VERSION = "4.0.0"
 LOCK = Path("envs") / f"mujoco-{VERSION}" / "lock.txt"
@@ -87,6 +89,83 @@ def test_the_environment_builds_again_offline_from_the_cache(versioned, tmp_path
     shutil.rmtree(workdir / LOCK.parent)
     run_snakemake(workdir, str(LOCK), env={**CACHE, "UV_OFFLINE": "1"})
     assert (workdir / LOCK).read_text() == lock
+
+
+def verified(workdir: Path, **kwargs):
+    config = workdir / "config" / "config.yaml"
+    return verify_results(workdir / LAYOUT.root, config_path=config, repo_root=workdir, **kwargs)
+
+
+def copy_of(versioned: Path, workdir: Path, *, env: str) -> Path:
+    """A copy of the run; its environment's folder `linked` to the original (not copied: 1.3
+    GB), `absent`, or holding only its lock (`no venv`) or a lock with a line added."""
+    top = str(versioned)
+    shutil.copytree(versioned, workdir, symlinks=True, ignore=lambda d, _: ["envs"] * (d == top))
+    if env == "linked":
+        (workdir / "envs").symlink_to(versioned / "envs", target_is_directory=True)
+    elif env != "absent":
+        (workdir / LOCK).parent.mkdir(parents=True)
+        text = (versioned / LOCK).read_text()
+        (workdir / LOCK).write_text(text if env == "no venv" else text + "# edited\n")
+    return workdir
+
+
+def test_verify_resimulates_the_variant_in_its_environment(versioned):
+    """Both conditions' every episode (shards of 5, `resimulate` 5) and nominal episode, on
+    MuJoCo 4.0.0: this MuJoCo's measures differ from it (the nominal tables), so only a
+    re-simulation in the variant's environment agrees with its tables."""
+    here, there = (
+        pq.read_table(versioned / LAYOUT.rollout_table("fast", v)).column("final_x")
+        for v in (NOMINAL, "mujoco_4")
+    )
+    assert here != there
+    report = verified(versioned, resimulate=5, seed=1)
+    assert report.ok, report.format()
+    [line] = report.checks
+    assert "and re-simulated 48 episodes (sample seed 1" in line  # 2 x 12 in each variant
+    assert line.endswith(f"0 differ; re-simulated mujoco_4/fast, mujoco_4/slow in {LOCK.parent}")
+
+
+def test_an_episode_of_the_variant_forged_and_rebuilt_downstream_is_named(versioned, tmp_path):
+    """Nudge a measure its recording does not carry in one of the variant's shards, under its
+    own stamp, and let Snakemake rebuild what follows: every stamp, seal and recording agrees;
+    the re-simulation in the variant's environment does not."""
+    workdir = copy_of(versioned, tmp_path / "copy", env="linked")
+    shard = workdir / LAYOUT.shard_table("slow", "00001", "mujoco_4")
+    stamp = provenance.read_stamp(shard)
+    table = pq.read_table(shard).replace_schema_metadata(None)
+    final_x = table.column("final_x").to_numpy().copy()
+    final_x[2] += 1e-6  # state 7
+    table = table.set_column(table.column_names.index("final_x"), "final_x", pa.array(final_x))
+    provenance.write_parquet(table, shard, stamp)
+    run_snakemake(workdir, "sensitivity", env=CACHE)
+
+    report = verified(workdir, resimulate=5)
+    rel = shard.relative_to(workdir).as_posix()
+    assert report[rel].status is Status.TAMPERED, report.format()
+    assert "re-simulated episodes for states 7 differ in final_x" in " ".join(report[rel].reasons)
+
+
+@pytest.mark.parametrize(
+    ("env", "why"),
+    [
+        ("absent", f"{LOCK.parent} not built; `snakemake -c2 {LOCK}` builds it"),
+        ("edited", f"the lock in {LOCK.parent} differs from the one the run used"),
+        (
+            "no venv",
+            f"{LOCK.parent} has no venv/bin/python: remove the folder, and `snakemake -c2 {LOCK}` "
+            "builds it",
+        ),
+    ],
+)
+def test_verify_says_why_it_did_not_resimulate_the_variant(versioned, tmp_path, env, why):
+    workdir = copy_of(versioned, tmp_path / "copy", env=env)
+    report = verified(workdir, resimulate=1)
+    [line] = report.checks
+    assert line.endswith(f"0 differ; not re-simulated: mujoco_4/fast, mujoco_4/slow ({why})")
+    table = LAYOUT.rollout_table("fast", "mujoco_4").as_posix()
+    # without its environment's lock, or with another, the variant's tables are stale
+    assert report[table].status is (Status.OK if env == "no venv" else Status.STALE)
 
 
 def test_flipped_episodes_pairs_the_states_both_ran():

@@ -5,7 +5,6 @@ and re-simulating episodes. Each end-to-end test failed before the recomputation
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import shutil
 import time
@@ -19,7 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import edit_config, run_snakemake
 
-from mjtrial import provenance
+from mjtrial import provenance, resimulation
 from mjtrial.verify import Status, verify_results
 from mjtrial.verify.recompute import (
     json_difference,
@@ -180,8 +179,7 @@ def test_an_outcome_that_depends_on_its_batch_is_not_reconfirmed_in_its_batch(bu
     """Issue 26 case 1: a task whose final height is another alone than beside other episodes
     (as the run's batches of 5 and 2 had them). Re-simulated in the run's batches, the sample
     agreed with the tables; re-simulated in another composition, it does not."""
-    recompute = importlib.import_module("mjtrial.verify.recompute")  # not verify's function
-    real = recompute.condition_task
+    real = resimulation.condition_task
 
     def batch_dependent(*args, **kwargs):
         bound = real(*args, **kwargs)
@@ -195,7 +193,7 @@ def test_an_outcome_that_depends_on_its_batch_is_not_reconfirmed_in_its_batch(bu
 
         return dataclasses.replace(bound, task=dataclasses.replace(task, measure=measure))
 
-    monkeypatch.setattr(recompute, "condition_task", batch_dependent)
+    monkeypatch.setattr(resimulation, "condition_task", batch_dependent)
     report = verified(built, resimulate=5)
     shard = (RESULTS / "rollouts" / "fast" / "shard-00000.parquet").as_posix()
     assert report[shard].status is Status.TAMPERED, report.format()

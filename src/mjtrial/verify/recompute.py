@@ -7,7 +7,8 @@ own inputs (the states, each condition's table from its shards, the analysis, th
 the report's text, the studies' summaries and reports) and compares; compares every recorded
 episode's outcome and measures (its recording's `episode` property) with its table row; and
 re-simulates a sample of episodes of every shard (`resimulate` per shard), each episode alone,
-against its table. The sample is drawn from a seed chosen at verify time (printed, `--seed`
+against its table (a variant on another MuJoCo version in that version's environment,
+`mjtrial.resimulation`). The sample is drawn from a seed chosen at verify time (printed, `--seed`
 repeats it): a forger who can read the code cannot know which rows it will be, and an episode
 whose result depends on its batch is not re-confirmed in the batch that made it. By
 induction a forged link anywhere in the chain is named: each output is what its inputs give,
@@ -38,17 +39,12 @@ from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, sha
 from mjtrial.recording import list_recordings
 from mjtrial.report import report_text
 from mjtrial.report.traces import record_difference
-from mjtrial.simenv import variant_version
+from mjtrial.resimulation import in_environment, resimulated_outcome
+from mjtrial.simenv import env_python, lock_path, variant_version
 from mjtrial.stages.analysis import summarize_tables
 from mjtrial.stages.manifest import manifest_record
 from mjtrial.stages.pilot import summarize_pilot
-from mjtrial.stages.rollout import (
-    condition_batches,
-    condition_task,
-    nominal_episode,
-    read_state_values,
-    rollout_columns,
-)
+from mjtrial.stages.rollout import nominal_episode
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
@@ -73,14 +69,18 @@ class Recomputation:
     resimulated: int = 0
     recorded: int = 0  # recorded episodes compared with their rows
     seed: int = 0  # the re-simulated sample's
-    # a variant's rollouts on another MuJoCo version: not re-simulated on this one
-    elsewhere: list[str] = field(default_factory=list)
+    # variants on another MuJoCo version: re-simulated in its environment (folder ->
+    # conditions), or not, and why (why -> conditions)
+    in_env: dict[str, list[str]] = field(default_factory=dict)
+    elsewhere: dict[str, list[str]] = field(default_factory=dict)
 
     def line(self) -> str:
-        other = (
-            f"; not re-simulated on this MuJoCo: {', '.join(self.elsewhere)}"
-            if self.elsewhere
-            else ""
+        other = "".join(
+            f"; re-simulated {', '.join(conditions)} in {folder}"
+            for folder, conditions in self.in_env.items()
+        ) + "".join(
+            f"; not re-simulated: {', '.join(conditions)} ({why})"
+            for why, conditions in self.elsewhere.items()
         )
         return (
             f"recomputed {self.recomputed} outputs from their inputs, compared "
@@ -161,11 +161,11 @@ def table_difference(
     return f"{what} for states {shown} differ in {', '.join(bad_columns)}"
 
 
-def _platform_note(stamp: Mapping[str, Any]) -> str:
-    """Where the record was made, when that is not here: another CPU or MuJoCo build may
-    explain a re-simulation that differs."""
+def _platform_note(stamp: Mapping[str, Any], mujoco_version: str) -> str:
+    """Where the record was made, when that is not here (on MuJoCo `mujoco_version`): another
+    CPU or MuJoCo build may explain a re-simulation that differs."""
     then = (stamp.get("versions", {}).get("mujoco"), stamp.get("platform", {}).get("cpu_model"))
-    now = (provenance.library_versions()["mujoco"], provenance.platform_fingerprint()["cpu_model"])
+    now = (mujoco_version, provenance.platform_fingerprint()["cpu_model"])
     if then == now:
         return ""
     return (
@@ -211,6 +211,7 @@ class _Checker:
         self.model_file = repo_root / config["model"]
         self.found = Recomputation()
         self.config_file = CONFIG_FILE
+        self.stamps: Mapping[str, Mapping[str, Any]] = {}  # the stamps verify read
 
     def rel(self, path: Path) -> str:
         return Path(path).relative_to(self.repo_root).as_posix()
@@ -297,28 +298,99 @@ class _Checker:
                     )
 
                 self.check(gathered, concatenated)
-            # another MuJoCo's physics runs in its own environment (mjtrial.simenv), not here
-            elsewhere = variant != NOMINAL and variant_version(self.config["variants"][variant])
-            if elsewhere:
-                self.found.elsewhere.append(qualified)
             nominal = self.layout.nominal_episode(condition, variant)
-            if not elsewhere:
-                self.check(
-                    nominal,
-                    lambda s=slice_, p=nominal: json_difference(
-                        p, nominal_episode(s, self.model_file, repo_root=self.repo_root)
-                    ),
-                )
+            samples = {}
             for shard, table in zip(shards, tables, strict=True):
                 folder = self.layout.shard_recordings(condition, shard, variant)
                 if recorded != "none" and self.is_current(table, folder):
                     self.recordings(table, folder, condition, only_failed=recorded == "failed")
-                if resimulate > 0 and not elsewhere:
+                if resimulate > 0:
                     first, stop = shard_range(shard, size, n)
-                    ids = sample_ids(
+                    samples[table] = sample_ids(
                         first, stop, resimulate, seed=self.found.seed, key=self.rel(table)
                     )
-                    self.check(table, lambda s=slice_, t=table, i=ids: self.resimulated(s, t, i))
+            version = variant != NOMINAL and variant_version(self.config["variants"][variant])
+            if version:
+                again = self.elsewhere(version, qualified, slice_, gathered, nominal, samples)
+            else:
+                again = self.here(slice_, nominal, samples)
+            if again is None:
+                continue
+            mujoco_version = version or provenance.library_versions()["mujoco"]
+            self.check(nominal, lambda p=nominal, f=again: json_difference(p, f(p)))
+            for table, ids in samples.items():
+                self.check(
+                    table,
+                    lambda t=table, i=ids, f=again, v=mujoco_version: self.resimulated(
+                        t, i, lambda: f(t), v
+                    ),
+                )
+
+    def here(
+        self, slice_: Mapping[str, Any], nominal: Path, samples: Mapping[Path, list[int]]
+    ) -> Callable[[Path], Any]:
+        """The condition's re-simulation on this MuJoCo, of an output: the nominal episode, or
+        a shard table's sampled rows."""
+        model, states, root = self.model_file, self.layout.states, self.repo_root
+        return lambda path: (
+            nominal_episode(slice_, model, repo_root=root)
+            if path == nominal
+            else resimulated_outcome(slice_, model, states, samples[path], repo_root=root)
+        )
+
+    def elsewhere(
+        self,
+        version: str,
+        qualified: str,
+        slice_: Mapping[str, Any],
+        gathered: Path,
+        nominal: Path,
+        samples: Mapping[Path, list[int]],
+    ) -> Callable[[Path], Any] | None:
+        """The re-simulation of a variant on another MuJoCo version (as `here`), in its
+        environment (`mjtrial.simenv`): one process for every output of the condition the
+        stamps judge current. None, and the check line says why, when that environment is
+        not the one the run used."""
+        lock = self.repo_root / lock_path(version)
+        folder = lock.parent.relative_to(self.repo_root).as_posix()
+        inputs = self.stamps.get(self.rel(gathered), {}).get("inputs")
+        stamped = inputs.get("simulator_env") if isinstance(inputs, Mapping) else None
+        stamped_sha = stamped.get("sha256") if isinstance(stamped, Mapping) else None
+        build = f"`snakemake -c2 {folder}/{lock.name}` builds it"
+        if not lock.is_file():
+            why = f"{folder} not built; {build}"
+        elif stamped_sha and stamped_sha != provenance.file_sha256(lock):
+            why = f"the lock in {folder} differs from the one the run used"
+        elif not env_python(lock).is_file():
+            why = f"{folder} has no venv/bin/python: remove the folder, and {build}"
+        else:
+            why = None
+        if why:
+            self.found.elsewhere.setdefault(why, []).append(qualified)
+            return None
+        jobs = {self.rel(p): (slice_, ids) for p, ids in samples.items() if self.is_current(p)}
+        if self.is_current(nominal):
+            jobs[self.rel(nominal)] = (slice_, None)
+        if not jobs:
+            return None
+        try:
+            got = in_environment(
+                env_python(lock),
+                version,
+                jobs,
+                model_file=self.model_file,
+                states_path=self.layout.states,
+                repo_root=self.repo_root,
+            )
+        except (OSError, RuntimeError) as err:
+            failed = err  # every output it would have checked says so
+
+            def fails(path: Path) -> Any:
+                raise failed
+
+            return fails
+        self.found.in_env.setdefault(folder, []).append(qualified)
+        return lambda path: got[self.rel(path)]
 
     def recordings(self, table_path: Path, folder: Path, condition: str, *, only_failed: bool):
         """Compare every recorded episode's outcome and measures (its recording's `episode`
@@ -360,32 +432,28 @@ class _Checker:
             )
 
     def resimulated(
-        self, slice_: Mapping[str, Any], table_path: Path, ids: list[int]
+        self,
+        table_path: Path,
+        ids: list[int],
+        outcome: Callable[[], pa.Table],
+        mujoco_version: str,
     ) -> str | None:
+        """Why the table's rows of the states `ids` are not `outcome`, their re-simulation on
+        MuJoCo `mujoco_version`."""
         table = pq.read_table(table_path)
         rows = {sid: i for i, sid in enumerate(table.column("state_id").to_numpy().tolist())}
         missing = [i for i in ids if i not in rows]
         if missing:
             return f"no row for states {missing[:_SHOWN]}"
-        bound = condition_task(slice_, self.model_file, repo_root=self.repo_root)
-        every = read_state_values(self.layout.states, bound.task)
-        values = {k: v[ids] for k, v in every.items()}
-        columns = rollout_columns(bound.task)
-        outcome: dict[str, list[np.ndarray]] = {c: [] for c in columns}
-        # Each episode alone: not the batch it ran in (`mjtrial.engine.batch_size_for` rows or
-        # the shard's), so a result that depends on its batch is not confirmed.
-        for batch in condition_batches(bound, slice_, values, nthread=1, batch_size=1):
-            outcome["state_id"].append(batch.values["state_id"])
-            for c in columns[1:]:
-                outcome[c].append(batch.outcome[c])
+        again = outcome()
         self.found.resimulated += len(ids)
         sampled = table.take(pa.array([rows[i] for i in ids]))
         why = table_difference(
             sampled,
-            {c: np.concatenate(v) for c, v in outcome.items()},
+            {c: again.column(c).to_numpy(zero_copy_only=False) for c in again.column_names},
             what="re-simulated episodes",
         )
-        return why and why + _platform_note(provenance.read_stamp(table_path))
+        return why and why + _platform_note(provenance.read_stamp(table_path), mujoco_version)
 
     def pilot(self, resimulate: int) -> None:
         """The pilot's outputs under `development/`, checked as the evaluation's are: each
@@ -566,6 +634,7 @@ def recompute(
     """
     checker = _Checker(layout, config, Path(repo_root), current, command_line or {}, command)
     checker.config_file = config_file
+    checker.stamps = stamps or {}
     checker.found.seed = fresh_seed() if seed is None else seed
     checker.states()
     checker.rollouts(resimulate)
@@ -574,5 +643,5 @@ def recompute(
     checker.manifest()
     checker.report()
     checker.studies()
-    checker.crate(stamps or {})
+    checker.crate(checker.stamps)
     return checker.found
