@@ -189,25 +189,33 @@ CONDITION_PARAMETERS = [
 ]
 
 
-@pytest.mark.parametrize(("parameter", "value"), CONDITION_PARAMETERS)
-def test_every_condition_parameter_works_end_to_end(built, tmp_path, parameter, value):
+def test_every_condition_parameter_works_end_to_end(built, tmp_path):
     """Survey case 10: a condition that sets the parameter builds the report, and replay
-    reproduces its episodes (a hold of 1.0 s once failed the report: "2350 steps recorded")."""
+    reproduces its episodes (a hold of 1.0 s once failed the report: "2350 steps recorded").
+    One run, a condition per parameter (the slow lift with that one value changed)."""
     import pyarrow.parquet as pq
 
     from mjtrial.recording import read_episode
     from mjtrial.replay import replay_episode
 
     workdir = copy_of(built, tmp_path)
-    edit_config(workdir, lambda c: c["conditions"]["slow"].update({parameter: value}))
+
+    def add_conditions(c):
+        slow = c["conditions"]["slow"]
+        for parameter, value in CONDITION_PARAMETERS:
+            c["conditions"][f"with_{parameter}"] = {**slow, parameter: value}
+
+    edit_config(workdir, add_conditions)
     run_snakemake(workdir)
-    table = pq.read_table(workdir / RESULTS / "rollouts" / "slow.parquet").to_pylist()
-    row = table[0]
-    out = tmp_path / "replay.rrd"
-    replay = replay_episode(condition="slow", state_id=0, output=out, repo_root=workdir)
-    assert replay.outcome["final_height"] == row["final_height"]
-    episode = read_episode(out, condition="slow", state_id=0)
-    assert episode["cube_height"][-1] == row["final_height"]
+    for parameter, _ in CONDITION_PARAMETERS:
+        name = f"with_{parameter}"
+        table = pq.read_table(workdir / RESULTS / "rollouts" / f"{name}.parquet").to_pylist()
+        row = table[0]
+        out = tmp_path / f"{name}.rrd"
+        replay = replay_episode(condition=name, state_id=0, output=out, repo_root=workdir)
+        assert replay.outcome["final_height"] == row["final_height"], parameter
+        episode = read_episode(out, condition=name, state_id=0)
+        assert episode["cube_height"][-1] == row["final_height"], parameter
     assert verified(workdir).ok, verified(workdir).format()
 
 
