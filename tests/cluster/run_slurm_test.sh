@@ -227,7 +227,7 @@ EOF
 # Each run in a copy of the workflow of its own: NAME-slurm and NAME-local.
 for copy in {experiment,benchmark}-{slurm,local}; do
     mkdir -p "$work/$copy"
-    cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles} "$work/$copy/"
+    cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles,policies} "$work/$copy/"
 done
 
 # start_runs NAME CONFIGFILE...: the workflow on SLURM (--workflow-profile profiles/slurm) in
