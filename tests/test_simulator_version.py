@@ -16,11 +16,11 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
 from conftest import REPO_ROOT, edit_config, run_snakemake
+from test_verify_recompute import nudge_final_x
 
 import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
@@ -132,12 +132,7 @@ def test_an_episode_of_the_variant_forged_and_rebuilt_downstream_is_named(versio
     the re-simulation in the variant's environment does not."""
     workdir = copy_of(versioned, tmp_path / "copy", env="linked")
     shard = workdir / LAYOUT.shard_table("slow", "00001", "mujoco_4")
-    stamp = provenance.read_stamp(shard)
-    table = pq.read_table(shard).replace_schema_metadata(None)
-    final_x = table.column("final_x").to_numpy().copy()
-    final_x[2] += 1e-6  # state 7
-    table = table.set_column(table.column_names.index("final_x"), "final_x", pa.array(final_x))
-    provenance.write_parquet(table, shard, stamp)
+    nudge_final_x(shard, row=2)  # state 7
     run_snakemake(workdir, "sensitivity", env=CACHE)
 
     report = verified(workdir, resimulate=5)

@@ -200,6 +200,17 @@ def test_an_outcome_that_depends_on_its_batch_is_not_reconfirmed_in_its_batch(bu
     assert "differ in final_height" in " ".join(report[shard].reasons)
 
 
+def nudge_final_x(shard: Path, *, row: int) -> None:
+    """Add 1e-6 to one episode's final x in a shard table, under the table's own stamp: a
+    forgery that no stamp, seal or recording shows (the recordings do not carry final x)."""
+    stamp = provenance.read_stamp(shard)
+    table = pq.read_table(shard).replace_schema_metadata(None)
+    final_x = table.column("final_x").to_numpy().copy()
+    final_x[row] += 1e-6
+    table = table.set_column(table.column_names.index("final_x"), "final_x", pa.array(final_x))
+    provenance.write_parquet(table, shard, stamp)
+
+
 def test_a_forged_episode_rebuilt_downstream_is_found_by_resimulation(built, tmp_path):
     """Nudge an episode's final x (a measure its recording does not carry: a recorded one,
     its recording names) in a shard table under its own stamp and let Snakemake rebuild
@@ -208,12 +219,7 @@ def test_a_forged_episode_rebuilt_downstream_is_found_by_resimulation(built, tmp
     ended, by the crate's record of the job's times: test_crate.)"""
     workdir = copy_of(built, tmp_path)
     shard = workdir / RESULTS / "rollouts" / "slow" / "shard-00001.parquet"
-    stamp = provenance.read_stamp(shard)
-    table = pq.read_table(shard).replace_schema_metadata(None)
-    final_x = table.column("final_x").to_numpy().copy()
-    final_x[2] += 1e-6  # state 7
-    table = table.set_column(table.column_names.index("final_x"), "final_x", pa.array(final_x))
-    provenance.write_parquet(table, shard, stamp)
+    nudge_final_x(shard, row=2)  # state 7
     run_snakemake(workdir)
 
     assert verified(workdir, resimulate=0).ok  # every stamp, seal and recording agrees
