@@ -15,9 +15,11 @@ import threading
 from pathlib import Path
 
 import pytest
+from conftest import REPO_ROOT
 from snakemake.iocontainers import Namedlist
 
 from mjtrial.provenance import STAMP_VERSION
+from mjtrial.task import load_task
 from mjtrial.workflow_script import JobFailed, job_log, run_in_process
 
 SCRIPT = """
@@ -203,3 +205,30 @@ def test_job_log_keeps_each_threads_messages_apart(tmp_path):
         lines = (tmp_path / f"{name}.log").read_text().splitlines()
         assert lines == [f"{name} {i}" for i in range(50)]
     assert not [h for h in log.handlers if isinstance(h, logging.FileHandler)]
+
+
+def test_a_task_package_loads_while_another_thread_imports():
+    """Snakemake's process imports the late stages in a thread (`import_in_background`) while an
+    in-process job loads a task package; the loader must not iterate `sys.modules` as it grows."""
+    stop = threading.Event()
+
+    def churn() -> None:  # what an import does to sys.modules, as often as possible
+        i = 0
+        while not stop.is_set():
+            sys.modules[f"_mjtrial_churn_{i % 64}"] = sys
+            sys.modules.pop(f"_mjtrial_churn_{(i + 32) % 64}", None)
+            i += 1
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # a thread switch at almost every bytecode
+    thread = threading.Thread(target=churn, daemon=True)
+    thread.start()
+    try:
+        for _ in range(50):
+            load_task(REPO_ROOT / "tasks" / "gantry_lift" / "task.py")
+    finally:
+        stop.set()
+        thread.join()
+        sys.setswitchinterval(interval)
+        for i in range(64):
+            sys.modules.pop(f"_mjtrial_churn_{i}", None)

@@ -35,7 +35,10 @@ def _from_file(path: Path) -> Task:
     with _IMPORT_LOCK:
         try:
             if (path.parent / "__init__.py").is_file():
-                for cached in [m for m in sys.modules if m == name or m.startswith(f"{name}.")]:
+                # A copy: another thread (`import_in_background`) may be importing meanwhile,
+                # and iterating `sys.modules` as it grows raises RuntimeError.
+                loaded = sys.modules.copy()
+                for cached in [m for m in loaded if m == name or m.startswith(f"{name}.")]:
                     del sys.modules[cached]
                 package_spec = importlib.util.spec_from_file_location(
                     name, path.parent / "__init__.py", submodule_search_locations=[str(path.parent)]
