@@ -10,9 +10,9 @@ from mjtrial.config import (
     ConfigError,
     check_config,
     preflight,
+    rerun_command,
     run_configuration,
 )
-from mjtrial.stages.manifest import rerun_command
 
 # The code that runs must be the code this checkout stamps and hashes.
 if foreign_package(Path.cwd()):

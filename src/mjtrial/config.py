@@ -9,7 +9,8 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Callable, Mapping
+import shlex
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -267,6 +268,14 @@ def run_configuration(
     command_line = merge_config(command_line, {k: given[k] for k in keys if k in given})
     command_line = merge_config(command_line, parse_config_args(config_args))
     return base, command_line, merge_config(read_config_file(base), command_line)
+
+
+def rerun_command(configfiles: Sequence[str], config_args: Sequence[str]) -> str:
+    """`snakemake -c2` with the run's `--configfile` and `--config` arguments, as given."""
+    words = ["snakemake", "-c2"]
+    words += [w for f in configfiles for w in ("--configfile", f)]
+    words += ["--config", *config_args] if config_args else []
+    return shlex.join(words)
 
 
 def preflight(config: Mapping[str, Any], *, repo_root: Path) -> list[str]:

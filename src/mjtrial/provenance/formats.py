@@ -11,7 +11,8 @@ Every output format carries its stamp in-band:
   of the root ``<svg>``.
 * A job's log (``.log``): its first line, ``# mjtrial.provenance: <single-line JSON>``.
 * Rerun ``.rrd``, a file or a folder of them: a recording property. Its reader lives in
-  :mod:`mjtrial.recording`, which registers it here when imported (:func:`register_reader`).
+  :mod:`mjtrial.recording`, which registers it here when imported (:func:`register_reader`);
+  the first read imports it.
 * A run's RO-Crate (``ro-crate-metadata.json``): an entity of its graph, read by
   :mod:`mjtrial.crate`, which registers that reader by the file's name.
 
@@ -22,6 +23,7 @@ suffix. A file with no stamp of its own inside a folder written as one output (a
 
 from __future__ import annotations
 
+import importlib
 import io
 import json
 import os
@@ -306,7 +308,8 @@ _READERS: dict[str, StampReader] = {
     ".log": _read_log_stamp,
 }
 
-# Formats whose reader lives in a module that imports this one, and registers itself.
+# Formats whose reader lives in a module that imports this one, and registers itself. They are
+# imported on the first read (`_load_registered_readers`), not here (they import this module).
 _REGISTERED_BY = {".rrd": "mjtrial.recording", "ro-crate-metadata.json": "mjtrial.crate"}
 
 # Folders written as one output other than folders of recordings (which the ".rrd" reader
@@ -334,6 +337,14 @@ def register_folder_reader(is_folder: Callable[[Path], bool], reader: StampReade
     _FOLDER_READERS.append((is_folder, reader))
 
 
+def _load_registered_readers() -> None:
+    """Import the modules that register readers, so that what `read_stamp` answers never
+    depends on what this process happened to import before (the crate's `source/` was "no
+    stamp" in a process that had not imported `mjtrial.crate`)."""
+    for module in dict.fromkeys(_REGISTERED_BY.values()):
+        importlib.import_module(module)
+
+
 def _folder_reader(path: Path) -> StampReader | None:
     for is_folder, reader in _FOLDER_READERS:
         if is_folder(path):
@@ -345,6 +356,7 @@ def is_folder_output(path: str | os.PathLike[str]) -> bool:
     """Whether `path` is a folder written as one output: a folder of recordings, or a folder a
     module registered (`register_folder_reader`)."""
     path = Path(path)
+    _load_registered_readers()
     return is_recording_folder(path) or any(is_folder(path) for is_folder, _ in _FOLDER_READERS)
 
 
@@ -367,6 +379,7 @@ def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
     ``FileNotFoundError`` when it does not exist.
     """
     path = Path(path)
+    _load_registered_readers()
     if path.exists():
         check_regular(path)  # a FIFO would block the reader for ever
     if path.is_dir():
@@ -382,15 +395,10 @@ def read_stamp(path: str | os.PathLike[str]) -> dict[str, Any]:
             return read_stamp(folder)
     if reader is None:
         kind = f"{suffix} files" if suffix else "files without a suffix"
-        key = path.name.lower() if path.name.lower() in _REGISTERED_BY else suffix
-        if path.is_dir():
-            kind = "folders of .rrd recordings"
-        hint = (
-            f"{_REGISTERED_BY[key]} registers that reader when imported"
-            if key in _REGISTERED_BY
-            else f"supported: {', '.join(sorted(k for k in _READERS if k.startswith('.')))}"
+        supported = ", ".join(sorted(k for k in _READERS if k.startswith(".")))
+        raise ValueError(
+            f"{path}: no reader of provenance stamps for {kind} (supported: {supported})"
         )
-        raise ValueError(f"{path}: no reader of provenance stamps for {kind} ({hint})")
     if stamp is None:
         raise MissingStampError(f"{path}: no mjtrial provenance stamp")
     return stamp

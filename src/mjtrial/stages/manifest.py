@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -39,7 +38,8 @@ def write_manifest(
 
     `config_file` is the run's config file (config/config.yaml, or a --configfile naming an
     experiment), `command_line` the config values the run was given on top of it with
-    `--config` or `--configfile`; `command` is the command that ran them (`rerun_command`).
+    `--config` or `--configfile`; `command` is the command that ran them
+    (`mjtrial.config.rerun_command`).
     """
     manifest, inputs = manifest_record(
         config=config,
@@ -160,11 +160,3 @@ def task_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> di
     if task.source is not None and str(config["task"]).endswith(".py"):
         record["sha256"] = provenance.file_sha256(task.source)
     return record
-
-
-def rerun_command(configfiles: Sequence[str], config_args: Sequence[str]) -> str:
-    """`snakemake -c2` with the run's `--configfile` and `--config` arguments, as given."""
-    words = ["snakemake", "-c2"]
-    words += [w for f in configfiles for w in ("--configfile", f)]
-    words += ["--config", *config_args] if config_args else []
-    return shlex.join(words)
