@@ -15,10 +15,10 @@ from scipy.stats import binomtest
 
 from mjtrial import provenance, recording
 from mjtrial.cli import main
-from mjtrial.diff.flips import first_divergence
 from mjtrial.diff.found import compare_effects, rollout_groups
 from mjtrial.diff.gate import failures
 from mjtrial.diff.source import Run
+from mjtrial.recording.divergence import first_divergence
 
 RESULTS = Path("results") / "research_mode"
 MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"

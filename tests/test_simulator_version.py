@@ -82,6 +82,77 @@ def test_the_report_lists_the_states_whose_outcome_flipped(versioned):
     assert NOMINAL not in record["flipped"]
 
 
+# A variant on MuJoCo 4.0.0 with slipperier pads and cube (a contact takes the larger of its
+# two geoms' friction): 3 of the 12 fast lifts flip, so the report's table has rows, each with
+# where the two trajectories part.
+SLIPPERY = {
+    "mujoco": VERSION,
+    "geom": {g: {"friction": [0.5, 0.003, 0.0001]} for g in ("left_pad", "right_pad", "cube")},
+}
+
+
+@pytest.fixture(scope="module")
+def slippery(versioned, tmp_path_factory) -> Path:
+    workdir = tmp_path_factory.mktemp("slippery") / "copy"
+    shutil.copytree(
+        versioned, workdir, symlinks=True, ignore=lambda d, _: ["envs"] * (d == str(versioned))
+    )
+    (workdir / "envs").symlink_to(versioned / "envs", target_is_directory=True)
+    edit_config(workdir, lambda c: c["variants"].update(slippery=SLIPPERY))
+    run_snakemake(workdir, "sensitivity", env=CACHE)
+    return workdir
+
+
+def first_parting(a: dict, b: dict, tolerance: float = 1e-6) -> tuple[float, int] | None:
+    """A plain reference: walk the times both recordings logged, in order, and return the
+    first (time, step of a) at which any value they share differs by more than `tolerance`."""
+    index_b = {round(float(t) * 1e9): j for j, t in enumerate(b["time"])}
+    keys = sorted(set(a) & set(b) - {"time", "step"})
+    for i, t in enumerate(a["time"]):
+        j = index_b.get(round(float(t) * 1e9))
+        if j is None:
+            continue
+        for key in keys:
+            x, y = np.ravel(a[key][i]).astype(float), np.ravel(b[key][j]).astype(float)
+            if x.shape == y.shape and any(
+                abs(p - q) > tolerance or (np.isnan(p) != np.isnan(q))
+                for p, q in zip(x, y, strict=True)
+            ):
+                return float(t), int(a["step"][i])
+    return None
+
+
+def test_the_flipped_episodes_say_where_their_trajectories_part(slippery):
+    """As `mjtrial diff` does between two runs: each flipped episode's first logged time at
+    which the nominal model's recording and the variant's differ, checked against a plain walk
+    over both recordings; the report's table shows it, and verify recomputes it."""
+    from mjtrial.recording import find_episode_file, read_episode
+
+    summary = json.loads((slippery / LAYOUT.study_summary("sensitivity")).read_text())
+    episodes = summary["variants"]["slippery"]["flipped"]["episodes"]
+    assert episodes, "the slippery pads flip no outcome: the test needs one"
+    report = (slippery / LAYOUT.study_report("sensitivity")).read_text()
+    assert "| state | condition | nominal | slippery | where the trajectories part |" in report
+    for e in episodes:
+        condition, sid = e["condition"], e["state_id"]
+        series = [
+            read_episode(
+                find_episode_file(
+                    slippery / LAYOUT.recordings(condition, v), condition=condition, state_id=sid
+                ),
+                condition=condition,
+                state_id=sid,
+            )
+            for v in (NOMINAL, "slippery")
+        ]
+        time, step = first_parting(*series)
+        d = e["divergence"]
+        assert d["time"] == pytest.approx(time, abs=1e-9) and d["step"][0] == step, (e, time)
+        assert f"| {sid} | {condition} | " in report and f"t = {time:.4f} s" in report
+    verify = verified(slippery, resimulate=1)
+    assert verify.ok, verify.format()
+
+
 def test_the_environment_builds_again_offline_from_the_cache(versioned, tmp_path):
     workdir = tmp_path / "copy"
     shutil.copytree(versioned, workdir, symlinks=True)

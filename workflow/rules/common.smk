@@ -20,7 +20,7 @@ from mjtrial.layout import (
 from mjtrial.policy_file import contract_path
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.simenv import build as build_env
-from mjtrial.simenv import lock_path, variant_version
+from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
@@ -137,6 +137,17 @@ def sensitivity_tables():
         for variant in [NOMINAL, *VARIANTS]
         for c in conditions
     }
+
+
+def sensitivity_recordings():
+    """((variant, condition), shard folder) for each folder of recordings the sensitivity
+    study reads (mjtrial.simenv.version_recordings)."""
+    return [
+        ((variant, c), str(folder))
+        for variant, by in version_recordings(config, LAYOUT).items()
+        for c, folders in by.items()
+        for folder in folders
+    ]
 
 
 # Each shard's recordings folder -> its table (the same job writes both).

@@ -6,6 +6,7 @@
 rule study_sensitivity:
     input:
         tables=list(sensitivity_tables().values()),
+        recordings=[f for _, f in sensitivity_recordings()],
         model=config["model"],
     output:
         **study_figure_outputs("sensitivity"),
@@ -20,6 +21,7 @@ rule study_sensitivity:
     params:
         slice=config_slice("sensitivity", config) if VARIANTS else {},
         table_keys=list(sensitivity_tables()),
+        recording_keys=[key for key, _ in sensitivity_recordings()],
         code=stage_code_hash("sensitivity"),
     run:
         run_script("study", input, output, params, wildcards, threads, log, rule)

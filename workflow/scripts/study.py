@@ -14,15 +14,20 @@ outputs = {
 }
 tables = [Path(p) for p in snakemake.input.tables]
 if snakemake.rule == "study_sensitivity":
-    by_variant = {}
+    by_variant, recordings = {}, {}
     for (variant, condition), path in zip(snakemake.params.table_keys, tables, strict=True):
         by_variant.setdefault(variant, {})[condition] = path
+    for (variant, condition), folder in zip(
+        snakemake.params.recording_keys, snakemake.input.recordings, strict=True
+    ):
+        recordings.setdefault(variant, {}).setdefault(condition, []).append(Path(folder))
     run_job(
         snakemake,
         run_sensitivity,
         rule="sensitivity",
         study_slice=snakemake.params.slice,
         tables=by_variant,
+        recordings=recordings,
         model_file=Path(snakemake.input.model),
         **outputs,
     )

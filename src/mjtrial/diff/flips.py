@@ -9,18 +9,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from mjtrial import provenance, recording
+from mjtrial import provenance
 from mjtrial.diff.source import Run
 from mjtrial.layout import NOMINAL
+from mjtrial.recording.divergence import DEFAULT_TOLERANCE, UNREADABLE, episode_divergence
 from mjtrial.recording.failures import write_episode_copies_rrd
 from mjtrial.recording.names import episode_file_name
 
-# Two trajectories part where a logged value differs by more than this (in its own units:
-# metres, radians, the task's series). Recordings keep poses as float32, whose rounding of a
-# coordinate under a few metres stays below 1e-6 m.
-DEFAULT_TOLERANCE = 1e-6
 # Flipped episodes whose trajectories are compared and copied into the diff's recording.
 DEFAULT_MAX_EPISODES = 50
 # The runs' labels in the diff's recording.
@@ -42,59 +37,21 @@ def episode_file(run: Run, group: str, state_id: int) -> Path | None:
     return None
 
 
-def first_divergence(
-    a: Mapping[str, np.ndarray], b: Mapping[str, np.ndarray], *, tolerance: float
-) -> dict[str, Any] | None:
-    """The first logged time at which two recordings of an episode (`recording.read_episode`)
-    differ by more than `tolerance` in any series or body pose they share, with each run's
-    physics step there, the quantity and the difference; None when they never do.
-
-    Only the times both logged are compared (a run with another timestep or logging rate logs
-    at other times): the first step at which they part is known to the logging interval.
-    """
-    ta, tb = (np.round(np.asarray(r["time"]) * 1e9).astype(np.int64) for r in (a, b))
-    common, ia, ib = np.intersect1d(ta, tb, return_indices=True)
-    if common.size == 0:
-        return {"time": None, "reason": "the runs logged no time in common"}
-    worst = np.zeros(common.size)
-    which = np.full(common.size, "", dtype=object)
-    for key in sorted(set(a) & set(b) - {"time", "step"}):
-        va, vb = np.asarray(a[key])[ia], np.asarray(b[key])[ib]
-        if va.shape != vb.shape:
-            continue
-        gap = np.abs(va.astype(float) - vb)
-        gap[np.isnan(va) & np.isnan(vb)] = 0.0  # both non-finite alike: not where they part
-        gap = np.nan_to_num(gap, nan=np.inf).reshape(common.size, -1).max(axis=1)
-        larger = gap > worst
-        worst[larger], which[larger] = gap[larger], key
-    parted = np.flatnonzero(worst > tolerance)
-    if parted.size == 0:
-        return None
-    i = int(parted[0])
-    return {
-        "time": float(common[i] / 1e9),
-        "step": [int(a["step"][ia[i]]), int(b["step"][ib[i]])],
-        "quantity": str(which[i]),
-        "difference": float(worst[i]),
-    }
-
-
 def _trace(
     a: Run, b: Run, group: str, state_id: int, *, tolerance: float
 ) -> tuple[dict[str, Any], tuple[Path, Path] | None]:
-    """One flipped episode's divergence (`first_divergence`, or why there is none) and its
-    two recordings, None when it has not both."""
+    """One flipped episode's divergence (`episode_divergence`) and its two recordings, None
+    when it has not both."""
     files = [episode_file(run, group, state_id) for run in (a, b)]
-    missing = [side for side, f in zip(SIDES, files, strict=True) if f is None]
-    if missing:
-        return {"reason": f"not recorded in {' and '.join(missing)}"}, None
-    condition = group.rpartition("/")[2]
-    try:
-        series = [recording.read_episode(f, condition=condition, state_id=state_id) for f in files]
-    except (KeyError, ValueError) as err:  # a damaged recording: `mjtrial verify` says why
-        return {"reason": f"unreadable recording: {err}"}, None
-    agree = {"reason": f"the recordings agree within {tolerance:g} at every time both logged"}
-    return first_divergence(*series, tolerance=tolerance) or agree, (files[0], files[1])
+    divergence = episode_divergence(
+        files,
+        SIDES,
+        condition=group.rpartition("/")[2],
+        state_id=state_id,
+        tolerance=tolerance,
+    )
+    unread = None in files or divergence.get("reason", "").startswith(UNREADABLE)
+    return divergence, None if unread else (files[0], files[1])
 
 
 def trace_flips(

@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from mjtrial.recording.divergence import describe_divergence
+
 # A condition's result changed beyond noise when McNemar's exact test on the shared states
 # gives a p below this.
 DEFAULT_LEVEL = 0.05
@@ -103,16 +105,6 @@ def _effect(e: Mapping[str, Any] | None) -> str:
     return f"{e['estimate']:+.3f} [{e['low']:+.3f}, {e['high']:+.3f}] {e['verdict']}"
 
 
-def _divergence(d: Mapping[str, Any] | None) -> str:
-    if not d:
-        return "-"
-    if d.get("time") is None:
-        return d.get("reason", "-")
-    steps = d["step"]
-    step = f"step {steps[0]}" if steps[0] == steps[1] else f"steps {steps[0]} | {steps[1]}"
-    return f"t = {d['time']:.4f} s, {step} ({d['quantity']} by {d['difference']:.3g})"
-
-
 def _outcome(success: bool, category: str | None) -> str:
     return "success" if success else f"failed ({category or '-'})"
 
@@ -158,9 +150,8 @@ def render(diff: Mapping[str, Any]) -> str:
     ]
     for group, f in flips:
         a, b = (_outcome(s, c) for s, c in zip(f["success"], f["failure_category"], strict=True))
-        lines.append(
-            f"  {group} state {f['state_id']}: {a} -> {b}; {_divergence(f.get('divergence'))}"
-        )
+        parts = describe_divergence(f.get("divergence"))
+        lines.append(f"  {group} state {f['state_id']}: {a} -> {b}; {parts}")
     if diff["recording"]:
         lines.append(f"both runs' recordings of them: rerun {diff['recording']}")
     return "\n".join(lines)

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from mjtrial.recording.divergence import describe_divergence
 from mjtrial.report.figures import (
     _GREY,
     _SHADE,
@@ -252,8 +253,9 @@ def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -
 
 
 def flipped_table(name: str, flipped: Mapping[str, Any], *, limit: int = 50) -> list[str]:
-    """A MuJoCo-version variant's flipped episodes: the states whose outcome differs from the
-    nominal model's, with the failure category in each run (the first `limit` listed)."""
+    """A MuJoCo-version variant's flipped episodes, as `mjtrial diff` lists them: the states
+    whose outcome differs from the nominal model's, with the failure category in each run and
+    the first logged time their trajectories part (the first `limit` listed)."""
     episodes = flipped["episodes"]
     lines = [
         "",
@@ -262,10 +264,14 @@ def flipped_table(name: str, flipped: Mapping[str, Any], *, limit: int = 50) -> 
     ]
     if not episodes:
         return lines
-    lines += ["", "| state | condition | nominal | " + name + " |", "| --- | --- | --- | --- |"]
+    lines += [
+        "",
+        f"| state | condition | nominal | {name} | where the trajectories part |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     lines += [
         f"| {e['state_id']} | {e['condition']} | {e['nominal'] or 'success'} | "
-        f"{e['variant'] or 'success'} |"
+        f"{e['variant'] or 'success'} | {describe_divergence(e.get('divergence'))} |"
         for e in episodes[:limit]
     ]
     if len(episodes) > limit:

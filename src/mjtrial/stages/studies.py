@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +17,8 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.layout import NOMINAL, STUDY_FIGURES
+from mjtrial.recording.divergence import episode_divergence
+from mjtrial.recording.read import find_episode_file
 from mjtrial.report import studies as study_report
 from mjtrial.simenv import model_overrides, variant_version
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
@@ -37,6 +39,7 @@ def run_sensitivity(
     *,
     study_slice: Mapping[str, Any],
     tables: Mapping[str, Mapping[str, Path]],
+    recordings: Mapping[str, Mapping[str, Sequence[Path]]],
     model_file: Path,
     output: Path,
     report: Path,
@@ -48,9 +51,19 @@ def run_sensitivity(
 
     Args:
       tables: per variant (`NOMINAL` first), per condition, its rollout table.
+      recordings: `mjtrial.simenv.version_recordings`: where the flipped episodes'
+        trajectories are read.
     """
-    summary = sensitivity_summary(study_slice=study_slice, tables=tables, model_file=model_file)
+    summary = sensitivity_summary(
+        study_slice=study_slice, tables=tables, recordings=recordings, model_file=model_file
+    )
     inputs = {f"{v}/{c}": p for v, by in tables.items() for c, p in by.items()}
+    inputs |= {
+        f"{v}/{c}/{Path(f).name}": f
+        for v, by in recordings.items()
+        for c, folders in by.items()
+        for f in folders
+    }
     return _write(
         "sensitivity",
         summary,
@@ -124,14 +137,34 @@ def _write(
     return summary
 
 
+def _divergence(
+    recordings: Mapping[str, Mapping[str, Sequence[Path]]],
+    variant: str,
+    condition: str,
+    state_id: int,
+) -> dict[str, Any]:
+    """Where a flipped episode's trajectories under the nominal model and under `variant`
+    part (`episode_divergence`), or why that is not known."""
+    files = []
+    for side in (NOMINAL, variant):
+        folders = recordings.get(side, {}).get(condition, [])
+        try:
+            files.append(find_episode_file(folders, condition=condition, state_id=state_id))
+        except KeyError:  # not recorded (recording.episodes: failed, and it succeeded)
+            files.append(None)
+    return episode_divergence(files, (NOMINAL, variant), condition=condition, state_id=state_id)
+
+
 def sensitivity_summary(
     *,
     study_slice: Mapping[str, Any],
     tables: Mapping[str, Mapping[str, Path]],
+    recordings: Mapping[str, Mapping[str, Sequence[Path]]],
     model_file: Path,
 ) -> dict[str, Any]:
-    """`analysis/sensitivity.json` from the rollout tables (`mjtrial verify` checks against
-    it)."""
+    """`analysis/sensitivity.json` from the rollout tables, and for a variant on another
+    MuJoCo version, its flipped episodes with where their trajectories part, from
+    `recordings` (`mjtrial verify` checks against it)."""
     variants = {}
     for name, by_condition in tables.items():
         overrides = {} if name == NOMINAL else study_slice["variants"][name]
@@ -153,6 +186,10 @@ def sensitivity_summary(
             record["flipped"] = flipped_episodes(
                 variants[NOMINAL]["tables"], variants[name]["tables"]
             )
+            for episode in record["flipped"]["episodes"]:
+                episode["divergence"] = _divergence(
+                    recordings, name, episode["condition"], episode["state_id"]
+                )
     return summary
 
 

@@ -40,14 +40,18 @@ from mjtrial.recording import list_recordings
 from mjtrial.report import report_text
 from mjtrial.report.traces import record_difference
 from mjtrial.resimulation import in_environment, resimulated_outcome
-from mjtrial.simenv import env_python, lock_path, variant_version
+from mjtrial.simenv import env_python, lock_path, variant_version, version_recordings
 from mjtrial.stages.analysis import summarize_tables
 from mjtrial.stages.manifest import manifest_record
 from mjtrial.stages.pilot import summarize_pilot
 from mjtrial.stages.rollout import nominal_episode
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
-from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
+from mjtrial.stages.studies import (
+    dose_response_summary,
+    sensitivity_summary,
+    study_report_text,
+)
 from mjtrial.verify.chain import dict_diff
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
@@ -575,12 +579,15 @@ class _Checker:
                     v: {c: layout.rollout_table(c, v) for c in pair}
                     for v in [NOMINAL, *variant_names(config)]
                 }
+                recordings = version_recordings(config, layout)
                 inputs = [p for by in tables.values() for p in by.values()]
+                inputs += [f for by in recordings.values() for fs in by.values() for f in fs]
 
-                def summarize(tables: Any = tables) -> dict[str, Any]:
+                def summarize(tables: Any = tables, recordings: Any = recordings) -> dict[str, Any]:
                     return sensitivity_summary(
                         study_slice=config_slice("sensitivity", config),
                         tables=tables,
+                        recordings=recordings,
                         model_file=self.model_file,
                     )
             else:
