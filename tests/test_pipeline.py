@@ -18,7 +18,6 @@ import yaml
 from conftest import edit_config
 from conftest import run_snakemake as run
 
-import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 
 

@@ -22,7 +22,6 @@ import yaml
 from conftest import REPO_ROOT, edit_config, run_snakemake
 from test_verify_recompute import nudge_final_x
 
-import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
 from mjtrial.layout import NOMINAL, Layout

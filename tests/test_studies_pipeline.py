@@ -11,7 +11,6 @@ import pytest
 from conftest import edit_config, run_snakemake
 from test_pipeline import planned_jobs
 
-import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 from mjtrial.crate import validation
 from mjtrial.layout import Layout

@@ -18,7 +18,6 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import REPO_ROOT, SNAKEMAKE, edit_config, error_lines, run_snakemake
 
-import mjtrial.recording  # noqa: F401 - registers the reader of the stamps in .rrd files
 from mjtrial import provenance
 from mjtrial.stages.rollout import read_state_values
 from mjtrial.task import load_task

@@ -16,9 +16,6 @@ PROFILE_NAME = "Provenance Run Crate 0.5 on RO-Crate 1.1"
 
 
 def _provenance(args: argparse.Namespace) -> int:
-    # Imported here: rerun-sdk takes about 0.5 s to import, which `mjtrial plan` need not pay.
-    from mjtrial import crate, recording  # noqa: F401 - register the .rrd and crate readers
-
     try:
         stamp = provenance.read_stamp(args.file)
     except (OSError, ValueError) as err:
@@ -478,7 +475,6 @@ def main(argv: list[str] | None = None) -> int:
         help="a protocol parameter of the condition (default: the task's defaults)",
     )
     p.set_defaults(run=_policy_check)
-
 
     p = sub.add_parser(
         "diff",

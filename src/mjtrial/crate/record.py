@@ -17,7 +17,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from mjtrial import provenance, recording  # noqa: F401 - recording reads the .rrd stamps
+# recording: the reader of the .rrd stamps this stage reads is part of its code (its hash)
+from mjtrial import provenance, recording  # noqa: F401
 from mjtrial.crate.sources import listed_sources
 from mjtrial.layout import Layout
 from mjtrial.safekeeping import INCOMPLETE, METADATA, record_path

@@ -12,7 +12,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-import mjtrial.recording  # noqa: F401 - registers the .rrd stamp reader
 from mjtrial.diff.flips import (
     DEFAULT_MAX_EPISODES,
     DEFAULT_TOLERANCE,

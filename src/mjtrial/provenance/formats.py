@@ -340,7 +340,9 @@ def register_folder_reader(is_folder: Callable[[Path], bool], reader: StampReade
 def _load_registered_readers() -> None:
     """Import the modules that register readers, so that what `read_stamp` answers never
     depends on what this process happened to import before (the crate's `source/` was "no
-    stamp" in a process that had not imported `mjtrial.crate`)."""
+    stamp" in a process that had not imported `mjtrial.crate`). By name, not by an import
+    statement: a statement would put the readers in the code hash of every stage that stamps
+    (`mjtrial.codehash`); a stage that reads recordings' stamps imports `mjtrial.recording`."""
     for module in dict.fromkeys(_REGISTERED_BY.values()):
         importlib.import_module(module)
 

@@ -11,7 +11,8 @@ from typing import Any
 
 import mujoco
 
-from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401 - reads .rrd stamps
+# recording: the reader of the .rrd stamps this stage reads is part of its code (its hash)
+from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401
 from mjtrial.conditions import model_edits
 from mjtrial.layout import CONFIG_FILE
 from mjtrial.physics import compiled_sha256, load_model

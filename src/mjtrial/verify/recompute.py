@@ -47,11 +47,7 @@ from mjtrial.stages.pilot import summarize_pilot
 from mjtrial.stages.rollout import nominal_episode
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
-from mjtrial.stages.studies import (
-    dose_response_summary,
-    sensitivity_summary,
-    study_report_text,
-)
+from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
 from mjtrial.verify.chain import dict_diff
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
