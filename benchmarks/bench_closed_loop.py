@@ -31,11 +31,10 @@ import collections
 import copy
 import dataclasses
 import hashlib
-import statistics
-import time
 
 import mujoco
 import numpy as np
+from alternating import print_rates, time_alternating
 from mujoco import rollout
 
 from mjtrial import REPO_ROOT
@@ -240,35 +239,13 @@ def compare(nominal, models, initial, pushes, timing, repeats, sensing) -> None:
     else:
         values = sensing[1]
         loop = lambda: plain_loop_sensors(nominal, models, initial, pushes, timing, values)  # noqa: E731
-    loop_s: list[float] = []
-    engine_s: dict[int, list[float]] = {1: [], 2: []}
-    ratios: dict[int, list[float]] = {1: [], 2: []}
-    for repeat in range(repeats):
-        for threads in (1, 2):
-            runs = {
-                "loop": loop,
-                "engine": lambda t=threads: engine(
-                    nominal, models, initial, pushes, timing, t if t > 1 else 0, sensing
-                ),
-            }
-            order = ["loop", "engine"] if repeat % 2 == 0 else ["engine", "loop"]
-            seconds, outcome = {}, {}
-            for name in order:
-                t0 = time.perf_counter()
-                outcome[name] = runs[name]()
-                seconds[name] = time.perf_counter() - t0
-            loop_s.append(seconds["loop"])
-            engine_s[threads].append(seconds["engine"])
-            ratios[threads].append(seconds["loop"] / seconds["engine"])
+    outcome, seconds, ratios = time_alternating(
+        loop,
+        lambda t: engine(nominal, models, initial, pushes, timing, t if t > 1 else 0, sensing),
+        repeats,
+    )
     print(f"successes: loop {outcome['loop']}, engine {outcome['engine']} (of {n}; must be equal)")
-    print(f"plain per-episode loop:   {n / statistics.median(loop_s):8.0f} episodes/s")
-    for threads in (1, 2):
-        r = ratios[threads]
-        print(
-            f"engine, {threads} thread{'s' if threads > 1 else ' '}:         "
-            f"{n / statistics.median(engine_s[threads]):8.0f} episodes/s   "
-            f"{statistics.median(r):.2f}x the loop ({min(r):.2f}-{max(r):.2f})"
-        )
+    print_rates(n, seconds, ratios)
 
 
 def main() -> None:

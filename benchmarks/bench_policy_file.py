@@ -36,6 +36,7 @@ import numpy as np
 import onnx
 import onnxruntime
 import yaml
+from alternating import print_rates, time_alternating
 from onnx import TensorProto, helper, numpy_helper
 
 from mjtrial import REPO_ROOT
@@ -189,38 +190,17 @@ def main() -> None:
         f"{args.repeats} repeats"
     )
     call_times(path, batch_size)
-    loop_s: list[float] = []
-    engine_s: dict[int, list[float]] = {1: [], 2: []}
-    ratios: dict[int, list[float]] = {1: [], 2: []}
-    outcome: dict[str, tuple[int, np.ndarray]] = {}
-    for repeat in range(args.repeats):
-        for threads in (1, 2):
-            runs = {
-                "loop": lambda: plain_loop(bound, policy.session, values, timing),
-                "engine": lambda t=threads: engine(bound, values, t if t > 1 else 0, batch_size),
-            }
-            order = ["loop", "engine"] if repeat % 2 == 0 else ["engine", "loop"]
-            seconds = {}
-            for name in order:
-                t0 = time.perf_counter()
-                outcome[name] = runs[name]()
-                seconds[name] = time.perf_counter() - t0
-            loop_s.append(seconds["loop"])
-            engine_s[threads].append(seconds["engine"])
-            ratios[threads].append(seconds["loop"] / seconds["engine"])
+    outcome, seconds, ratios = time_alternating(
+        lambda: plain_loop(bound, policy.session, values, timing),
+        lambda t: engine(bound, values, t if t > 1 else 0, batch_size),
+        args.repeats,
+    )
     same = np.array_equal(outcome["loop"][1], outcome["engine"][1])
     print(
         f"successes: loop {outcome['loop'][0]}, engine {outcome['engine'][0]} (of {n}); final "
         f"states {'equal bit for bit' if same else 'DIFFER'} (must be equal)"
     )
-    print(f"plain per-episode loop:   {n / statistics.median(loop_s):8.0f} episodes/s")
-    for threads in (1, 2):
-        r = ratios[threads]
-        print(
-            f"engine, {threads} thread{'s' if threads > 1 else ' '}:         "
-            f"{n / statistics.median(engine_s[threads]):8.0f} episodes/s   "
-            f"{statistics.median(r):.2f}x the loop ({min(r):.2f}-{max(r):.2f})"
-        )
+    print_rates(n, seconds, ratios)
 
 
 if __name__ == "__main__":
