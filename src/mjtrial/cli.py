@@ -177,6 +177,14 @@ def _verify(args: argparse.Namespace) -> int:
         print(f"mjtrial verify: {err}", file=sys.stderr)
         return 2
     print(report.format())
+    if args.strict and report.ok and not report.complete:
+        doubts = [*report.warnings, *report.unchecked]
+        print(
+            f"mjtrial verify --strict: not verified: {len(doubts)} warnings or checks not done "
+            f"(first: {doubts[0]})",
+            file=sys.stderr,
+        )
+        return 1
     return report.exit_code
 
 
@@ -431,6 +439,12 @@ def main(argv: list[str] | None = None) -> int:
         metavar="N",
         help="draw the re-simulated episodes with this seed, to repeat a check (default: a "
         "fresh seed, printed)",
+    )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="also fail (exit 1) on a warning or a check that could not run, such as a "
+        "MuJoCo-version variant whose environment is not built: for a CI gate",
     )
     p.set_defaults(run=_verify)
     p = sub.add_parser(

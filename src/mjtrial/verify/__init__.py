@@ -350,4 +350,8 @@ def verify_results(
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *report.warnings),
         checks=(found.line(),),
+        unchecked=tuple(
+            f"{', '.join(conditions)} not re-simulated ({why})"
+            for why, conditions in found.elsewhere.items()
+        ),
     )

@@ -88,11 +88,18 @@ class VerifyReport:
     warnings: tuple[str, ...] = ()
     skipped: tuple[Skipped, ...] = ()
     checks: tuple[str, ...] = ()  # what was checked beyond the stamps (recomputation)
+    unchecked: tuple[str, ...] = ()  # checks that could not run (the check line says why)
 
     @property
     def ok(self) -> bool:
         """True when every output is OK (warnings and skipped files do not count)."""
         return all(o.status is Status.OK for o in self.outputs)
+
+    @property
+    def complete(self) -> bool:
+        """True when nothing was left in doubt: no warning, and every check could run (what
+        `mjtrial verify --strict` asks on top of `ok`)."""
+        return not self.warnings and not self.unchecked
 
     @property
     def exit_code(self) -> int:
