@@ -71,6 +71,11 @@ CASES = {
         _set(("seeds",), [1, 2]),
         "benchmark.seeds: expected at least 3 training seeds for a reported result",
     ),
+    "two seeds for a development decision": (
+        lambda bench: (_set(("seeds",), [1, 2])(bench), bench.update(result="development")),
+        "benchmark.seeds: expected at least 3 training seeds for a development result (5 or "
+        "more to report it as more than a development decision), got 2",
+    ),
     "repeated seed": (_set(("seeds",), [1, 1, 2]), "benchmark.seeds: "),
     "unknown tuned parameter": (
         _set(TUNE, {"lift_speed": [0.1, 1.0]}),

@@ -13,7 +13,7 @@
 # starts is stopped on exit, failure or interrupt included. Ends with one line: PASS or FAIL.
 #
 # Then the same, alongside, for a small benchmark (config/benchmark.yaml, its cart-pole task
-# alone: 8 states, 2 seeds).
+# alone: 8 states, 3 seeds).
 #
 # Environment: MJTRIAL_SLURM_N (states, default 12), MJTRIAL_SLURM_BENCHMARK=0 skips the
 # benchmark, MJTRIAL_SLURM_BENCHMARK_N (its states, default 8),
@@ -285,15 +285,15 @@ bench = yaml.safe_load((folder / "benchmark.yaml").read_text())
 del bench["benchmark"]["tasks"]["gantry_lift"]
 for method in bench["benchmark"]["methods"].values():
     del method["tasks"]["gantry_lift"]
-# the MLP's checkpoints of the 2 seeds below (small_benchmark.yaml): one file per seed
+# the MLP's checkpoints of the 3 seeds below (small_benchmark.yaml): one file per seed
 mlp = bench["benchmark"]["methods"]["mlp_es"]["tasks"]["cartpole_latency"]
-mlp["policy"] = mlp["policy"].replace("seed-*", "seed-[1-2]")
+mlp["policy"] = mlp["policy"].replace("seed-*", "seed-[1-3]")
 (folder / "benchmark.yaml").write_text(yaml.safe_dump(bench, sort_keys=False))
 SMALL
     done
     cat >"$work/small_benchmark.yaml" <<YAML
 benchmark:
-  seeds: [1, 2]
+  seeds: [1, 2, 3]
   result: development
   methods:
     tuned: {budget: 48, episodes_per_candidate: 4}
@@ -306,7 +306,7 @@ say "running the experiment on SLURM (--workflow-profile profiles/slurm) and loc
 start_runs experiment "$work/small.yaml"
 if [[ $benchmark == 1 ]]; then
     # states, training, evaluation, solvability, closest calls and report as SLURM jobs
-    say "running a benchmark (the cart-pole, $bench_n states, 2 seeds) on SLURM and locally, alongside"
+    say "running a benchmark (the cart-pole, $bench_n states, 3 seeds) on SLURM and locally, alongside"
     start_runs benchmark config/benchmark.yaml "$work/small_benchmark.yaml"
 fi
 
