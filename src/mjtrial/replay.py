@@ -83,12 +83,17 @@ def _is_nan(value: Any) -> bool:
 
 
 def read_episode(
-    path: str | Path, *, condition: str, state_id: int, variant: str = NOMINAL
+    path: str | Path,
+    *,
+    condition: str | None = None,
+    state_id: int | None = None,
+    variant: str = NOMINAL,
 ) -> dict[str, np.ndarray]:
     """One recorded episode's time series, wherever it is (`mjtrial.recording.read_episode`).
 
     `path` is a results folder (`results/<experiment>`: the episode is looked up in its
-    condition's shards, of `variant`), a condition's folder, a shard's folder or a `.rrd` file.
+    condition's shards, of `variant`), a condition's folder, a shard's folder or a `.rrd` file;
+    a file holding one episode's recording alone needs no `condition` and `state_id`.
 
     Raises:
       KeyError: it was not recorded (`recording.episodes: failed` records failures only,
@@ -97,6 +102,8 @@ def read_episode(
     path = Path(path)
     layout = Layout(path)
     if path.is_dir() and layout.rollouts_dir(variant).is_dir():
+        if condition is None:
+            raise ValueError(f"{path}: a results folder: give condition and state_id")
         path = layout.recordings(condition, variant)
     return recording.read_episode(path, condition=condition, state_id=state_id)
 

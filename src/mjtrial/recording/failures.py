@@ -29,6 +29,8 @@ from mjtrial.recording.names import (
 )
 from mjtrial.recording.read import (
     find_episode_entry,
+    find_mesh_store,
+    mesh_reference,
     open_rrd,
     properties,
     recorded_signals,
@@ -51,6 +53,30 @@ def _property_chunk(name: str, fields: Mapping[str, Any]) -> Chunk:
         return Chunk.from_property(name, rr.AnyValues(**values))
 
 
+class _MeshStores:
+    """Copies each mesh store that the copied recordings name into the output, once, before
+    the first recording that names it: a copy keeps its `meshes` property, which finds the
+    store in the same file (`read.find_mesh_store`)."""
+
+    def __init__(self, out: Any, application_id: str) -> None:
+        self.out, self.application_id = out, application_id
+        self.written: set[str] = set()
+
+    def before(self, reader: RrdReader, entry: StoreEntry, path: Path) -> None:
+        reference = mesh_reference(reader, entry)
+        if reference is None or reference["recording"] in self.written:
+            return
+        store_reader, store_entry = find_mesh_store(reader, path, reference)
+        chunks = list(store_reader.store(store=store_entry).stream())
+        write_recording(
+            self.out,
+            chunks,
+            application_id=self.application_id,
+            recording_id=reference["recording"],
+        )
+        self.written.add(reference["recording"])
+
+
 def write_failures_rrd(
     path: str | os.PathLike[str],
     sources: Sequence[str | os.PathLike[str]],
@@ -68,7 +94,8 @@ def write_failures_rrd(
     and a table of the failures), so it carries its stamp even when nothing failed. Each failed
     recording is copied chunk for chunk under the id ``failures-<original id>`` (so both files
     can be open in one viewer); its `provenance` becomes `stamp`, the original stamp is kept as
-    `source_provenance`. Memory holds one recording at a time.
+    `source_provenance`. Memory holds one recording at a time. A mesh store that copies name
+    (`write.MeshStore`, a model's meshes) is copied once, before the first of them.
 
     Returns:
       the number of failed episodes written.
@@ -112,7 +139,9 @@ def write_failures_rrd(
             f"{PROPERTIES}/{PROVENANCE_PROPERTY}",
             f"{PROPERTIES}/{SOURCE_PROVENANCE_PROPERTY}",
         ]
+        meshes = _MeshStores(out, application_id)
         for source, entry, props in failures:
+            meshes.before(readers[source], entry, source)
             copied = list(readers[source].store(store=entry).stream().drop(content=replaced))
             copied.append(_property_chunk(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}))
             original = props.get(PROVENANCE_PROPERTY)
@@ -198,9 +227,11 @@ def write_episode_copies_rrd(
             _static_chunk(summary_id, [rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN)]),
         ]
         write_recording(out, summary, application_id=application_id, recording_id=summary_id)
+        meshes = _MeshStores(out, application_id)
         for label, file, condition, state_id in episodes:
             reader = readers[file]
             entry = find_episode_entry(reader, file, condition, state_id)
+            meshes.before(reader, entry, file)
             props = properties(reader, entry)
             copied = list(reader.store(store=entry).stream().drop(content=replaced))
             name = f"{label}: {props.get('name') or entry.recording_id}"

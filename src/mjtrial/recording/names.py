@@ -24,6 +24,11 @@ PROVENANCE_PROPERTY = "provenance"
 SOURCE_PROVENANCE_PROPERTY = "source_provenance"
 FAILURES_PROPERTY = "failures"
 JSON_FIELD = "json"  # the component of a property held as JSON text
+# An episode recording whose meshes are in a mesh store (a recording of their own, once per
+# folder or file) names it in this property: its recording id and the file in its folder.
+MESHES_PROPERTY = "meshes"
+MESH_STORE_FILE = "meshes.rrd"  # a condition's (shard's) folder's mesh store
+MESH_STORE_PREFIX = "meshes-"  # a mesh store's recording id: this and its content's digest
 
 FAILURES_SUMMARY = "failures"  # recording id and entity of failures.rrd's summary
 FAILURE_PREFIX = "failures-"  # recording ids of episodes copied into failures.rrd

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from rerun.chunk import RrdReader, StoreEntry
+from rerun.chunk import Chunk, RrdReader, StoreEntry
 
 from mjtrial.provenance import RECORDING_FOLDER_STAMP, read_stamp
 from mjtrial.recording.arrow import (
@@ -29,6 +29,9 @@ from mjtrial.recording.names import (
     FAILURE_PREFIX,
     FAILURES_PROPERTY,
     JSON_FIELD,
+    MESH_STORE_FILE,
+    MESH_STORE_PREFIX,
+    MESHES_PROPERTY,
     PROPERTIES,
     PROVENANCE_PROPERTY,
     SOURCE_PROVENANCE_PROPERTY,
@@ -41,10 +44,13 @@ from mjtrial.recording.scene import rerun_to_mujoco_quat
 
 
 def recording_files(path: str | os.PathLike[str]) -> list[Path]:
-    """The .rrd files of `path`: itself, or the .rrd files of a folder, in name order."""
+    """The .rrd files of `path`: itself, or the .rrd files of a folder (but its mesh store), in
+    name order."""
     path = Path(path)
     if path.is_dir():
-        return sorted(p for p in path.glob("*.rrd") if p.is_file())
+        return sorted(
+            p for p in path.glob("*.rrd") if p.is_file() and p.name != MESH_STORE_FILE
+        )
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such .rrd file or folder of .rrd files")
     return [path]
@@ -155,6 +161,53 @@ def read_rrd_stamp(path: str | os.PathLike[str]) -> dict[str, Any] | None:
     return parse_json_property(raw.get(PROVENANCE_PROPERTY), f"{path}: provenance")
 
 
+def is_mesh_store(entry: StoreEntry) -> bool:
+    """A mesh store (`write.MeshStore`): meshes that episodes' recordings name, no episode."""
+    return entry.recording_id.startswith(MESH_STORE_PREFIX)
+
+
+def mesh_reference(reader: RrdReader, entry: StoreEntry) -> dict[str, str] | None:
+    """{"recording": id, "file": name} of the mesh store a recording names, or None (its
+    meshes, if any, are its own)."""
+    fields = raw_properties(reader, entry).get(MESHES_PROPERTY)
+    if not fields:
+        return None
+    return {"recording": str(fields["recording"]), "file": str(fields["file"])}
+
+
+def find_mesh_store(
+    reader: RrdReader, path: Path, reference: Mapping[str, str]
+) -> tuple[RrdReader, StoreEntry]:
+    """The mesh store a recording of `path` names: in the same file (``failures.rrd``), else
+    the file it names in the same folder (a condition's folder)."""
+    wanted = reference["recording"]
+    for entry in reader.recordings():
+        if entry.recording_id == wanted:
+            return reader, entry
+    other = path.parent / Path(reference["file"]).name
+    if other.is_file():
+        store_reader = open_rrd(other)
+        for entry in store_reader.recordings():
+            if entry.recording_id == wanted:
+                return store_reader, entry
+    raise FileNotFoundError(
+        f"{path}: its meshes are in mesh store {wanted!r}, which is neither in the file nor in "
+        f"{other} (copy that file beside it, or open the episode with its folder)"
+    )
+
+
+def recording_chunks(reader: RrdReader, entry: StoreEntry, path: Path) -> list[Chunk]:
+    """A recording's chunks with its meshes: those of the mesh store it names (if any) added
+    (static, on the same entities): the recording as if it held its meshes itself."""
+    own = list(reader.store(store=entry).stream())
+    reference = mesh_reference(reader, entry)
+    if reference is None:
+        return own
+    store_reader, store_entry = find_mesh_store(reader, path, reference)
+    meshes = store_reader.store(store=store_entry).stream().drop(content=f"{PROPERTIES}/**")
+    return own + [c for c in meshes if c.entity_path != PROPERTIES]
+
+
 def find_episode_entry(reader: RrdReader, path: Path, condition: str, state_id: int) -> StoreEntry:
     """The recording of one episode in an open file (its own, or its copy in failures.rrd)."""
     rid = episode_recording_id(condition, state_id)
@@ -216,8 +269,20 @@ def find_episode_file(
     return found[0]
 
 
+def only_episode_entry(reader: RrdReader, path: Path) -> StoreEntry:
+    """The one episode's recording of a file that holds one (a condition folder's file, a
+    replay's), besides any mesh store."""
+    entries = [e for e in reader.recordings() if not is_mesh_store(e)]
+    if len(entries) != 1:
+        raise ValueError(
+            f"{path}: holds {len(entries)} recordings, expected one episode's; give condition "
+            "and state_id to pick one"
+        )
+    return entries[0]
+
+
 def read_episode(
-    path: str | os.PathLike[str], *, condition: str, state_id: int
+    path: str | os.PathLike[str], *, condition: str | None = None, state_id: int | None = None
 ) -> dict[str, np.ndarray]:
     """One episode's logged series, in time order.
 
@@ -228,15 +293,23 @@ def read_episode(
     its parent body (float32 precision: rerun stores transforms as float32).
 
     `path` is a .rrd file or a condition's folder of recordings (`write_condition_recordings`).
+    A file that holds one episode's recording alone needs no `condition` and `state_id`.
 
     Raises:
       KeyError: the file has no recording of that condition and state.
     """
     path = Path(path)
+    if (condition is None) != (state_id is None):
+        raise ValueError(f"{path}: give both condition and state_id, or neither")
     if path.is_dir():
+        if condition is None or state_id is None:
+            raise ValueError(f"{path}: a folder: give condition and state_id")
         path = find_episode_file(path, condition=condition, state_id=state_id)
     reader = open_rrd(path)
-    entry = find_episode_entry(reader, path, condition, state_id)
+    if condition is None or state_id is None:
+        entry = only_episode_entry(reader, path)
+    else:
+        entry = find_episode_entry(reader, path, condition, state_id)
     signals = recorded_signals(reader, entry)
     if not signals:
         raise ValueError(f"{path}: recording {entry.recording_id!r} has no series")

@@ -110,87 +110,161 @@ class _Instances:
 _G = mujoco.mjtGeom
 
 
-def body_geometry(model: mujoco.MjModel, body: int) -> list[Any]:
-    """Archetypes drawing the visible geoms of `body` in the body frame (one per geom type).
+def _shape(
+    shapes: dict[int, _Instances],
+    gtype: int,
+    size: np.ndarray,
+    pos: np.ndarray,
+    quat: np.ndarray,
+    rgba: np.ndarray,
+) -> bool:
+    """Add a primitive (a geom's or a site's) to its archetype's instances; False: no such."""
+    boxes, ellipsoids = shapes[_G.mjGEOM_BOX], shapes[_G.mjGEOM_ELLIPSOID]
+    if gtype == _G.mjGEOM_BOX:
+        boxes.add(pos, quat, rgba, half_sizes=size.copy())
+    elif gtype == _G.mjGEOM_PLANE:
+        half = [s if s > 0 else INFINITE_PLANE_HALF_SIZE for s in size[:2]]
+        top = pos + _rotated(quat, [0.0, 0.0, -PLANE_THICKNESS / 2])
+        boxes.add(top, quat, rgba, half_sizes=[half[0], half[1], PLANE_THICKNESS / 2])
+    elif gtype == _G.mjGEOM_SPHERE:
+        ellipsoids.add(pos, quat, rgba, half_sizes=[size[0]] * 3)
+    elif gtype == _G.mjGEOM_ELLIPSOID:
+        ellipsoids.add(pos, quat, rgba, half_sizes=size.copy())
+    elif gtype == _G.mjGEOM_CAPSULE:
+        # MuJoCo: centred on the geom origin along local z, half-length size[1];
+        # rerun: from the instance origin along +z.
+        start = pos + _rotated(quat, [0.0, 0.0, -size[1]])
+        shapes[gtype].add(start, quat, rgba, lengths=2 * size[1], radii=size[0])
+    elif gtype == _G.mjGEOM_CYLINDER:  # both centred on the origin along local z
+        shapes[gtype].add(pos, quat, rgba, lengths=2 * size[1], radii=size[0])
+    else:
+        return False
+    return True
+
+
+def body_geometry(model: mujoco.MjModel, body: int, *, meshes: bool = True) -> list[Any]:
+    """Archetypes drawing the visible geoms and sites of `body` in the body frame (one per
+    geom type).
 
     Each geom is drawn in its MuJoCo colour (the material's unless the geom sets its own
-    rgba); planes as flat boxes whose top face is the plane; all meshes as one `Mesh3D`.
+    rgba); planes as flat boxes whose top face is the plane; all meshes as one `Mesh3D`
+    (left out with `meshes` False: `body_meshes` draws them). A site is drawn as MuJoCo's
+    viewer draws it by default (a goal marker): in a visible group and not transparent.
     """
-    boxes = _Instances(rr.Boxes3D, "centers")
-    ellipsoids = _Instances(rr.Ellipsoids3D, "centers")
-    capsules = _Instances(rr.Capsules3D, "translations")
-    cylinders = _Instances(rr.Cylinders3D, "centers")
-    mesh_vertices: list[np.ndarray] = []
-    mesh_triangles: list[np.ndarray] = []
-    mesh_colors: list[np.ndarray] = []
-    n_vertices = 0
+    shapes = {
+        _G.mjGEOM_BOX: _Instances(rr.Boxes3D, "centers"),
+        _G.mjGEOM_ELLIPSOID: _Instances(rr.Ellipsoids3D, "centers"),
+        _G.mjGEOM_CAPSULE: _Instances(rr.Capsules3D, "translations"),
+        _G.mjGEOM_CYLINDER: _Instances(rr.Cylinders3D, "centers"),
+    }
     for g in np.flatnonzero(model.geom_bodyid == body):
         g = int(g)
         if int(model.geom_group[g]) not in VISIBLE_GEOM_GROUPS:
             continue
         gtype = int(model.geom_type[g])
         size, pos, quat = model.geom_size[g], model.geom_pos[g], model.geom_quat[g]
-        rgba = _geom_rgba(model, g)
-        if gtype == _G.mjGEOM_BOX:
-            boxes.add(pos, quat, rgba, half_sizes=size.copy())
-        elif gtype == _G.mjGEOM_PLANE:
-            half = [s if s > 0 else INFINITE_PLANE_HALF_SIZE for s in size[:2]]
-            top = pos + _rotated(quat, [0.0, 0.0, -PLANE_THICKNESS / 2])
-            boxes.add(top, quat, rgba, half_sizes=[half[0], half[1], PLANE_THICKNESS / 2])
-        elif gtype == _G.mjGEOM_SPHERE:
-            ellipsoids.add(pos, quat, rgba, half_sizes=[size[0]] * 3)
-        elif gtype == _G.mjGEOM_ELLIPSOID:
-            ellipsoids.add(pos, quat, rgba, half_sizes=size.copy())
-        elif gtype == _G.mjGEOM_CAPSULE:
-            # MuJoCo: centred on the geom origin along local z, half-length size[1];
-            # rerun: from the instance origin along +z.
-            start = pos + _rotated(quat, [0.0, 0.0, -size[1]])
-            capsules.add(start, quat, rgba, lengths=2 * size[1], radii=size[0])
-        elif gtype == _G.mjGEOM_CYLINDER:  # both centred on the origin along local z
-            cylinders.add(pos, quat, rgba, lengths=2 * size[1], radii=size[0])
-        elif gtype == _G.mjGEOM_MESH:  # one Mesh3D for all meshes: vertices moved into the body
-            mesh = int(model.geom_dataid[g])
-            v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
-            f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
-            mesh_vertices.append(pos + _rotated(quat, model.mesh_vert[v0 : v0 + nv]))
-            mesh_triangles.append(model.mesh_face[f0 : f0 + nf] + n_vertices)
-            mesh_colors.append(np.broadcast_to(rgba, (nv, 4)))
-            n_vertices += nv
-        else:
-            name = mujoco.mjtGeom(gtype).name
-            warnings.warn(f"geom {g} ({name}): no rerun equivalent, not drawn", stacklevel=3)
+        if gtype == _G.mjGEOM_MESH or _shape(shapes, gtype, size, pos, quat, _geom_rgba(model, g)):
+            continue
+        name = mujoco.mjtGeom(gtype).name
+        warnings.warn(f"geom {g} ({name}): no rerun equivalent, not drawn", stacklevel=3)
+    for s in np.flatnonzero(model.site_bodyid == body):
+        s = int(s)
+        if int(model.site_group[s]) not in VISIBLE_GEOM_GROUPS or model.site_rgba[s][3] <= 0:
+            continue
+        size, pos, quat = model.site_size[s], model.site_pos[s], model.site_quat[s]
+        _shape(shapes, int(model.site_type[s]), size, pos, quat, _rgba8(model.site_rgba[s]))
 
     out: list[Any] = []
     with strict():
-        for shapes in (boxes, ellipsoids, capsules, cylinders):
-            out.extend(shapes.drawn())
-        if mesh_vertices:
-            colors = np.concatenate(mesh_colors)
-            single = bool(np.all(colors == colors[0]))
-            out.append(
-                rr.Mesh3D(
-                    vertex_positions=np.concatenate(mesh_vertices),
-                    triangle_indices=np.concatenate(mesh_triangles),
-                    albedo_factor=colors[0] if single else None,
-                    vertex_colors=None if single else colors,
-                )
-            )
+        for instances in shapes.values():
+            out.extend(instances.drawn())
+    if meshes:
+        out.extend(body_meshes(model, body))
     return out
 
 
-def static_scene(model: mujoco.MjModel) -> list[tuple[str, list[Any]]]:
+def body_meshes(model: mujoco.MjModel, body: int) -> list[Any]:
+    """One `Mesh3D` drawing all visible mesh geoms of `body` in the body frame, or nothing.
+
+    Vertices are moved into the body frame; one colour for all when the geoms share it.
+    """
+    vertices: list[np.ndarray] = []
+    triangles: list[np.ndarray] = []
+    colors: list[np.ndarray] = []
+    n_vertices = 0
+    for g in np.flatnonzero(model.geom_bodyid == body):
+        g = int(g)
+        if (
+            int(model.geom_group[g]) not in VISIBLE_GEOM_GROUPS
+            or int(model.geom_type[g]) != _G.mjGEOM_MESH
+        ):
+            continue
+        pos, quat = model.geom_pos[g], model.geom_quat[g]
+        mesh = int(model.geom_dataid[g])
+        v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+        f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
+        vertices.append(pos + _rotated(quat, model.mesh_vert[v0 : v0 + nv]))
+        triangles.append(model.mesh_face[f0 : f0 + nf] + n_vertices)
+        colors.append(np.broadcast_to(_geom_rgba(model, g), (nv, 4)))
+        n_vertices += nv
+    if not vertices:
+        return []
+    color = np.concatenate(colors)
+    single = bool(np.all(color == color[0]))
+    with strict():
+        return [
+            rr.Mesh3D(
+                vertex_positions=np.concatenate(vertices),
+                triangle_indices=np.concatenate(triangles),
+                albedo_factor=color[0] if single else None,
+                vertex_colors=None if single else color,
+            )
+        ]
+
+
+def mesh_scene(model: mujoco.MjModel) -> list[tuple[str, list[Any]]]:
+    """(entity, [Mesh3D]) of each body with visible meshes: what `static_scene` leaves out
+    with `meshes` False, on the same entities."""
+    items = [
+        (body_entity(model, b) if b else WORLD, body_meshes(model, b)) for b in range(model.nbody)
+    ]
+    return [(entity, archetypes) for entity, archetypes in items if archetypes]
+
+
+def _needed_bodies(model: mujoco.MjModel) -> np.ndarray:
+    """(nbody,) bool: the body, or one below it, draws a geom or site, moves or is mocap."""
+    needed = np.zeros(model.nbody, dtype=bool)
+    visible = np.isin(model.geom_group, VISIBLE_GEOM_GROUPS)
+    needed[model.geom_bodyid[visible]] = True
+    sites = np.isin(model.site_group, VISIBLE_GEOM_GROUPS) & (model.site_rgba[:, 3] > 0)
+    needed[model.site_bodyid[sites]] = True
+    needed |= (model.body_jntnum > 0) | (model.body_mocapid >= 0)
+    for b in range(model.nbody - 1, 0, -1):  # a parent's id is lower than its children's
+        needed[model.body_parentid[b]] |= needed[b]
+    return needed
+
+
+def static_scene(model: mujoco.MjModel, *, meshes: bool = True) -> list[tuple[str, list[Any]]]:
     """(entity, archetypes) logged statically: view coordinates, geoms, poses that never change.
 
     The world body's geoms go on ``world``; a body without joints gets its pose in its parent
     here, once (a body with joints gets it per step, `BodyPoses`). So does a mocap body: every
     reset takes its pose from the model, which is the episode's own when a state parameter
-    moves it (`MocapPosition`), and no control of an episode moves it.
+    moves it (`MocapPosition`), and no control of an episode moves it. With `meshes` False,
+    mesh geoms are left out (`mesh_scene` has them). A body that draws nothing, with nothing
+    drawn or moving below it (a camera's frame), is left out: its pose would cost each
+    recording a chunk for nothing to see.
     """
     with strict():
         world = [rr.ViewCoordinates(xyz=rr.ViewCoordinates.RIGHT_HAND_Z_UP)]
-    items: list[tuple[str, list[Any]]] = [(WORLD, [*world, *body_geometry(model, 0)])]
+    items: list[tuple[str, list[Any]]] = [
+        (WORLD, [*world, *body_geometry(model, 0, meshes=meshes)])
+    ]
+    needed = _needed_bodies(model)
     for b in range(1, model.nbody):
-        archetypes = body_geometry(model, b)
+        if not needed[b]:
+            continue
+        archetypes = body_geometry(model, b, meshes=meshes)
         if model.body_jntnum[b] == 0:
             with strict():
                 pose = rr.Transform3D(

@@ -70,17 +70,21 @@ class Chunker:
     """A model's recordings as Arrow columns, built fast: the column layouts are prepared once.
 
     `geometry` and `styles` are the static columns every recording shares (geoms, static poses,
-    series names); `series` builds the time series of many episodes at once.
+    series names; `geometry` without the meshes when `meshes` is False); `series` builds the
+    time series of many episodes at once.
     """
 
-    def __init__(self, model: mujoco.MjModel, signals: Sequence[Signal]) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, signals: Sequence[Signal], *, meshes: bool = True
+    ) -> None:
         self.signal_reads = [s.read for s in signals]
         self.nstate = mujoco.mj_stateSize(model, FULLPHYSICS)
         self.nsensordata, self.nu, self.nq = model.nsensordata, model.nu, model.nq
         self.signals = _grouped(model, signals)
         self.plots = plots(signals, self.signals)
         self.poses = BodyPoses(model)
-        self.geometry = [c for e, a in static_scene(model) for c in archetype_columns(e, a)]
+        scene = static_scene(model, meshes=meshes)
+        self.geometry = [c for e, a in scene for c in archetype_columns(e, a)]
         with strict():
             styles = [(e, [rr.SeriesLines(names=list(names))]) for e, names, _ in self.signals]
         self.styles = [c for e, a in styles for c in archetype_columns(e, a)]

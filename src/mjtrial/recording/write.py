@@ -19,6 +19,7 @@ axis), which compresses well.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import queue
@@ -49,6 +50,9 @@ from mjtrial.recording.names import (
     EPISODE_COMPONENT,
     EPISODE_PROPERTY,
     JSON_FIELD,
+    MESH_STORE_FILE,
+    MESH_STORE_PREFIX,
+    MESHES_PROPERTY,
     PROPERTIES,
     PROVENANCE_PROPERTY,
     default_blueprint,
@@ -58,7 +62,7 @@ from mjtrial.recording.names import (
     logged_steps,
 )
 from mjtrial.recording.route import rrd_output, save_blueprint, write_store
-from mjtrial.recording.scene import static_scene
+from mjtrial.recording.scene import mesh_scene, static_scene
 from mjtrial.recording.series import Chunker, Signal
 
 
@@ -215,12 +219,50 @@ SCENE_FIELDS = (
 )
 
 
-def episode_geometry(model: mujoco.MjModel, nominal: mujoco.MjModel) -> list[Any] | None:
+def episode_geometry(
+    model: mujoco.MjModel, nominal: mujoco.MjModel, *, meshes: bool = True
+) -> list[Any] | None:
     """The static scene's columns of an episode's own model, or None when it draws as `nominal`
-    (a mass drawn per episode changes no drawing; a goal geom moved per episode does)."""
+    (a mass drawn per episode changes no drawing; a goal geom moved per episode does). Without
+    `meshes`, the scene leaves its meshes out (a mesh store has them)."""
     if all(np.array_equal(getattr(model, f), getattr(nominal, f)) for f in SCENE_FIELDS):
         return None
-    return [c for e, a in static_scene(model) for c in archetype_columns(e, a)]
+    return [c for e, a in static_scene(model, meshes=meshes) for c in archetype_columns(e, a)]
+
+
+@dataclass(frozen=True)
+class MeshStore:
+    """A model's meshes as a recording of their own, stored once for many episodes'
+    recordings (each names it in its `meshes` property): a `Mesh3D` on each body's entity, as
+    a recording with its meshes inline has them. Its recording id holds its content's digest,
+    so a recording never picks up another model's meshes."""
+
+    recording_id: str
+    columns: list[Any]
+
+    def chunks(self) -> list[Any]:
+        """Its chunks, under fresh chunk ids."""
+        return chunks(self.columns)
+
+
+def mesh_store(model: mujoco.MjModel, stamp_text: str) -> MeshStore | None:
+    """The mesh store of `model` (None: it draws no mesh), stamped with `stamp_text`."""
+    columns = [c for e, a in mesh_scene(model) for c in archetype_columns(e, a)]
+    if not columns:
+        return None
+    digest = hashlib.sha256()
+    for field, values in columns:
+        digest.update(field.name.encode())
+        for buffer in values.buffers():
+            if buffer is not None:
+                digest.update(buffer)
+    recording_id = MESH_STORE_PREFIX + digest.hexdigest()[:16]
+    name = recording_name_field()
+    columns += [
+        (name, pa.array([[f"meshes {digest.hexdigest()[:16]}"]], type=name.type)),
+        *property_columns(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
+    ]
+    return MeshStore(recording_id, columns)
 
 
 class EpisodeStores:
@@ -232,17 +274,31 @@ class EpisodeStores:
     those recordings at once (numpy's and pyarrow's cost is per call).
     """
 
-    def __init__(self, spec: RecordingSpec, *, condition: str, stamp: Mapping[str, Any]) -> None:
+    def __init__(
+        self,
+        spec: RecordingSpec,
+        *,
+        condition: str,
+        stamp: Mapping[str, Any],
+        share_meshes: bool = False,
+    ) -> None:
         stamp_text = stamp_json(stamp)
         self.spec, self.condition = spec, condition
         self.steps = logged_steps(spec.n_steps, spec.log_every)  # validate before any work
-        self.chunker = chunker = Chunker(spec.model, spec.signals)
+        # with `share_meshes`, the meshes go to `meshes` (a recording of their own, written
+        # once), which each recording names in its `meshes` property
+        self.meshes = mesh_store(spec.model, stamp_text) if share_meshes else None
+        inline = self.meshes is None
+        self.chunker = chunker = Chunker(spec.model, spec.signals, meshes=inline)
         self.episode_field = episode_field(spec.state_names, spec.measure_names)
         # the same in every recording: geometry, static poses, series names and the stamp
         self.shared = [
             *chunker.styles,
             *property_columns(PROVENANCE_PROPERTY, {JSON_FIELD: stamp_text}),
         ]
+        if self.meshes is not None:
+            reference = {"recording": self.meshes.recording_id, "file": MESH_STORE_FILE}
+            self.shared += property_columns(MESHES_PROPERTY, reference)
         self.constant = chunks([*chunker.geometry, *self.shared])
         self.plots = chunker.plots
         self.blueprint = default_blueprint(chunker.plots)
@@ -277,6 +333,18 @@ class EpisodeStores:
                 store = ChunkStore.from_chunks(recording)
             yield ep.recording_id, store
 
+    def _episode_geometry(self, model: mujoco.MjModel) -> list[Any] | None:
+        """`episode_geometry` of an episode's own model; its meshes must be the store's."""
+        geometry = episode_geometry(model, self.spec.model, meshes=self.meshes is None)
+        if geometry is not None and self.meshes is not None:
+            own = mesh_store(model, "")
+            if own is None or own.recording_id != self.meshes.recording_id:
+                raise ValueError(
+                    f"{self.condition}: an episode's own model draws other meshes than the "
+                    "task's model; its recordings cannot share a mesh store"
+                )
+        return geometry
+
     def groups(self, episodes: Iterable[EpisodeRecord]) -> Iterator[list[_Pending]]:
         """The episodes' logged rows and properties, `_GROUP` episodes at a time."""
         condition, seen, spec = self.condition, set(), self.spec
@@ -299,7 +367,7 @@ class EpisodeStores:
                     geometry=(
                         None
                         if spec.episode_model is None
-                        else episode_geometry(spec.episode_model(ep.values), spec.model)
+                        else self._episode_geometry(spec.episode_model(ep.values))
                     ),
                 )
             )
@@ -324,12 +392,14 @@ def write_condition_recordings(
 
     Each episode's recording goes to `episode_file_name` (its recording id, e.g.
     ``fast-state-000017.rrd``) and carries the properties `episode` and `provenance`, the
-    model's geometry and the episode's series (every `log_every`-th step, and the last); the
-    folder's
-    ``blueprint.rbl`` is `default_blueprint`, so ``rerun <folder>/*`` opens them all in its
-    layout. Episodes are consumed one at a time, so `episodes` may be a generator over rollout
-    batches (see `EpisodeStores`); a writer thread writes and fsyncs the recordings (at most
-    `_QUEUE` wait) while the caller runs the next rollouts.
+    model's geometry and the episode's series (every `log_every`-th step, and the last). A
+    model's meshes are not in them: the folder's ``meshes.rrd`` holds them once (`MeshStore`),
+    and each recording names it in its `meshes` property (`read.recording_chunks` puts them
+    back; a mesh costs ~100x an episode's motion). The folder's ``blueprint.rbl`` is
+    `default_blueprint`, so ``rerun <folder>/*`` opens them all in its layout. Episodes are
+    consumed one at a time, so `episodes` may be a generator over rollout batches (see
+    `EpisodeStores`); a writer thread writes and fsyncs the recordings (at most `_QUEUE` wait)
+    while the caller runs the next rollouts.
 
     Why a file per episode (not one file per condition): rerun 0.41 can put many recordings in
     one file only by streaming them through ``rerun rrd route``, which merges their indexes
@@ -340,7 +410,7 @@ def write_condition_recordings(
     Returns:
       the number of recordings written (none: a folder holding its blueprint only).
     """
-    builder = EpisodeStores(spec, condition=condition, stamp=stamp)
+    builder = EpisodeStores(spec, condition=condition, stamp=stamp, share_meshes=True)
     count = 0
     with atomic_directory(Path(path)) as folder:
         save_blueprint(builder.blueprint, application_id, str(folder / RECORDING_FOLDER_BLUEPRINT))
@@ -349,8 +419,20 @@ def write_condition_recordings(
         # after each write, or of every file at the end, cost the rollout stage more)
         syncer = _Worker(fsync_file, maxsize=0, name="mjtrial-rrd-syncer")
 
+        meshes = builder.meshes
+
         def write(group: list[_Pending]) -> None:
-            """Build and write a group's recordings, while the caller runs the next rollouts."""
+            """Build and write a group's recordings, while the caller runs the next rollouts;
+            the folder's mesh store with the first."""
+            nonlocal meshes
+            if meshes is not None:
+                target = folder / MESH_STORE_FILE
+                with strict():
+                    ChunkStore.from_chunks(meshes.chunks()).write_rrd(
+                        target, application_id=application_id, recording_id=meshes.recording_id
+                    )
+                syncer.put(target)
+                meshes = None
             for recording_id, store in builder.build(group):
                 target = folder / file_name(recording_id)
                 with strict():
@@ -373,8 +455,11 @@ def write_condition_recordings(
             raise
         syncer.put(folder / RECORDING_FOLDER_BLUEPRINT)
         syncer.finish()
+        contents = {"condition": condition, "recordings": count, "plots": builder.plots}
+        if builder.meshes is not None and count:
+            contents["meshes"] = MESH_STORE_FILE
         write_json(
-            {"condition": condition, "recordings": count, "plots": builder.plots},
+            contents,
             folder / RECORDING_FOLDER_STAMP,
             stamp,
         )

@@ -1,0 +1,222 @@
+"""A model with meshes (gymnasium-robotics' Fetch): a condition's folder keeps the meshes once,
+in its mesh store; each episode's file holds none, yet reads back whole from its path alone;
+failures.rrd keeps one copy of them; sites are drawn. Episodes come from a plain mj_step loop."""
+
+from __future__ import annotations
+
+import shutil
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import REPO_ROOT
+from rerun.chunk import RrdReader
+
+from mjtrial.physics import FULLPHYSICS
+from mjtrial.recording import read_episode, write_condition_recordings, write_failures_rrd
+from mjtrial.recording.names import MESH_STORE_FILE, body_entity
+from mjtrial.recording.read import is_mesh_store, recording_chunks
+from mjtrial.recording.series import Signal
+from mjtrial.recording.write import EpisodeRecord, RecordingSpec
+
+FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
+N_STEPS, LOG_EVERY, N_EPISODES = 300, 5, 3
+STAMP = {"mjtrial_stamp": 1, "rule": "test_recording_meshes"}
+VERTICES = "Mesh3D:vertex_positions"
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_path(str(FETCH))
+
+
+def _episode(model: mujoco.MjModel, seed: int) -> EpisodeRecord:
+    """A plain mj_step loop: the mocap target wanders, the fingers get random ctrl."""
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    nstate = mujoco.mj_stateSize(model, FULLPHYSICS)
+    physics, ctrl = np.empty((N_STEPS, nstate)), np.empty((N_STEPS, model.nu))
+    sensordata = np.empty((N_STEPS, model.nsensordata))
+    for i in range(N_STEPS):
+        data.mocap_pos[0] += rng.uniform(-2e-3, 2e-3, 3)
+        data.ctrl[:] = rng.uniform(-0.02, 0.02, model.nu)
+        ctrl[i] = data.ctrl
+        mujoco.mj_step(model, data)
+        mujoco.mj_getState(model, data, physics[i], FULLPHYSICS)
+        sensordata[i] = data.sensordata
+    return EpisodeRecord(
+        state_id=seed,
+        values={"seed": float(seed)},
+        physics=physics,
+        sensordata=sensordata,
+        ctrl=ctrl,
+        success=False,
+        measures={},
+        failure_category="dropped",
+    )
+
+
+@pytest.fixture(scope="module")
+def episodes(model) -> list[EpisodeRecord]:
+    return [_episode(model, seed) for seed in range(N_EPISODES)]
+
+
+@pytest.fixture(scope="module")
+def folder(model, episodes, tmp_path_factory):
+    gripper = model.body("robot0:gripper_link").id
+    time = Signal("time", gripper, "time", lambda rows, sensors, ctrl: rows[:, 0])
+    spec = RecordingSpec(
+        model=model,
+        signals=[time],
+        state_names=["seed"],
+        measure_names=[],
+        n_steps=N_STEPS,
+        log_every=LOG_EVERY,
+    )
+    out = tmp_path_factory.mktemp("fetch") / "c"
+    written = write_condition_recordings(
+        out, spec=spec, condition="c", episodes=episodes, stamp=STAMP
+    )
+    assert written == N_EPISODES
+    return out
+
+
+def _components(path) -> set[str]:
+    reader = RrdReader(path)
+    return {
+        name
+        for entry in reader.recordings()
+        for chunk in reader.store(store=entry).stream()
+        for name in chunk.to_record_batch().schema.names
+    }
+
+
+def _meshes(chunks) -> dict[str, np.ndarray]:
+    """{entity: (n, 3) vertex positions} of the Mesh3D chunks."""
+    out = {}
+    for chunk in chunks:
+        batch = chunk.to_record_batch()
+        if VERTICES in batch.schema.names:
+            [rows] = batch.column(batch.schema.names.index(VERTICES)).to_pylist()
+            out[chunk.entity_path.lstrip("/")] = np.array(rows)
+    return out
+
+
+def _expected_meshes(model: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """Each body's visible mesh vertices in the body frame, straight from MuJoCo's arrays."""
+    out: dict[str, list[np.ndarray]] = {}
+    for g in range(model.ngeom):
+        if model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH or model.geom_group[g] > 2:
+            continue
+        mesh = model.geom_dataid[g]
+        start, n = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        rotation = np.empty(9)
+        mujoco.mju_quat2Mat(rotation, model.geom_quat[g])
+        vertices = model.mesh_vert[start : start + n] @ rotation.reshape(3, 3).T
+        out.setdefault(body_entity(model, model.geom_bodyid[g]), []).append(
+            vertices + model.geom_pos[g]
+        )
+    return {entity: np.concatenate(parts) for entity, parts in out.items()}
+
+
+def test_episode_files_hold_no_mesh_and_the_folder_holds_them_once(model, folder):
+    files = sorted(folder.glob("c-state-*.rrd"))
+    assert len(files) == N_EPISODES
+    for file in files:
+        assert VERTICES not in _components(file)
+    store = RrdReader(folder / MESH_STORE_FILE)
+    [entry] = store.recordings()
+    assert is_mesh_store(entry)
+    meshes = _meshes(store.store(store=entry).stream())
+    expected = _expected_meshes(model)
+    assert sorted(meshes) == sorted(expected)
+    assert sum(len(v) for v in meshes.values()) == sum(
+        model.mesh_vertnum[model.geom_dataid[g]]
+        for g in range(model.ngeom)
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_group[g] <= 2
+    )
+
+
+def test_an_episode_file_alone_reads_back_with_its_meshes(model, folder, tmp_path):
+    # the file and its folder's mesh store, nothing else (the other episodes are not there)
+    shutil.copy(folder / "c-state-000001.rrd", tmp_path)
+    shutil.copy(folder / MESH_STORE_FILE, tmp_path)
+    path = tmp_path / "c-state-000001.rrd"
+    reader = RrdReader(path)
+    [entry] = reader.recordings()
+    meshes = _meshes(recording_chunks(reader, entry, path))
+    expected = _expected_meshes(model)
+    assert sorted(meshes) == sorted(expected)
+    for entity, vertices in expected.items():
+        np.testing.assert_allclose(meshes[entity], vertices, atol=1e-6)  # float32 in rerun
+
+    (tmp_path / MESH_STORE_FILE).unlink()
+    with pytest.raises(FileNotFoundError, match=r"c-state-000001\.rrd: its meshes are in mesh"):
+        recording_chunks(reader, entry, path)
+
+
+def test_read_episode_takes_a_one_episode_file_alone(model, folder, episodes):
+    path = folder / "c-state-000002.rrd"
+    alone = read_episode(path)
+    named = read_episode(path, condition="c", state_id=2)
+    assert sorted(alone) == sorted(named)
+    for key in alone:
+        np.testing.assert_array_equal(alone[key], named[key])
+    # the object's free joint, as the physics rows have it at the logged steps
+    steps = np.arange(LOG_EVERY - 1, N_STEPS, LOG_EVERY)
+    np.testing.assert_array_equal(alone["step"], steps)
+    adr = model.jnt_qposadr[model.joint("object0:joint").id]
+    qpos = episodes[2].physics[steps, 1 : 1 + model.nq]
+    np.testing.assert_allclose(alone["object0_position"], qpos[:, adr : adr + 3], atol=1e-6)
+    np.testing.assert_allclose(alone["time"], episodes[2].physics[steps, 0], atol=1e-9)
+
+    with pytest.raises(ValueError, match="a folder: give condition and state_id"):
+        read_episode(folder)
+    with pytest.raises(ValueError, match="give both condition and state_id"):
+        read_episode(path, condition="c")
+
+
+def test_sites_are_drawn(model, folder):
+    """target0 (a red sphere of radius 2 cm at 0.5 m above floor0's origin) is drawn on its
+    body; the invisible grip site (alpha 0) is not."""
+    reader = RrdReader(folder / "c-state-000000.rrd")
+    [entry] = reader.recordings()
+    site = model.site("target0").id
+    entity = "/" + body_entity(model, model.site_bodyid[site])
+    [batch] = [
+        c.to_record_batch()
+        for c in reader.store(store=entry).stream()
+        if c.entity_path == entity and c.is_static
+    ]
+    names = batch.schema.names
+    [centers] = batch.column(names.index("Ellipsoids3D:centers")).to_pylist()
+    [half_sizes] = batch.column(names.index("Ellipsoids3D:half_sizes")).to_pylist()
+    [colors] = batch.column(names.index("Ellipsoids3D:colors")).to_pylist()
+    assert centers == [pytest.approx(model.site_pos[site].tolist())]
+    assert half_sizes == [pytest.approx([0.02] * 3)]
+    assert colors == [0xFF0000FF]  # rgba 1 0 0 1, packed as rerun's u32 RGBA
+    grip = model.site("robot0:grip").id
+    assert model.site_rgba[grip][3] == 0
+    grip_entity = "/" + body_entity(model, model.site_bodyid[grip])
+    for chunk in reader.store(store=entry).stream():
+        if chunk.entity_path == grip_entity:
+            assert not any("Ellipsoids3D" in n for n in chunk.to_record_batch().schema.names)
+
+
+def test_failures_rrd_holds_the_meshes_once_and_each_failure_reads_them(model, folder, tmp_path):
+    path = tmp_path / "failures.rrd"
+    assert write_failures_rrd(path, [folder], stamp=STAMP) == N_EPISODES
+    reader = RrdReader(path)
+    entries = reader.recordings()
+    stores = [e for e in entries if is_mesh_store(e)]
+    assert len(stores) == 1
+    copies = [e for e in entries if e.recording_id.startswith("failures-c-state-")]
+    assert len(copies) == N_EPISODES
+    expected = _expected_meshes(model)
+    for entry in copies:
+        chunks = list(reader.store(store=entry).stream())
+        assert not _meshes(chunks)
+        meshes = _meshes(recording_chunks(reader, entry, path))
+        assert sorted(meshes) == sorted(expected)
+    episode = read_episode(path, condition="c", state_id=1)
+    assert len(episode["step"]) == N_STEPS // LOG_EVERY
