@@ -1,0 +1,145 @@
+"""Benchmark: the disk a model with meshes costs per recorded episode, and in failures.rrd.
+
+The model is gymnasium-robotics' Fetch (18 STL meshes, tasks/fetch_pick/assets/fetch). Its
+episodes come from a plain mj_step loop (the mocap target wanders, the fingers get random
+ctrl), recorded as the rollout stage records a condition: every `log_every`-th step of each
+1,000-step episode. It prints, per episode file, what its bytes are spent on (rerun's own
+`rrd stats` of chunks: static scene, per-step motion; the rest is the file's index), the size
+with the meshes in every file (as before the mesh store) and with the folder's mesh store, and
+the size of a failures.rrd gathered from all the episodes (each a failure):
+
+    python benchmarks/bench_recording_meshes.py                  # 200 episodes at 100 Hz
+    python benchmarks/bench_recording_meshes.py --episodes 50 --rate-hz 500
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from rerun.chunk import RrdReader
+
+from mjtrial import REPO_ROOT
+from mjtrial.physics import FULLPHYSICS
+from mjtrial.recording import write_condition_recordings, write_failures_rrd
+from mjtrial.recording.names import MESH_STORE_FILE
+from mjtrial.recording.series import Signal
+from mjtrial.recording.write import EpisodeRecord, EpisodeStores, RecordingSpec
+
+FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
+STAMP = {"mjtrial_stamp": 1, "rule": "bench_recording_meshes"}
+
+
+def episode(model: mujoco.MjModel, seed: int, n_steps: int) -> EpisodeRecord:
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    nstate = mujoco.mj_stateSize(model, FULLPHYSICS)
+    physics, ctrl = np.empty((n_steps, nstate)), np.empty((n_steps, model.nu))
+    sensordata = np.empty((n_steps, model.nsensordata))
+    for i in range(n_steps):
+        data.mocap_pos[0] += rng.uniform(-2e-3, 2e-3, 3)
+        data.ctrl[:] = rng.uniform(-0.02, 0.02, model.nu)
+        ctrl[i] = data.ctrl
+        mujoco.mj_step(model, data)
+        mujoco.mj_getState(model, data, physics[i], FULLPHYSICS)
+        sensordata[i] = data.sensordata
+    return EpisodeRecord(
+        state_id=seed,
+        values={"seed": float(seed)},
+        physics=physics,
+        sensordata=sensordata,
+        ctrl=ctrl,
+        success=False,
+        measures={},
+        failure_category="dropped",
+    )
+
+
+def chunk_bytes(path: Path) -> dict[str, int]:
+    """Bytes of one recording's chunks as Arrow data in memory: static and per step."""
+    reader = RrdReader(path)
+    out = {"static": 0, "per step": 0}
+    for entry in reader.recordings():
+        for chunk in reader.store(store=entry).stream():
+            out["static" if chunk.is_static else "per step"] += chunk.to_record_batch().nbytes
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--rate-hz", type=float, default=100.0)
+    args = parser.parse_args()
+    model = mujoco.MjModel.from_xml_path(str(FETCH))
+    log_every = max(1, round(1.0 / (args.rate_hz * model.opt.timestep)))
+    gripper = model.body("robot0:gripper_link").id
+    spec = RecordingSpec(
+        model=model,
+        signals=[Signal("time", gripper, "time", lambda rows, sensors, ctrl: rows[:, 0])],
+        state_names=["seed"],
+        measure_names=[],
+        n_steps=args.steps,
+        log_every=log_every,
+    )
+    t0 = time.perf_counter()
+    episodes = [episode(model, seed, args.steps) for seed in range(args.episodes)]
+    simulated = time.perf_counter() - t0
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        folder = tmp / "c"
+        t0 = time.perf_counter()
+        write_condition_recordings(
+            folder, spec=spec, condition="c", episodes=iter(episodes), stamp=STAMP
+        )
+        written = time.perf_counter() - t0
+        files = sorted(folder.glob("c-state-*.rrd"))
+        sizes = [f.stat().st_size for f in files]
+        store = (folder / MESH_STORE_FILE).stat().st_size
+        parts = chunk_bytes(files[0])
+
+        # the meshes in every recording, as before the mesh store
+        inline = EpisodeStores(spec, condition="c", stamp=STAMP)
+        [group] = inline.groups(episodes[:1])
+        [(recording_id, whole)] = inline.build(group)
+        target = tmp / "inline.rrd"
+        whole.write_rrd(str(target), application_id="mjtrial", recording_id=recording_id)
+        inline_size = target.stat().st_size
+
+        failures = tmp / "failures.rrd"
+        t0 = time.perf_counter()
+        n_failures = write_failures_rrd(failures, [folder], stamp=STAMP)
+        gathered = time.perf_counter() - t0
+        failures_size = failures.stat().st_size
+
+    print(
+        f"Fetch (18 meshes, {model.nmeshvert} vertices, {model.nmeshface} triangles): "
+        f"{args.episodes} episodes of {args.steps} steps, logged every {log_every} "
+        f"({args.rate_hz:g} Hz, {len(group[0].rows)} rows)\n"
+    )
+    print(
+        f"simulation {simulated:.1f} s, writing the folder {written:.1f} s, "
+        f"gathering failures.rrd {gathered:.1f} s\n"
+    )
+    print(f"{'episode file, meshes inline (before)':<44} {inline_size / 1e3:9.1f} kB")
+    print(
+        f"{'episode file, with the mesh store (median)':<44} "
+        f"{statistics.median(sizes) / 1e3:9.1f} kB"
+    )
+    print(f"{'  of which chunks, static (Arrow, in memory)':<44} {parts['static'] / 1e3:9.1f} kB")
+    print(
+        f"{'  of which chunks, per step (Arrow, in memory)':<44} {parts['per step'] / 1e3:9.1f} kB"
+    )
+    print(f"{'mesh store (meshes.rrd, once per folder)':<44} {store / 1e3:9.1f} kB")
+    print(f"{'folder, all episode files and the store':<44} {(sum(sizes) + store) / 1e6:9.2f} MB")
+    print(f"{f'failures.rrd, {n_failures} failures':<44} {failures_size / 1e6:9.2f} MB")
+
+
+if __name__ == "__main__":
+    main()
