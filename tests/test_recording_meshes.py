@@ -220,3 +220,19 @@ def test_failures_rrd_holds_the_meshes_once_and_each_failure_reads_them(model, f
         assert sorted(meshes) == sorted(expected)
     episode = read_episode(path, condition="c", state_id=1)
     assert len(episode["step"]) == N_STEPS // LOG_EVERY
+
+
+def test_a_whole_episode_file_holds_its_meshes(model, folder, tmp_path):
+    from mjtrial.recording import write_whole_episode
+
+    output = tmp_path / "whole.rrd"
+    rid = write_whole_episode(folder / "c-state-000000.rrd", output)
+    assert rid == "c-state-000000"
+    reader = RrdReader(output)
+    [entry] = reader.recordings()
+    meshes = _meshes(reader.store(store=entry).stream())
+    expected = _expected_meshes(model)
+    assert sorted(meshes) == sorted(expected)
+    np.testing.assert_array_equal(
+        read_episode(output)["time"], read_episode(folder / "c-state-000000.rrd")["time"]
+    )

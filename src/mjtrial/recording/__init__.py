@@ -33,7 +33,7 @@ of provenance stamps.
 """
 
 from mjtrial import provenance
-from mjtrial.recording.failures import write_failures_rrd
+from mjtrial.recording.failures import write_failures_rrd, write_whole_episode
 from mjtrial.recording.names import episode_file_name, logged_steps
 from mjtrial.recording.read import (
     find_episode_file,
@@ -63,6 +63,7 @@ __all__ = [
     "write_condition_recordings",
     "write_episode_recording",
     "write_failures_rrd",
+    "write_whole_episode",
 ]
 
 provenance.register_reader(".rrd", read_rrd_stamp)

@@ -31,9 +31,11 @@ from mjtrial.recording.read import (
     find_episode_entry,
     find_mesh_store,
     mesh_reference,
+    only_episode_entry,
     open_rrd,
     properties,
     recorded_signals,
+    recording_chunks,
     recording_files,
 )
 from mjtrial.recording.route import rrd_output, write_recording, write_store
@@ -288,3 +290,29 @@ def _failures_table(failures: Sequence[tuple[Path, Any, Mapping[str, Any]]]) -> 
     if not failures:
         lines.append("| - | - | - | - |")
     return rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN)
+
+
+def write_whole_episode(
+    path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    condition: str | None = None,
+    state_id: int | None = None,
+    application_id: str = APPLICATION_ID,
+) -> str:
+    """Atomically write one episode's recording with its meshes in it (`read.recording_chunks`)
+    and its layout to `output`: a file the viewer opens alone and shows the robot in. `path` is
+    the episode's file (a condition folder's, whose mesh store sits beside it) or, with
+    `condition` and `state_id`, a file holding several (``failures.rrd``). Returns its
+    recording id."""
+    path = Path(path)
+    reader = open_rrd(path)
+    if condition is None or state_id is None:
+        entry = only_episode_entry(reader, path)
+    else:
+        entry = find_episode_entry(reader, path, condition, state_id)
+    blueprint = default_blueprint(_plots([path.parent], [path], {path: reader}))
+    whole = recording_chunks(reader, entry, path)
+    with atomic_path(Path(output)) as tmp, rrd_output(tmp, application_id, blueprint) as out:
+        write_recording(out, whole, application_id=application_id, recording_id=entry.recording_id)
+    return entry.recording_id

@@ -48,9 +48,7 @@ def recording_files(path: str | os.PathLike[str]) -> list[Path]:
     name order."""
     path = Path(path)
     if path.is_dir():
-        return sorted(
-            p for p in path.glob("*.rrd") if p.is_file() and p.name != MESH_STORE_FILE
-        )
+        return sorted(p for p in path.glob("*.rrd") if p.is_file() and p.name != MESH_STORE_FILE)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such .rrd file or folder of .rrd files")
     return [path]
