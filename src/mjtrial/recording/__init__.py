@@ -13,7 +13,10 @@ Layout of a recording (names in :mod:`~mjtrial.recording.names`):
   once, static) and, static, its visible geoms: one archetype per geom type (``Boxes3D`` for
   boxes and planes, ``Ellipsoids3D`` for spheres and ellipsoids, ``Capsules3D``,
   ``Cylinders3D``, one ``Mesh3D`` for all its meshes) whose instances are the geoms, each posed
-  in the body frame and drawn in MuJoCo's colour (:mod:`~mjtrial.recording.scene`).
+  in the body frame and drawn in MuJoCo's colour (:mod:`~mjtrial.recording.scene`). In a
+  condition's folder the meshes are not in the episodes' recordings: its ``meshes.rrd``
+  holds them once (a mesh store, named by each recording's ``meshes`` property;
+  `read.recording_chunks` puts them back). Visible sites are drawn as geoms are.
 * the signals (``Scalars``), on the entity of the body they belong to, named by a static
   ``SeriesLines``: the task's series (`mjtrial.task.Series`), each on the body it names.
 * recording properties ``episode`` (one struct: condition, state id and parameters, success,
