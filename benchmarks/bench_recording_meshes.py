@@ -3,10 +3,11 @@
 The model is gymnasium-robotics' Fetch (18 STL meshes, tasks/fetch_pick/assets/fetch). Its
 episodes come from a plain mj_step loop (the mocap target wanders, the fingers get random
 ctrl), recorded as the rollout stage records a condition: every `log_every`-th step of each
-1,000-step episode. It prints, per episode file, what its bytes are spent on (rerun's own
-`rrd stats` of chunks: static scene, per-step motion; the rest is the file's index), the size
-with the meshes in every file (as before the mesh store) and with the folder's mesh store, and
-the size of a failures.rrd gathered from all the episodes (each a failure):
+1,000-step episode. It prints an episode file's size with the meshes in every file (as before
+the mesh store) and with the folder's mesh store, the size of a failures.rrd gathered from all
+the episodes (each a failure), and what an episode's file is spent on: its static chunks alone
+and its per-step chunks alone, each written as a file (every chunk costs a few kB of schema
+and index whatever its size, so the two add up to about the whole):
 
     python benchmarks/bench_recording_meshes.py                  # 200 episodes at 100 Hz
     python benchmarks/bench_recording_meshes.py --episodes 50 --rate-hz 500
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from rerun.chunk import RrdReader
+from rerun.chunk import ChunkStore, RrdReader
 
 from mjtrial import REPO_ROOT
 from mjtrial.physics import FULLPHYSICS
@@ -60,13 +61,19 @@ def episode(model: mujoco.MjModel, seed: int, n_steps: int) -> EpisodeRecord:
     )
 
 
-def chunk_bytes(path: Path) -> dict[str, int]:
-    """Bytes of one recording's chunks as Arrow data in memory: static and per step."""
+def part_sizes(path: Path, scratch: Path) -> dict[str, int]:
+    """Bytes on disk of one recording's static chunks alone and its per-step chunks alone
+    (each written as a file of its own: its chunks and their share of the file's index)."""
     reader = RrdReader(path)
-    out = {"static": 0, "per step": 0}
-    for entry in reader.recordings():
-        for chunk in reader.store(store=entry).stream():
-            out["static" if chunk.is_static else "per step"] += chunk.to_record_batch().nbytes
+    [entry] = reader.recordings()
+    chunks = list(reader.store(store=entry).stream())
+    out = {}
+    for part, static in (("static", True), ("per step", False)):
+        target = scratch / f"{part}.rrd"
+        store = ChunkStore.from_chunks([c for c in chunks if c.is_static == static])
+        store.write_rrd(str(target), application_id="mjtrial", recording_id=entry.recording_id)
+        out[part] = target.stat().st_size
+        out[f"{part} chunks"] = sum(c.is_static == static for c in chunks)
     return out
 
 
@@ -102,7 +109,7 @@ def main() -> None:
         files = sorted(folder.glob("c-state-*.rrd"))
         sizes = [f.stat().st_size for f in files]
         store = (folder / MESH_STORE_FILE).stat().st_size
-        parts = chunk_bytes(files[0])
+        parts = part_sizes(files[0], tmp)
 
         # the meshes in every recording, as before the mesh store
         inline = EpisodeStores(spec, condition="c", stamp=STAMP)
@@ -132,10 +139,9 @@ def main() -> None:
         f"{'episode file, with the mesh store (median)':<44} "
         f"{statistics.median(sizes) / 1e3:9.1f} kB"
     )
-    print(f"{'  of which chunks, static (Arrow, in memory)':<44} {parts['static'] / 1e3:9.1f} kB")
-    print(
-        f"{'  of which chunks, per step (Arrow, in memory)':<44} {parts['per step'] / 1e3:9.1f} kB"
-    )
+    for part in ("static", "per step"):
+        label = f"  its {parts[part + ' chunks']} {part} chunks alone"
+        print(f"{label:<44} {parts[part] / 1e3:9.1f} kB")
     print(f"{'mesh store (meshes.rrd, once per folder)':<44} {store / 1e3:9.1f} kB")
     print(f"{'folder, all episode files and the store':<44} {(sum(sizes) + store) / 1e6:9.2f} MB")
     print(f"{f'failures.rrd, {n_failures} failures':<44} {failures_size / 1e6:9.2f} MB")

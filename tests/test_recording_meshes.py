@@ -150,6 +150,18 @@ def test_an_episode_file_alone_reads_back_with_its_meshes(model, folder, tmp_pat
     for entity, vertices in expected.items():
         np.testing.assert_allclose(meshes[entity], vertices, atol=1e-6)  # float32 in rerun
 
+    # a fixed body that holds only meshes (the e-stop): its pose travels with its meshes
+    estop = model.body("robot0:estop_link").id
+    entity = "/" + body_entity(model, estop)
+    assert not [c for c in reader.store(store=entry).stream() if c.entity_path == entity]
+    [pose] = [
+        c.to_record_batch()
+        for c in recording_chunks(reader, entry, path)
+        if c.entity_path == entity and "Transform3D:translation" in c.to_record_batch().schema.names
+    ]
+    [[translation]] = pose.column(pose.schema.names.index("Transform3D:translation")).to_pylist()
+    assert translation == pytest.approx(model.body_pos[estop].tolist(), abs=1e-7)
+
     (tmp_path / MESH_STORE_FILE).unlink()
     with pytest.raises(FileNotFoundError, match=r"c-state-000001\.rrd: its meshes are in mesh"):
         recording_chunks(reader, entry, path)

@@ -223,18 +223,27 @@ def body_meshes(model: mujoco.MjModel, body: int) -> list[Any]:
 
 
 def mesh_scene(model: mujoco.MjModel) -> list[tuple[str, list[Any]]]:
-    """(entity, [Mesh3D]) of each body with visible meshes: what `static_scene` leaves out
-    with `meshes` False, on the same entities."""
-    items = [
-        (body_entity(model, b) if b else WORLD, body_meshes(model, b)) for b in range(model.nbody)
-    ]
-    return [(entity, archetypes) for entity, archetypes in items if archetypes]
+    """(entity, archetypes) that `static_scene` leaves out with `meshes` False, on the same
+    entities: each body's `Mesh3D`, and the static pose of a body that holds only meshes and
+    bodies like it (a robot's fixed covers), which nothing else needs."""
+    elsewhere = _needed_bodies(model, meshes=False)
+    items = []
+    for b, needed in enumerate(_needed_bodies(model)):
+        archetypes = body_meshes(model, b)
+        if b and needed and not elsewhere[b]:  # a body without joints: elsewhere has those
+            archetypes.insert(0, _static_pose(model, b))
+        if archetypes:
+            items.append((body_entity(model, b) if b else WORLD, archetypes))
+    return items
 
 
-def _needed_bodies(model: mujoco.MjModel) -> np.ndarray:
-    """(nbody,) bool: the body, or one below it, draws a geom or site, moves or is mocap."""
+def _needed_bodies(model: mujoco.MjModel, *, meshes: bool = True) -> np.ndarray:
+    """(nbody,) bool: the body, or one below it, draws a geom (a mesh only with `meshes`) or
+    a site, moves or is mocap."""
     needed = np.zeros(model.nbody, dtype=bool)
     visible = np.isin(model.geom_group, VISIBLE_GEOM_GROUPS)
+    if not meshes:
+        visible &= model.geom_type != _G.mjGEOM_MESH
     needed[model.geom_bodyid[visible]] = True
     sites = np.isin(model.site_group, VISIBLE_GEOM_GROUPS) & (model.site_rgba[:, 3] > 0)
     needed[model.site_bodyid[sites]] = True
@@ -244,6 +253,15 @@ def _needed_bodies(model: mujoco.MjModel) -> np.ndarray:
     return needed
 
 
+def _static_pose(model: mujoco.MjModel, body: int) -> Any:
+    """A body's constant pose in its parent."""
+    with strict():
+        return rr.Transform3D(
+            translation=model.body_pos[body],
+            quaternion=mujoco_to_rerun_quat(model.body_quat[body]),
+        )
+
+
 def static_scene(model: mujoco.MjModel, *, meshes: bool = True) -> list[tuple[str, list[Any]]]:
     """(entity, archetypes) logged statically: view coordinates, geoms, poses that never change.
 
@@ -251,27 +269,23 @@ def static_scene(model: mujoco.MjModel, *, meshes: bool = True) -> list[tuple[st
     here, once (a body with joints gets it per step, `BodyPoses`). So does a mocap body: every
     reset takes its pose from the model, which is the episode's own when a state parameter
     moves it (`MocapPosition`), and no control of an episode moves it. With `meshes` False,
-    mesh geoms are left out (`mesh_scene` has them). A body that draws nothing, with nothing
-    drawn or moving below it (a camera's frame), is left out: its pose would cost each
-    recording a chunk for nothing to see.
+    mesh geoms are left out, and so is the pose of a body that holds only meshes and bodies
+    like it (`mesh_scene` has them). A body that draws nothing, with nothing drawn or moving
+    below it (a camera's frame), is left out: its pose would cost each recording a chunk (a
+    few kB) for nothing to see.
     """
     with strict():
         world = [rr.ViewCoordinates(xyz=rr.ViewCoordinates.RIGHT_HAND_Z_UP)]
     items: list[tuple[str, list[Any]]] = [
         (WORLD, [*world, *body_geometry(model, 0, meshes=meshes)])
     ]
-    needed = _needed_bodies(model)
+    needed = _needed_bodies(model, meshes=meshes)
     for b in range(1, model.nbody):
         if not needed[b]:
             continue
         archetypes = body_geometry(model, b, meshes=meshes)
         if model.body_jntnum[b] == 0:
-            with strict():
-                pose = rr.Transform3D(
-                    translation=model.body_pos[b],
-                    quaternion=mujoco_to_rerun_quat(model.body_quat[b]),
-                )
-            archetypes.insert(0, pose)
+            archetypes.insert(0, _static_pose(model, b))
         if archetypes:
             items.append((body_entity(model, b), archetypes))
     return items
