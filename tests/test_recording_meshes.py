@@ -248,3 +248,22 @@ def test_a_whole_episode_file_holds_its_meshes(model, folder, tmp_path):
     np.testing.assert_array_equal(
         read_episode(output)["time"], read_episode(folder / "c-state-000000.rrd")["time"]
     )
+
+
+def test_mjtrial_view_writes_an_episode_of_failures_rrd_whole(model, folder, tmp_path, capsys):
+    from mjtrial.cli import main
+
+    failures = tmp_path / "failures.rrd"
+    write_failures_rrd(failures, [folder], stamp=STAMP)
+    output = tmp_path / "ep.rrd"
+    argv = ["view", str(failures), "--condition", "c", "--state", "2", "--output", str(output)]
+    assert main([*argv, "--no-viewer"]) == 0
+    assert "failures-c-state-000002, with its meshes" in capsys.readouterr().out
+    reader = RrdReader(output)
+    [entry] = reader.recordings()
+    assert sorted(_meshes(reader.store(store=entry).stream())) == sorted(_expected_meshes(model))
+    # an existing output is kept; a file of several episodes needs the episode named
+    assert main([*argv, "--no-viewer"]) == 2
+    assert "exists (pass --force" in capsys.readouterr().err
+    assert main(["view", str(failures), "--output", str(tmp_path / "x.rrd"), "--no-viewer"]) == 1
+    assert "give condition and state_id" in capsys.readouterr().err

@@ -94,6 +94,37 @@ def _replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _view(args: argparse.Namespace) -> int:
+    # Imported here (rerun-sdk): a second or so that the other commands need not pay.
+    from mjtrial.recording import write_whole_episode
+    from mjtrial.replay import open_viewer
+
+    if (args.condition is None) != (args.state is None):
+        print("mjtrial view: give both --condition and --state, or neither", file=sys.stderr)
+        return 2
+    output = Path(args.output) if args.output else None
+    if output is not None and output.exists() and not args.force:
+        print(
+            f"mjtrial view: --output {output}: exists (pass --force to overwrite it)",
+            file=sys.stderr,
+        )
+        return 2
+    if output is None:  # a file of its own in a fresh folder, which the viewer then reads
+        output = Path(tempfile.mkdtemp(prefix="mjtrial-view-")) / Path(args.file).name
+    try:
+        recording_id = write_whole_episode(
+            args.file, output, condition=args.condition, state_id=args.state
+        )
+    except (KeyError, OSError, ValueError) as err:
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"mjtrial view: {message}", file=sys.stderr)
+        return 1
+    print(f"{recording_id}, with its meshes -> {output}")
+    if not args.no_viewer and open_viewer(output) is None:
+        print("mjtrial view: no `rerun` viewer found; open the file yourself", file=sys.stderr)
+    return 0
+
+
 def _count(text: str) -> int:
     """A count argument: a whole number, 0 or more."""
     try:
@@ -416,6 +447,22 @@ def main(argv: list[str] | None = None) -> int:
         help="overwrite an existing --output outside the results folder that replay did not write",
     )
     p.set_defaults(run=_replay)
+    p = sub.add_parser(
+        "view",
+        help="open one recorded episode with its meshes (an episode's file, or one of a "
+        "failures.rrd), which the viewer does not find alone",
+    )
+    p.add_argument(
+        "file",
+        help="an episode's .rrd (its folder's meshes.rrd beside it), or a "
+        "file of several with --condition and --state",
+    )
+    p.add_argument("--condition")
+    p.add_argument("--state", type=int, help="state_id")
+    p.add_argument("--output", help="the .rrd to write (default: in a new temporary folder)")
+    p.add_argument("--no-viewer", action="store_true", help="do not open the Rerun viewer")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --output")
+    p.set_defaults(run=_view)
     p = sub.add_parser(
         "verify",
         help="check every output's stamp against the files, config, model and code of now",
