@@ -267,3 +267,34 @@ def test_mjtrial_view_writes_an_episode_of_failures_rrd_whole(model, folder, tmp
     assert "exists (pass --force" in capsys.readouterr().err
     assert main(["view", str(failures), "--output", str(tmp_path / "x.rrd"), "--no-viewer"]) == 1
     assert "give condition and state_id" in capsys.readouterr().err
+
+
+def test_resimulated_episodes_in_one_file_share_one_mesh_store(model, episodes, tmp_path):
+    from mjtrial.recording.failures import write_episodes_rrd
+    from mjtrial.recording.write import EpisodeStores
+
+    gripper = model.body("robot0:gripper_link").id
+    time = Signal("time", gripper, "time", lambda rows, sensors, ctrl: rows[:, 0])
+    spec = RecordingSpec(
+        model=model,
+        signals=[time],
+        state_names=["seed"],
+        measure_names=[],
+        n_steps=N_STEPS,
+        log_every=LOG_EVERY,
+    )
+    groups = [
+        (EpisodeStores(spec, condition=c, stamp=STAMP, share_meshes=True), episodes[:2])
+        for c in ("a", "b")
+    ]
+    path = tmp_path / "calls.rrd"
+    n = write_episodes_rrd(
+        path, groups, summary_id="calls", prefix="calls-", title="t", table="|", stamp=STAMP
+    )
+    assert n == 4
+    reader = RrdReader(path)
+    entries = reader.recordings()
+    assert sum(is_mesh_store(e) for e in entries) == 1
+    [entry] = [e for e in entries if e.recording_id == "calls-b-state-000001"]
+    assert not _meshes(reader.store(store=entry).stream())
+    assert sorted(_meshes(recording_chunks(reader, entry, path))) == sorted(_expected_meshes(model))

@@ -170,7 +170,8 @@ def write_episodes_rrd(
     condition, model and stamp, and its episodes) into one file, after a summary recording (id
     `summary_id`: `title`, the `stamp`, and `table`, markdown); each episode's recording id is
     `prefix` and its id in its condition (the prefix sorts them after the summary, whose stamp
-    is the file's). The viewer's layout holds every group's plots. Returns the number of
+    is the file's). The viewer's layout holds every group's plots. A builder made with
+    `share_meshes` has its mesh store written once, before its episodes. Returns the number of
     episodes written."""
     plots: dict[str, list[str]] = {}
     for builder, _ in groups:
@@ -188,7 +189,17 @@ def write_episodes_rrd(
             _static_chunk(summary_id, [rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN)]),
         ]
         write_recording(out, summary, application_id=application_id, recording_id=summary_id)
+        stores: set[str] = set()
         for builder, episodes in groups:
+            meshes = builder.meshes  # built with share_meshes: its store goes in once
+            if meshes is not None and meshes.recording_id not in stores:
+                write_recording(
+                    out,
+                    meshes.chunks(),
+                    application_id=application_id,
+                    recording_id=meshes.recording_id,
+                )
+                stores.add(meshes.recording_id)
             for group in builder.groups(episodes):
                 for recording_id, store in builder.build(group):
                     write_store(

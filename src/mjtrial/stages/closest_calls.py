@@ -170,6 +170,7 @@ def _task_calls(
             recording_spec(run_bound, engine.episode_steps(run_bound, params), spec["rate_hz"]),
             condition=_condition_name(task_name, *run),
             stamp=make_stage_stamp(rule, dict(condition), stamp_inputs, repo_root=repo_root),
+            share_meshes=True,  # a model's meshes once in the file, not in every episode
         )
         groups.append((builder, episodes))
     return rows, groups
