@@ -98,7 +98,12 @@ def _documented_pairs(model: mujoco.MjModel) -> list[tuple[int, int]]:
     `body_weldid`): a body's weld body is its first ancestor-or-self with a joint or a mocap
     flag (else the world); pairs on one weld body, on two weld bodies without joints, on a weld
     body and its parent's (filterparent; never the world), on an `<exclude>`d body pair, or
-    whose contype and conaffinity do not match are out; explicit `<pair>`s are in."""
+    whose contype and conaffinity do not match are out; explicit `<pair>`s are in; none when
+    `<option>` disables contacts."""
+
+    off = mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    if model.opt.disableflags & off:
+        return []
 
     def weld_of(body: int) -> int:
         while body and not model.body_jntnum[body] and model.body_mocapid[body] < 0:
