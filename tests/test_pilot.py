@@ -89,6 +89,55 @@ def test_the_pilot_writes_under_development_only_and_reads_development_states(wo
     assert len(jobs["pilot_rollout"]) == 2 * 3  # two conditions, shards of 5 of 12 states
 
 
+def test_pilot_n_runs_the_first_development_states_only(workflow):
+    # 7 of the 12 development states, in shards of 5: 2 per condition
+    jobs = planned_jobs(workflow, "pilot", "--config", "pilot={n: 7}")
+    assert len(jobs["pilot_rollout"]) == 2 * 2
+    gathered = [i for _, inputs in jobs["pilot_gather"] for i in inputs if "shard-" in i]
+    assert sorted({Path(i).name for i in gathered}) == [
+        "shard-00000.parquet",
+        "shard-00001.parquet",
+    ]
+    # the development states are drawn as before: states.n of them, one job
+    assert len(jobs["development_states"]) == 1
+    # the evaluation is untouched
+    evaluation = planned_jobs(workflow, "--config", "pilot={n: 7}")
+    assert len(evaluation["rollout"]) == len(planned_jobs(workflow)["rollout"])
+
+
+def test_a_pilot_of_3_states_runs_and_verifies(workflow, tmp_path):
+    """A real pilot of the first 3 of the 12 development states: its tables, rates and
+    `mjtrial verify` (which re-simulates its sample from the same 3 states)."""
+    workdir = tmp_path / "experiment"
+    shutil.copytree(workflow, workdir, symlinks=True)
+    edit_config(workdir, lambda c: c.update(pilot={"n": 3}))
+    run_snakemake(workdir, "pilot")
+    development = pq.read_table(workdir / DEVELOPMENT.states)
+    assert development.num_rows == 12  # drawn as before
+    summary = json.loads(provenance.read_output_text(workdir / LAYOUT.pilot_summary))
+    for condition in ("fast", "slow"):
+        table = pq.read_table(workdir / DEVELOPMENT.rollout_table(condition))
+        assert table.column("state_id").to_pylist() == [0, 1, 2]
+        assert summary["conditions"][condition]["n"] == 3
+    report = verify_results(
+        workdir / LAYOUT.root, config_path=workdir / "config" / "config.yaml", repo_root=workdir
+    )
+    checked = [
+        DEVELOPMENT.shard_table("fast", "00000"),
+        *(DEVELOPMENT.rollout_table(c) for c in ("fast", "slow")),
+        LAYOUT.pilot_summary,
+    ]
+    for path in checked:
+        assert report.status_of(path.as_posix()) is Status.OK, report.format()
+    assert not any(w.startswith("development output") for w in report.warnings), report.format()
+
+
+def test_pilot_n_above_the_development_states_is_one_line_naming_the_key(workflow):
+    proc = run_snakemake(workflow, "-n", "pilot", "--config", "pilot={n: 13}", check=False)
+    assert proc.returncode != 0
+    assert "pilot.n" in proc.stderr and "expected at most states.n (12" in proc.stderr
+
+
 @pytest.fixture(scope="module")
 def piloted(built, tmp_path_factory) -> Path:
     """The built experiment (12 states, shards of 5) and a pilot run with the fast lift at 0.2 s."""

@@ -75,8 +75,9 @@ def test_a_replay_reproduces_its_row(reacher_run, monkeypatch, capsys):
 def test_the_report_is_true_of_this_model(reacher_run):
     report = (reacher_run / RESULTS / "report.md").read_text()
     assert "- Contacts: disabled in the model's `<option>`; no geom collides." in report
-    assert "`shoulder` on joint `shoulder`: [-0.05, 0.05] N·m (ctrlrange × gain, × gear 0.05)" in (
-        report
+    assert (
+        "`shoulder` on joint `shoulder`: force [-0.05, 0.05] N·m (ctrlrange × gain, × gear 0.05)"
+        in (report)
     )
     assert "goal_x (the goal the robot is commanded)" in report
 

@@ -354,3 +354,14 @@ def test_a_policy_that_depends_on_its_batch_fails_the_rollout_in_one_line(cartpo
     message = str(err.value)
     assert message.startswith(f"{cartpole.source}: policy: episode row 9 of a batch of 10 ")
     assert "(rollout.shard_size)" in message and "\n" not in message
+
+
+def test_the_old_state_qpos_import_still_works_with_a_deprecation_warning():
+    import mjtrial.physics
+    import mjtrial.task
+
+    with pytest.warns(DeprecationWarning, match=r"mjtrial\.physics\.STATE_QPOS"):
+        from mjtrial.task import STATE_QPOS
+    assert STATE_QPOS == mjtrial.physics.STATE_QPOS
+    with pytest.raises(AttributeError, match="NO_SUCH_NAME"):
+        mjtrial.task.NO_SUCH_NAME  # noqa: B018

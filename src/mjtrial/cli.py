@@ -468,7 +468,11 @@ def main(argv: list[str] | None = None) -> int:
         help="check every output's stamp against the files, config, model and code of now",
     )
     p.add_argument("results_dir", nargs="?", help="results folder (default: results/<experiment>)")
-    p.add_argument("--config", help="config file (default: config/config.yaml)")
+    p.add_argument(
+        "--config",
+        help="config file (default: the one the results folder's manifest records, or a "
+        "benchmark's crate; without either, or without results_dir, config/config.yaml)",
+    )
     p.add_argument(
         "--repo-root",
         help="folder the pipeline ran in; stamps record paths relative to it (default: .)",

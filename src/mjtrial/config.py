@@ -411,6 +411,12 @@ def _check_task_states(
             fail(f"states.ranges.{p.name}[0]", f"expected > 0, got {low}")
 
 
+def pilot_states(config: Mapping[str, Any]) -> int:
+    """How many development states the pilot runs (the first ones): `pilot.n`, by default all of
+    them (`states.n`)."""
+    return int((config.get("pilot") or {}).get("n", config["states"]["n"]))
+
+
 def check_config(
     config: Mapping[str, Any],
     *,
@@ -484,6 +490,12 @@ def check_config(
             fail(key, f"expected edges covering the range of {name} [{low}, {high}], got {edges}")
     if config["analysis"]["first_k"] > config["states"]["n"]:
         fail("analysis.first_k", f"expected at most states.n ({config['states']['n']})")
+    if pilot_states(config) > config["states"]["n"]:
+        fail(
+            "pilot.n",
+            f"expected at most states.n ({config['states']['n']}, the development states' count: "
+            f"the pilot runs the first pilot.n of them), got {pilot_states(config)}",
+        )
     too_many = budget.job_count_problem(config, len(all_conditions(config)))
     if too_many:
         fail(*too_many)

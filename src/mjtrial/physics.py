@@ -16,8 +16,12 @@ import numpy as np
 
 # Layout of an mjSTATE_FULLPHYSICS vector: time, qpos, qvel, act, ...
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
+"""The state signature of a physics state row (`mujoco.mj_getState`): time, qpos, qvel, act,
+plugin state, mocap poses, equality flags; what `mujoco.rollout` returns per step."""
 STATE_TIME = 0
+"""The column of a physics state row holding the simulation time."""
 STATE_QPOS = 1
+"""The column of a physics state row where qpos begins (`row[STATE_QPOS:STATE_QPOS + nq]`)."""
 
 
 class ModelError(ValueError):

@@ -28,8 +28,11 @@ class PolicyCheck:
       policy: the policy file, checked against the task and the graph.
       privileged: the privileged observations it reads (a config must allow each).
       nominal: the nominal episode's outcome: "success" or its failure category.
-      invariant: every episode the same bits alone as in a batch of `INVARIANCE_STATES`.
+      invariant: every episode the same bits alone as in the engine's batches of
+        `INVARIANCE_STATES` episodes.
       call_seconds: batch size -> median seconds per call (1 row, and the engine's batch).
+      batches: the sizes of the engine's batches the episodes ran in together (one batch of
+        `INVARIANCE_STATES` unless the task's memory budget splits them).
     """
 
     policy: PolicyFile
@@ -37,6 +40,7 @@ class PolicyCheck:
     nominal: str
     invariant: bool
     call_seconds: Mapping[int, float]
+    batches: tuple[int, ...] = (INVARIANCE_STATES,)
 
     def lines(self) -> list[str]:
         """The check's report, one fact a line."""
@@ -54,7 +58,12 @@ class PolicyCheck:
                 else "none"
             ),
             f"  nominal episode: {self.nominal}",
-            f"  batch invariance: {INVARIANCE_STATES} episodes alone and in one batch "
+            f"  batch invariance: {INVARIANCE_STATES} episodes alone and in "
+            + (
+                "one batch "
+                if len(self.batches) == 1
+                else f"the engine's batches of {', '.join(map(str, self.batches))} "
+            )
             + ("agree bit for bit" if self.invariant else "DIFFER: results would depend on batch"),
             f"  per call (median of {TIMED_CALLS}): {times}",
             f"  onnxruntime {settings['onnxruntime']}, {settings['intra_op_num_threads']} thread, "
@@ -82,10 +91,13 @@ def check_policy_file(
     ((_, category),) = _outcomes(bound, nominal_values(task), condition, thresholds, batch_size=1)
     rng = np.random.default_rng(0)
     values = {p.name: rng.uniform(p.low, p.high, INVARIANCE_STATES) for p in task.state_parameters}
+    # the engine may split the episodes (a task's memory budget): every batch is compared
     together = _outcomes(bound, values, condition, thresholds, batch_size=INVARIANCE_STATES)
     alone = _outcomes(bound, values, condition, thresholds, batch_size=1)
     invariant = np.array_equal(
-        together[0][0], np.concatenate([physics for physics, _ in alone]), equal_nan=True
+        np.concatenate([physics for physics, _ in together]),
+        np.concatenate([physics for physics, _ in alone]),
+        equal_nan=True,
     )
     batch_policy = policy.policy(bound.model, task.parameters(condition))
     width = sum(declared[n].size for n in policy.observations)
@@ -106,4 +118,5 @@ def check_policy_file(
         nominal="success" if category[0] is None else f"failed ({category[0]})",
         invariant=invariant,
         call_seconds=call_seconds,
+        batches=tuple(len(physics) for physics, _ in together),
     )

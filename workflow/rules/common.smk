@@ -2,6 +2,7 @@ import re
 import sys
 from pathlib import Path
 
+from mjtrial.config import pilot_states
 from mjtrial.conditions import (
     all_conditions,
     policy_path,
@@ -39,6 +40,8 @@ VERSIONS = {
 }
 SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
 SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+# The pilot's shards: of its first pilot.n development states (default: all states.n).
+PILOT_SHARDS = shard_ids(pilot_states(config), config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
 RECORDED = config["recording"]["episodes"] != "none"
 
@@ -78,7 +81,14 @@ def shard_tables(wildcards):
 
 def pilot_shard_tables(wildcards):
     """Every pilot shard table of the job's condition, in state order."""
-    return [LAYOUT.development.shard_table(wildcards.condition, s) for s in SHARDS]
+    return [LAYOUT.development.shard_table(wildcards.condition, s) for s in PILOT_SHARDS]
+
+
+def pilot_shard_bounds(wildcards):
+    """The development state ids [first, stop) of the pilot job's shard."""
+    return shard_range(
+        wildcards.shard, config["rollout"]["shard_size"], pilot_states(config)
+    )
 
 
 def shard_recordings_of(wildcards):

@@ -1,5 +1,6 @@
-# The pilot, `snakemake -c2 pilot`: the design's conditions on the development states, under
-# development/ (laid out as the results folder is), and their rates. Not part of `snakemake -c2`:
+# The pilot, `snakemake -c2 pilot`: the design's conditions on the first pilot.n development
+# states (default: all of them), under development/ (laid out as the results folder is), and
+# their rates. Not part of `snakemake -c2`:
 # it runs before the evaluation is designed to its end, and no rule of the evaluation reads it
 # (tests/test_pilot.py checks every rule `all` plans).
 DEVELOPMENT = LAYOUT.development
@@ -19,7 +20,7 @@ rule pilot_rollout:
     threads: 1
     params:
         slice=rollout_slice,
-        shard=shard_bounds,
+        shard=pilot_shard_bounds,
         model_sha256=model_content,
         code=stage_code_hash("pilot"),
     script:

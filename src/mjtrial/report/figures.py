@@ -19,7 +19,13 @@ from matplotlib.figure import Figure
 
 from mjtrial import provenance
 from mjtrial.layout import BENCHMARK_FIGURES, FIGURES
-from mjtrial.report.fit import figure_legend_below, fit_text, fitted_legend, fitted_title
+from mjtrial.report.fit import (
+    figure_legend_below,
+    fit_axes_labels,
+    fit_text,
+    fitted_legend,
+    fitted_title,
+)
 from mjtrial.report.labels import band_parameter, failure_categories, pct, setting
 from mjtrial.report.traces import SampleTraces, sample_traces
 from mjtrial.task import BoundTask, Task
@@ -81,7 +87,9 @@ def _styled(draw: Callable[..., Figure]) -> Callable[..., Figure]:
     @functools.wraps(draw)
     def wrapper(**kwargs: Any) -> Figure:
         with matplotlib.rc_context(_STYLE):
-            return draw(**kwargs)
+            fig = draw(**kwargs)
+            fit_axes_labels(fig)
+            return fig
 
     return wrapper
 
@@ -300,6 +308,19 @@ def _ids(ids: Sequence[int]) -> str:
     return ", ".join(str(i) for i in ids)
 
 
+def _no_trace_reason(traces: SampleTraces, record: Mapping[str, Any]) -> str:
+    """Why a condition's panel has no trace: no episode ran, or none of its chosen episodes was
+    recorded (the config's `recording.episodes`)."""
+    if not record["n"]:
+        return "No episode ran under this condition."
+    missed = [f"{outcome}: states {_ids(ids)}" for outcome, ids in traces.unrecorded.items()]
+    return (
+        "No sample episode of this condition was recorded ("
+        + "; ".join(missed)
+        + "): the config's recording.episodes keeps only some episodes."
+    )
+
+
 @_styled
 def figure_sample_traces(
     *, traces: Mapping[str, SampleTraces], summary: Mapping[str, Any], task: Task
@@ -319,6 +340,22 @@ def figure_sample_traces(
     min_gap = end * line / (0.8 * panel)
     for ax, name in zip(axes, names, strict=True):
         t = traces[name]
+        if not t.state_ids:  # nothing to draw the protocol's marks against: say why
+            fitted_title(ax, f"{name} ({setting(summary['conditions'][name], task)})", width=panel)
+            ax.set_xlabel("Time (s)")
+            fit_text(
+                ax.text(
+                    0.5,
+                    0.5,
+                    _no_trace_reason(t, summary["conditions"][name]),
+                    transform=ax.transAxes,
+                    ha="center",
+                    va="center",
+                    color=_GREY,
+                ),
+                width=0.9 * panel,
+            )
+            continue
         # Episodes of different conditions may end at different times: where success is judged.
         marks = sorted([*((time, label) for label, time in t.marks.items()), (t.time[-1], "end")])
         ax.axvline(float(t.time[-1]), color=_GREY, linestyle=":", linewidth=0.8, zorder=1)

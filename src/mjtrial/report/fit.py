@@ -8,7 +8,7 @@ chooses columns or line breaks until it fits the width it has.
 
 from __future__ import annotations
 
-import textwrap
+import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -20,6 +20,7 @@ from matplotlib.legend import Legend
 from matplotlib.text import Text
 
 MAX_LEGEND_COLUMNS = 3
+MIN_FONT_SIZE = 8.0  # points: the figures' smallest text
 
 
 def _renderer(figure: Figure) -> RendererAgg:
@@ -35,27 +36,65 @@ def _width(artist: Artist, figure: Figure) -> float:
     return artist.get_window_extent(_renderer(figure)).width
 
 
-def wrapped(text: str, *, fraction: float) -> str:
-    """`text` broken into lines of at most `fraction` of its longest line's length (at word
-    boundaries where it can, inside a word where it must)."""
+# Where an identifier may break when a line of whole words is still too wide: after one of
+# these (`frictionloss_|doubled`), never inside a run of letters or digits.
+_IDENTIFIER_BREAK = re.compile(r"(?<=[_./-])(?=\S)")
+
+
+def _fill(line: str, width: int, *, identifiers: bool) -> str:
+    """`line` broken greedily into lines of at most `width` characters, at spaces (and, with
+    `identifiers`, after `_ . / -`); a piece longer than `width` stays whole."""
+    pieces: list[tuple[str, str]] = []  # (glue before it, piece)
+    for i, word in enumerate(line.split()):
+        parts = _IDENTIFIER_BREAK.split(word) if identifiers else [word]
+        pieces += [(" " if i and not j else "", part) for j, part in enumerate(parts)]
+    lines: list[str] = []
+    for glue, piece in pieces:
+        if lines and len(lines[-1]) + len(glue) + len(piece) <= width:
+            lines[-1] += glue + piece
+        else:
+            lines.append(piece)
+    return "\n".join(lines)
+
+
+def wrapped(text: str, *, fraction: float, identifiers: bool = False) -> str:
+    """`text` broken into lines of at most `fraction` of its longest line's length, at word
+    boundaries (and, with `identifiers`, after `_ . / -` in a long name); never inside a word."""
     lines = text.split("\n")
-    width = max(8, int(max(len(line) for line in lines) * fraction))
-    return "\n".join(textwrap.fill(line, width) for line in lines)
+    width = max(1, int(max(len(line) for line in lines) * fraction))
+    return "\n".join(_fill(line, width, identifiers=identifiers) for line in lines)
+
+
+def _over(text: Text, width: float | None, height: float | None) -> float:
+    """How many times too big `text`'s drawn box is (<= 1: it fits)."""
+    box = text.get_window_extent(_renderer(text.get_figure(root=True)))
+    return max(box.width / width if width else 0.0, box.height / height if height else 0.0)
 
 
 def fit_text(text: Text, *, width: float | None = None, height: float | None = None) -> Text:
     """Break `text` into lines until its drawn box is at most `width` pixels wide and `height`
-    pixels high (a rotated label's length is its height)."""
-    figure = text.get_figure(root=True)
-    for _ in range(4):
-        box = text.get_window_extent(_renderer(figure))
-        over = max(
-            box.width / width if width else 0.0,
-            box.height / height if height else 0.0,
-        )
-        if over <= 1:
-            break
-        text.set_text(wrapped(text.get_text(), fraction=0.95 / over))
+    pixels high (a rotated label's length is its height): at spaces first, then after `_ . / -`
+    inside long names, never inside a word; a label that still does not fit goes down to
+    `MIN_FONT_SIZE`."""
+    original = text.get_text()
+    for identifiers in (False, True):
+        chars = max(len(line) for line in original.split("\n"))
+        for _ in range(24):
+            over = _over(text, width, height)
+            if over <= 1:
+                return text
+            chars = min(chars - 1, int(chars * 0.97 / over))
+            if chars < 1:
+                break
+            text.set_text(
+                wrapped(
+                    original,
+                    fraction=chars / max(map(len, original.split("\n"))),
+                    identifiers=identifiers,
+                )
+            )
+    while _over(text, width, height) > 1 and text.get_fontsize() > MIN_FONT_SIZE:
+        text.set_fontsize(max(MIN_FONT_SIZE, text.get_fontsize() - 0.5))
     return text
 
 
@@ -88,7 +127,9 @@ def fitted_legend(
             return legend
         legend.remove()
     for _ in range(4):
-        labels = [wrapped(label, fraction=0.95 * width / drawn) for label in labels]
+        labels = [
+            wrapped(label, fraction=0.95 * width / drawn, identifiers=True) for label in labels
+        ]
         legend = owner.legend(handles, labels, ncols=1, **kwargs)
         drawn = _width(legend, figure)
         if drawn <= width:
@@ -108,3 +149,20 @@ def figure_legend_below(figure: Figure, **kwargs: Any) -> Legend:
     return fitted_legend(
         figure, handles, labels, width=figure.bbox.width, loc="outside lower center", **kwargs
     )
+
+
+def fit_axes_labels(figure: Figure) -> None:
+    """The figure's title to its width, every axes' title to the axes' width and its y-label to
+    the axes' height, as the layout places them (a long series name or condition otherwise runs
+    past the canvas and is cut)."""
+    figure.draw_without_rendering()
+    suptitle = getattr(figure, "_suptitle", None)  # matplotlib keeps no public handle
+    if suptitle is not None and suptitle.get_text():
+        fit_text(suptitle, width=0.98 * figure.bbox.width)
+    for ax in figure.axes:
+        box = ax.bbox
+        if ax.title.get_text():
+            fit_text(ax.title, width=box.width)
+        label = ax.yaxis.label
+        if label.get_text() and label.get_visible():
+            fit_text(label, height=box.height)

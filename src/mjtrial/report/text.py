@@ -45,9 +45,9 @@ _FAILURE_FIGURES = ("failure_categories", "sample_traces")
 
 _MISTAKE_WHY = {
     "nominal_state": (
-        "One episode per condition: its interval, {widest}, covers most of the possible rates, "
-        "so the shortcut cannot separate the conditions; and the nominal state is one point, "
-        "no sample of the distribution of {parameters} the evaluation draws from."
+        "One episode per condition: {each}. An interval from one episode covers most of the "
+        "possible rates, so the shortcut cannot separate the conditions; and the nominal state is "
+        "one point, no sample of the distribution of {parameters} the evaluation draws from."
     ),
     "first_k": (
         "{k} states give intervals {ratio:.1f} times as wide as the {n} states (mean width "
@@ -56,12 +56,68 @@ _MISTAKE_WHY = {
     ),
 }
 
-# What no experiment of this tool shows, beside the task's own limitations.
-_SCOPE_LIMITS = (
-    "**One simulator version.** Every number comes from the MuJoCo version listed under "
-    "Reproduction, with one timestep, integrator and contact model; whether the effect survives "
-    "other solver and contact settings is what the sensitivity study asks, not this result.",
-)
+
+def _scope_limits(config: Mapping[str, Any]) -> tuple[str, ...]:
+    """What no experiment of this tool shows, beside the task's own limitations: a study is
+    named only as what the config declares, never as a result (it is reported on its own)."""
+    study = (
+        " The config declares a sensitivity study of solver and contact settings "
+        "(`snakemake -c2 sensitivity`, reported on its own in `report_sensitivity.md`); "
+        "this report includes none of its results."
+        if config.get("variants")
+        else " No sensitivity study is configured for this experiment."
+    )
+    return (
+        "**One simulator version.** Every number comes from the MuJoCo version listed under "
+        "Reproduction, with one timestep, integrator and contact model; whether the effect "
+        "survives other solver and contact settings is not tested here." + study,
+    )
+
+
+def _at_bound(summary: Mapping[str, Any]) -> str | None:
+    """ "ceiling" or "floor" when the compared conditions succeed in every state, or fail in
+    every state (no discordant pair, both rates 1 or both 0), else None."""
+    paired = summary["paired_difference"]
+    recs = [summary["conditions"][paired[k]] for k in ("treatment", "baseline")]
+    d = summary["discordant"]
+    discordant = d[f"only_{paired['treatment']}"] + d[f"only_{paired['baseline']}"]
+    if discordant or not all(r["n"] for r in recs):
+        return None
+    if all(r["successes"] == r["n"] for r in recs):
+        return "ceiling"
+    if all(r["successes"] == 0 for r in recs):
+        return "floor"
+    return None
+
+
+def _paired_text(summary: Mapping[str, Any]) -> str:
+    """The paired difference with its interval, or, where the bootstrap interval is degenerate
+    (every pair's difference the same), the reason it measures nothing."""
+    paired = summary["paired_difference"]
+    treatment, baseline = paired["treatment"], paired["baseline"]
+    head = f"Paired difference {treatment} - {baseline}: **{paired['estimate']:+.3f}**"
+    how = f"({paired['method']}, {paired['n_resamples']} resamples, seed {paired['seed']})"
+    bound = _at_bound(summary)
+    if bound is not None:
+        every = "succeed" if bound == "ceiling" else "fail"
+        return (
+            f"{head}. The comparison is at its {bound}: both conditions {every} in every state "
+            "(no discordant pair), so these states cannot show a difference either way; the "
+            f"{pct(paired['confidence'])} bootstrap interval {how} is degenerate there "
+            f"({_interval(paired['low'], paired['high'], signed=True)}: resampling identical "
+            "pairs cannot vary the mean) and is no measure of uncertainty."
+        )
+    if paired["low"] == paired["high"]:
+        return (
+            f"{head}. Every state's difference is the same, so the {pct(paired['confidence'])} "
+            f"bootstrap interval {how} is degenerate "
+            f"({_interval(paired['low'], paired['high'], signed=True)}) and is no measure of "
+            "uncertainty."
+        )
+    return (
+        f"{head}, {pct(paired['confidence'])} interval "
+        f"{_interval(paired['low'], paired['high'], signed=True)} {how}."
+    )
 
 
 def _development_use(config: Mapping[str, Any]) -> str:
@@ -292,10 +348,7 @@ def _results(
             ],
         ),
         "",
-        f"Paired difference {treatment} - {baseline}: **{paired['estimate']:+.3f}**, "
-        f"{pct(paired['confidence'])} interval "
-        f"{_interval(paired['low'], paired['high'], signed=True)} ({paired['method']}, "
-        f"{paired['n_resamples']} resamples, seed {paired['seed']}).",
+        _paired_text(summary),
         "",
         "Paired outcomes (number of initial states):",
         "",
@@ -413,11 +466,11 @@ def _mistakes(summary: Mapping[str, Any], names: Sequence[str], task: Task) -> l
         full = [conditions[n] for n in names if conditions[n]["n"]]
         if not recs or not full:
             continue
-        widest = max(recs, key=width)
+        each = "; ".join(f"{n} {_outcome(mistake['conditions'][n])}" for n in names)
         width_k = float(np.mean([width(r) for r in recs]))
         width_n = float(np.mean([width(r) for r in full]))
         text = why.format(
-            widest=_interval(widest["wilson_low"], widest["wilson_high"]),
+            each=each,
             k=mistake.get("k", recs[0]["n"]),
             n=summary["n_states"],
             ratio=width_k / width_n if width_n else float("inf"),
@@ -427,6 +480,18 @@ def _mistakes(summary: Mapping[str, Any], names: Sequence[str], task: Task) -> l
         )
         lines += [f"- *{mistake['what'][0].upper()}{mistake['what'][1:]}*: {text}"]
     return lines
+
+
+def _outcome(rec: Mapping[str, Any]) -> str:
+    """One condition's outcome under a shortcut: `succeeded (1/1, interval [0.207, 1.000])`."""
+    if not rec["n"]:
+        return "no episode"
+    word = (
+        ("succeeded" if rec["successes"] else "failed") if rec["n"] == 1 else f"{rec['rate']:.3f}"
+    )
+    return f"{word} ({rec['successes']}/{rec['n']}, interval " + (
+        f"{_interval(rec['wilson_low'], rec['wilson_high'])})"
+    )
 
 
 def _reproduction(manifest: Mapping[str, Any], manifest_path: str | None) -> list[str]:
@@ -486,7 +551,7 @@ def render_report(
         [
             "## What this experiment does not show",
             "",
-            *(f"- {s}" for s in (*task.limitations, *_SCOPE_LIMITS)),
+            *(f"- {s}" for s in (*task.limitations, *_scope_limits(config))),
         ],
         _reproduction(manifest, manifest_path),
     ]

@@ -4,7 +4,7 @@ recordings: what a success and a failure look like over time."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,8 @@ class SampleTraces:
       success: (n_episodes,) the episodes' outcomes in the rollout table.
       log_interval: time between logged steps, s (the last step is logged even if closer).
       marks: the task's protocol events on this condition's clock, label -> time (s).
+      unrecorded: the state ids of chosen episodes that have no recording (the config's
+        `recording.episodes` keeps only some), by outcome: "succeeded" or "failed" -> ids.
     """
 
     condition: str
@@ -40,6 +42,7 @@ class SampleTraces:
     success: tuple[bool, ...]
     log_interval: float
     marks: Mapping[str, float]
+    unrecorded: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
 
 
 def _chosen_episodes(table_path: Path, per_outcome: int) -> list[tuple[int, dict]]:
@@ -115,11 +118,14 @@ def sample_traces(
         )
         steps: np.ndarray | None = None
         values, drawn = [], []
+        unrecorded: dict[str, tuple[int, ...]] = {}
         for state_id, row in _chosen_episodes(Path(table_path), per_outcome):
             try:
                 file = find_episode_file(recordings[name], condition=name, state_id=state_id)
-            except KeyError:
-                continue  # not recorded (recording.episodes: failed or none): not drawn
+            except KeyError:  # not recorded (recording.episodes: failed or none): not drawn
+                outcome = "succeeded" if row["success"] else "failed"
+                unrecorded[outcome] = (*unrecorded.get(outcome, ()), state_id)
+                continue
             where = f"{file}: {name} state {state_id}"
             record = next(r for r in list_recordings(file) if r.get("state_id") == state_id)
             stale = record_difference(record, row)
@@ -147,5 +153,6 @@ def sample_traces(
             success=tuple(ok for _, ok in drawn),
             log_interval=float((steps[1] - steps[0]) * timestep) if len(steps) > 1 else timestep,
             marks={k: float(v) for k, v in marks.items()},
+            unrecorded=unrecorded,
         )
     return traces

@@ -100,3 +100,19 @@ __all__ = [
     "load_task",
     "task_files",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """`mjtrial.task.STATE_QPOS`, which tasks imported before it moved: deprecated."""
+    if name == "STATE_QPOS":
+        import warnings
+
+        from mjtrial.physics import STATE_QPOS
+
+        warnings.warn(
+            "mjtrial.task.STATE_QPOS is deprecated; import mjtrial.physics.STATE_QPOS",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return STATE_QPOS
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -241,6 +241,8 @@ class Disturbance:
 
 
 DISTURBANCE = Disturbance()
+"""A state parameter's `apply` when the closed-loop controller's `pushes` read it (a
+disturbance during the episode, not an initial condition)."""
 
 
 @dataclass(frozen=True)
@@ -502,9 +504,13 @@ class Measure:
 STEPS_SIMULATED = Measure(
     "steps_simulated", "steps", "physics steps before a MuJoCo warning froze the episode"
 )
+"""Measure every episode gets from the engine: steps simulated before a warning froze it."""
 NONFINITE = Measure("nonfinite", "", "the state went NaN or infinite")
+"""Measure every episode gets from the engine: whether its state went NaN or infinite."""
 WARNING = Measure("warning", "", "the MuJoCo warnings that stopped the episode, by name")
+"""Measure every episode gets from the engine: the MuJoCo warnings that stopped it, by name."""
 FAILURE_CATEGORY = Measure("failure_category", "", "the first failure category that applies")
+"""Measure every episode gets from the engine: the first failure category that applies."""
 ENGINE_MEASURES = (STEPS_SIMULATED, NONFINITE, WARNING, FAILURE_CATEGORY)
 
 

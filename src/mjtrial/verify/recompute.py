@@ -34,6 +34,7 @@ import pyarrow.parquet as pq
 
 from mjtrial import provenance
 from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.config import pilot_states
 from mjtrial.crate.check import crate_differences
 from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
 from mjtrial.recording import list_recordings
@@ -269,11 +270,13 @@ class _Checker:
         resimulate: int,
         conditions: Iterable[tuple[str, str]] | None = None,
         recorded: str | None = None,
+        n: int | None = None,
     ) -> None:
         """Each condition's table against its shards, its nominal episode, its recordings and
-        a re-simulated sample of each shard (the conditions and recordings of the config,
-        unless given: the pilot's are the design's conditions, recorded nowhere)."""
-        n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
+        a re-simulated sample of each shard (the conditions, recordings and states of the
+        config, unless given: the pilot's are the design's conditions on its first `pilot.n`
+        development states, recorded nowhere)."""
+        n, size = n or self.config["states"]["n"], self.config["rollout"]["shard_size"]
         shards = shard_ids(n, size)
         recorded = recorded or self.config["recording"]["episodes"]
         for variant, condition in self.conditions() if conditions is None else conditions:
@@ -468,7 +471,10 @@ class _Checker:
         )
         development.found = self.found
         development.rollouts(
-            resimulate, [(NOMINAL, c) for c in self.config["conditions"]], recorded="none"
+            resimulate,
+            [(NOMINAL, c) for c in self.config["conditions"]],
+            recorded="none",
+            n=pilot_states(self.config),
         )
         tables = {c: self.layout.development.rollout_table(c) for c in self.config["conditions"]}
         if self.is_current(*tables.values()):

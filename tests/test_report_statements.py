@@ -1,0 +1,174 @@
+"""The report's statements are true of the experiment they describe: each built-in experiment's
+model and the Fetch (actuators, contacts), the nominal-state shortcut of every condition, a
+comparison at its ceiling or floor, and the studies it names. The statement functions are called
+directly on summaries made by `mjtrial.analysis.summarize` from outcomes written here."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import yaml
+from test_report_model import FETCH, _documented_pairs
+
+from mjtrial.analysis import summarize
+from mjtrial.physics import load_model
+from mjtrial.report.model import actuator_lines, collision_pairs, contact_lines
+from mjtrial.report.text import _mistakes, _results, _scope_limits
+from mjtrial.task import load_task
+
+REPO = Path(__file__).resolve().parents[1]
+EXPERIMENTS = ["config.yaml", "cartpole_latency.yaml", "reacher_goal.yaml", "reacher_damping.yaml"]
+BUILT_IN = [REPO / "config" / name for name in EXPERIMENTS if (REPO / "config" / name).is_file()]
+UNIT = {"slide": ("m", "N"), "hinge": ("rad", "N·m")}
+
+
+def _config(path: Path) -> dict:
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
+
+
+def _models() -> list[tuple[str, Path]]:
+    return [(p.stem, REPO / _config(p)["model"]) for p in BUILT_IN] + [("fetch", FETCH)]
+
+
+def _check_actuator_line(model: mujoco.MjModel, i: int, line: str) -> None:
+    """The line says what the compiled model says of actuator `i`, worked out here from its
+    fields: a servo's target = ctrlrange / gear, a bound force = forcerange x gear or, for a
+    motor, ctrlrange x gain x gear."""
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
+    assert line.startswith(f"  - `{name}` on ")
+    gear = model.actuator_gear[i, 0]
+    gain, bias = model.actuator_gainprm[i, 0], model.actuator_biasprm[i, :3]
+    affine = model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE
+    position = affine and bias[1] == -gain and bias[0] == 0 and gain > 0
+    if position:
+        assert "position servo" in line
+        if model.actuator_ctrllimited[i]:
+            low, high = sorted(model.actuator_ctrlrange[i] / gear)
+            assert f"target [{low:g}, {high:g}]" in line
+    if model.actuator_forcelimited[i]:
+        low, high = sorted(model.actuator_forcerange[i] * gear)
+        if not position and model.actuator_ctrllimited[i] and not affine:
+            motor = sorted(model.actuator_ctrlrange[i] * gain * gear)
+            low, high = max(low, motor[0]), min(high, motor[1])
+        assert f"force [{low + 0.0:g}, {high + 0.0:g}]" in line
+    elif position or affine:
+        assert "force unbounded" in line
+    if model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT:
+        joint = model.actuator_trnid[i, 0]
+        kind = {mujoco.mjtJoint.mjJNT_SLIDE: "slide", mujoco.mjtJoint.mjJNT_HINGE: "hinge"}.get(
+            mujoco.mjtJoint(model.jnt_type[joint])
+        )
+        if kind:
+            length, force = UNIT[kind]
+            units = set(re.findall(r"\] ([^ ;(]+)", line))
+            assert units <= {length, force, f"{length}/s"}, (line, units)
+
+
+@pytest.mark.parametrize(("name", "path"), _models(), ids=[n for n, _ in _models()])
+def test_actuator_and_contact_statements_are_true_of_each_model(name, path):
+    model = load_model(path) if name != "fetch" else mujoco.MjModel.from_xml_path(str(path))
+    lines = actuator_lines(model)
+    assert len(lines) == 1 + model.nu
+    for i in range(model.nu):
+        _check_actuator_line(model, i, lines[1 + i])
+        assert "not a motor with a limited control" not in lines[1 + i]
+    pairs = collision_pairs(model)
+    assert pairs == _documented_pairs(model)
+    text = "\n".join(contact_lines(model, max_pairs=len(pairs) or 1))
+    geom = lambda g: mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}"  # noqa: E731
+    listed = re.findall(r"`([^`]+)`–`([^`]+)`", text)
+    assert listed == [(geom(a), geom(b)) for a, b in pairs]
+
+
+@pytest.mark.parametrize("path", BUILT_IN, ids=[p.stem for p in BUILT_IN])
+def test_a_study_is_named_only_when_the_config_declares_it(path):
+    config = _config(path)
+    text = " ".join(_scope_limits(config))
+    assert ("sensitivity study" in text and "declares" in text) == bool(config.get("variants"))
+    without = {k: v for k, v in config.items() if k != "variants"}
+    text = " ".join(_scope_limits(without))
+    assert "No sensitivity study is configured" in text
+    assert "what the sensitivity study asks" not in text
+
+
+TASK = load_task(_config(REPO / "config" / "config.yaml")["task"], repo_root=REPO)
+
+
+def _summary(success: dict[str, list[bool]], nominal: dict[str, bool]) -> dict:
+    """A summary of the gantry task with these outcomes per condition ("fast" the baseline)."""
+    n = len(next(iter(success.values())))
+    rng = np.random.default_rng(0)
+    states = {"state_id": np.arange(n)}
+    for p in TASK.state_columns[1:]:
+        states[p] = rng.uniform(0.0, 0.5, n)
+    outcomes = {
+        name: {
+            "state_id": np.arange(n),
+            "success": np.array(s),
+            "nonfinite": np.zeros(n, bool),
+            "warning": np.array([""] * n, dtype=object),
+            "failure_category": np.array(["" if ok else "slipped" for ok in s], dtype=object),
+        }
+        for name, s in success.items()
+    }
+    analysis = {"n_resamples": 200, "confidence": 0.95, "seed": 1, "bands": {}, "first_k": 3}
+    falsifier = {"treatment": "slow", "baseline": "fast", "statistic": "paired_difference"}
+    return summarize(
+        states=states,
+        outcomes=outcomes,
+        nominal=nominal,
+        condition_parameters={name: {} for name in success},
+        falsifier={**falsifier, "threshold": 0.0, "max_unhealthy_share": 0.0},
+        analysis=analysis,
+    )
+
+
+def _results_text(summary: dict) -> str:
+    return "\n".join(_results(summary, {}, list(summary["conditions"]), TASK))
+
+
+@pytest.mark.parametrize(("value", "bound"), [(True, "ceiling"), (False, "floor")])
+def test_a_comparison_at_its_ceiling_or_floor_is_said_to_be_one(value, bound):
+    summary = _summary({"fast": [value] * 8, "slow": [value] * 8}, {"fast": True, "slow": True})
+    paired = summary["paired_difference"]
+    assert paired["low"] == paired["high"] == 0.0  # the degenerate interval
+    text = _results_text(summary)
+    assert f"The comparison is at its {bound}" in text
+    assert "is degenerate there" in text
+    assert ", 95% interval [+0.000, +0.000]" not in text
+
+
+def test_a_comparison_with_discordant_pairs_keeps_its_interval():
+    summary = _summary(
+        {
+            "fast": [True, False, True, False, True, True],
+            "slow": [True, True, True, False] * 1 + [False, True],
+        },
+        {"fast": True, "slow": True},
+    )
+    paired = summary["paired_difference"]
+    assert paired["low"] < paired["high"]
+    text = _results_text(summary)
+    assert f"95% interval [{paired['low']:+.3f}, {paired['high']:+.3f}]" in text
+    assert "ceiling" not in text and "floor" not in text and "degenerate" not in text
+
+
+def test_the_nominal_shortcut_names_every_conditions_outcome():
+    summary = _summary(
+        {"fast": [True, False] * 3, "slow": [True] * 6}, {"fast": False, "slow": True}
+    )
+    text = "\n".join(_mistakes(summary, ["fast", "slow"], TASK))
+    line = next(s for s in text.splitlines() if s.startswith("- *The nominal state"))
+    fast = summary["mistakes"]["nominal_state"]["conditions"]["fast"]
+    slow = summary["mistakes"]["nominal_state"]["conditions"]["slow"]
+    assert (
+        f"fast failed (0/1, interval [{fast['wilson_low']:.3f}, {fast['wilson_high']:.3f}])" in line
+    )
+    assert (
+        f"slow succeeded (1/1, interval [{slow['wilson_low']:.3f}, {slow['wilson_high']:.3f}])"
+        in line
+    )
