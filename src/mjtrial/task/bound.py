@@ -10,9 +10,18 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from mjtrial.actuation import Actuation
 from mjtrial.closed_loop import Observer
 from mjtrial.physics import FULLPHYSICS, ModelError, load_model
-from mjtrial.task.declare import ModelCheckError, Observation, SeriesRead, TaskError, _element
+from mjtrial.task.actions import bind_actions
+from mjtrial.task.declare import (
+    ClosedLoop,
+    ModelCheckError,
+    Observation,
+    SeriesRead,
+    TaskError,
+    _element,
+)
 from mjtrial.task.definition import Task
 from mjtrial.task.observation_model import with_errors
 
@@ -31,6 +40,7 @@ class BoundTask:
     # per observation of the physics state: its read; of a sensor: its sensordata columns
     observe: Mapping[str, Callable[[np.ndarray], np.ndarray] | slice]
     series: tuple[SeriesRead, ...] = ()  # per `task.series`: its bound read
+    actuation: Actuation | None = None  # a closed-loop policy's output columns, bound
 
     @classmethod
     def of(cls, task: Task, model: mujoco.MjModel | None = None) -> BoundTask:
@@ -79,7 +89,13 @@ class BoundTask:
                 series.append(x.read(model))
             except TaskError as err:
                 raise TaskError(f"{where}: series {x.name!r}: {err}") from None
-        return cls(task, model, tuple(appliers), observe, tuple(series))
+        actuation = None
+        if isinstance(task.controller, ClosedLoop):
+            try:
+                actuation = bind_actions(model, task.controller.actions)
+            except TaskError as err:
+                raise TaskError(f"{task.controller.source or where}: {err}") from None
+        return cls(task, model, tuple(appliers), observe, tuple(series), actuation)
 
     @property
     def reuses_models(self) -> bool:

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -16,6 +16,9 @@ import numpy as np
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.physics import STATE_QPOS
 from mjtrial.task.observation_model import ObservationModel
+
+if TYPE_CHECKING:
+    from mjtrial.task.actions import Control, MocapAction
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 # A policy file's action went NaN or infinite (`mjtrial.policy_file`): control stopped.
@@ -422,6 +425,8 @@ class ClosedLoop:
         `DISTURBANCE` columns (`values[name]` is an array over the batch), or None.
       source: the file the policy and its observations come from when it is not the task file
         (a policy file's contract): errors about them name it.
+      actions: what the policy's output columns drive, in order (`Control`, `MocapAction`);
+        empty: every actuator's ctrl, in order.
     """
 
     policy: Callable[[mujoco.MjModel, Mapping[str, float]], BatchPolicy]
@@ -429,6 +434,7 @@ class ClosedLoop:
     timing: Callable[[mujoco.MjModel, Mapping[str, float]], Timing]
     pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
     source: Path | None = None
+    actions: tuple[Control | MocapAction, ...] = ()
 
 
 SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -524,6 +530,8 @@ class Episodes:
         every episode, broadcast).
       values: state parameter -> (n,) each episode's value (a goal drawn per episode, applied
         to the episode's own model, is read here: `model` is the condition's nominal one).
+      mocap: (n, n_steps, nmocap, 7) the mocap targets (pos, quat w-x-y-z) during each step,
+        or None when no action moves a mocap body (they stay at each episode's start pose).
     """
 
     model: mujoco.MjModel
@@ -533,6 +541,7 @@ class Episodes:
     healthy: np.ndarray
     ctrl: np.ndarray
     values: Mapping[str, np.ndarray] = field(default_factory=dict)
+    mocap: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
