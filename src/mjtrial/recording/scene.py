@@ -178,20 +178,23 @@ def body_geometry(model: mujoco.MjModel, body: int) -> list[Any]:
     return out
 
 
-def static_scene(model: mujoco.MjModel) -> list[tuple[str, list[Any]]]:
+def static_scene(
+    model: mujoco.MjModel, *, moving_mocap: bool = False
+) -> list[tuple[str, list[Any]]]:
     """(entity, archetypes) logged statically: view coordinates, geoms, poses that never change.
 
     The world body's geoms go on ``world``; a body without joints gets its pose in its parent
     here, once (a body with joints gets it per step, `BodyPoses`). So does a mocap body: every
     reset takes its pose from the model, which is the episode's own when a state parameter
-    moves it (`MocapPosition`), and no control of an episode moves it.
+    moves it (`MocapPosition`), unless the policy moves it (`moving_mocap`: its pose is then
+    logged per step, and a static one would hide it).
     """
     with strict():
         world = [rr.ViewCoordinates(xyz=rr.ViewCoordinates.RIGHT_HAND_Z_UP)]
     items: list[tuple[str, list[Any]]] = [(WORLD, [*world, *body_geometry(model, 0)])]
     for b in range(1, model.nbody):
         archetypes = body_geometry(model, b)
-        if model.body_jntnum[b] == 0:
+        if model.body_jntnum[b] == 0 and not (moving_mocap and model.body_mocapid[b] >= 0):
             with strict():
                 pose = rr.Transform3D(
                     translation=model.body_pos[b],

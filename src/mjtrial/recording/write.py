@@ -78,6 +78,7 @@ class EpisodeRecord:
     success: bool
     measures: Mapping[str, float]
     failure_category: str | None = None
+    mocap: np.ndarray | None = None  # (n_steps, nmocap, 7) targets a policy moved, or None
 
 
 def stamp_json(stamp: Mapping[str, Any]) -> str:
@@ -186,6 +187,7 @@ class _Pending:
     sensors: np.ndarray  # logged rows of sensordata
     ctrl: np.ndarray  # logged rows of ctrl
     geometry: list[Any] | None = None  # the episode's own scene's columns, where it differs
+    mocap: np.ndarray | None = None  # logged rows of the mocap targets, when a policy moves them
 
 
 _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
@@ -206,6 +208,7 @@ class RecordingSpec:
     # `episode_model(values)`: the episode's own model, for a task whose state parameters edit
     # it (a goal geom moved per episode); None when every episode runs on `model` itself
     episode_model: Callable[[Mapping[str, float]], mujoco.MjModel] | None = None
+    moves_mocap: bool = False  # a policy moves the mocap bodies: their targets logged per step
 
 
 # What a recording's static scene is drawn from: an episode whose model differs here gets its own.
@@ -215,12 +218,15 @@ SCENE_FIELDS = (
 )
 
 
-def episode_geometry(model: mujoco.MjModel, nominal: mujoco.MjModel) -> list[Any] | None:
+def episode_geometry(
+    model: mujoco.MjModel, nominal: mujoco.MjModel, *, moving_mocap: bool = False
+) -> list[Any] | None:
     """The static scene's columns of an episode's own model, or None when it draws as `nominal`
     (a mass drawn per episode changes no drawing; a goal geom moved per episode does)."""
     if all(np.array_equal(getattr(model, f), getattr(nominal, f)) for f in SCENE_FIELDS):
         return None
-    return [c for e, a in static_scene(model) for c in archetype_columns(e, a)]
+    scene = static_scene(model, moving_mocap=moving_mocap)
+    return [c for e, a in scene for c in archetype_columns(e, a)]
 
 
 class EpisodeStores:
@@ -236,7 +242,7 @@ class EpisodeStores:
         stamp_text = stamp_json(stamp)
         self.spec, self.condition = spec, condition
         self.steps = logged_steps(spec.n_steps, spec.log_every)  # validate before any work
-        self.chunker = chunker = Chunker(spec.model, spec.signals)
+        self.chunker = chunker = Chunker(spec.model, spec.signals, moving_mocap=spec.moves_mocap)
         self.episode_field = episode_field(spec.state_names, spec.measure_names)
         # the same in every recording: geometry, static poses, series names and the stamp
         self.shared = [
@@ -250,7 +256,10 @@ class EpisodeStores:
     def build(self, group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
         """(recording id, store) of each episode of a group from `groups`."""
         n = len(self.steps)
-        series = self.chunker.series([(p.rows, p.sensors, p.ctrl) for p in group])
+        series = self.chunker.series(
+            [(p.rows, p.sensors, p.ctrl) for p in group],
+            [p.mocap for p in group] if self.spec.moves_mocap else None,
+        )
         name_field = recording_name_field()
         field = self.episode_field
         properties = record_batch(
@@ -299,8 +308,13 @@ class EpisodeStores:
                     geometry=(
                         None
                         if spec.episode_model is None
-                        else episode_geometry(spec.episode_model(ep.values), spec.model)
+                        else episode_geometry(
+                            spec.episode_model(ep.values),
+                            spec.model,
+                            moving_mocap=spec.moves_mocap,
+                        )
                     ),
+                    mocap=_logged_mocap(ep, spec, self.steps),
                 )
             )
             seen.add(sid)
@@ -309,6 +323,16 @@ class EpisodeStores:
                 group = []
         if group:
             yield group
+
+
+def _logged_mocap(ep: EpisodeRecord, spec: RecordingSpec, steps: np.ndarray) -> np.ndarray | None:
+    """The episode's mocap targets at the logged steps, when a policy moves them."""
+    if not spec.moves_mocap:
+        return None
+    shape = (spec.n_steps, spec.model.nmocap, 7)
+    if ep.mocap is None or np.shape(ep.mocap) != shape:
+        raise ValueError(f"mocap: expected shape {shape}, got {np.shape(ep.mocap)}")
+    return np.asarray(ep.mocap, dtype=np.float64)[steps]
 
 
 def write_condition_recordings(

@@ -22,7 +22,7 @@ from mjtrial.task.declare import (
     TaskError,
     _element,
 )
-from mjtrial.task.definition import Task
+from mjtrial.task.definition import Task, call
 from mjtrial.task.observation_model import with_errors
 
 # --------------------------------------------------------------------------------------------
@@ -102,8 +102,9 @@ class BoundTask:
         """Whether an episode's model copy can serve another episode: every model parameter
         sets its value whatever was there (`BodyMass`, `ModelValue`; a `Custom` may not), so
         applying the next episode's values and recomputing the constants gives the model a
-        fresh copy would. A copy of a model with textures costs 16 ms (dm_control's reacher)."""
-        return all(
+        fresh copy would. A copy of a model with textures costs 16 ms (dm_control's reacher).
+        A task's `episode_setup` may change any field, so its episodes get fresh copies."""
+        return self.task.episode_setup is None and all(
             getattr(p.apply, "sets", False)
             for p in self.task.state_parameters
             if p.apply.stage == "model"
@@ -121,11 +122,16 @@ class BoundTask:
         Model parameters are applied to a copy of the model (`model`, a copy of an earlier
         episode's that this one may reuse when `reuses_models`, else a fresh one), in
         declaration order, then its constants recomputed; the copy is reset to the task's
-        keyframe (or qpos0), then the initial parameters are applied in declaration order.
+        keyframe (or qpos0), the task's `episode_setup` runs, then the initial parameters are
+        applied in declaration order. The mocap poses the setup leaves are kept in the copy's
+        `body_pos` / `body_quat`, from which every reset (`mujoco.rollout`'s) takes them.
         """
         params = list(zip(self.task.state_parameters, self.appliers, strict=True))
         own = model
         model = self.model
+        setup = self.task.episode_setup
+        if setup is not None:
+            model = copy.copy(self.model)
         if any(p.apply.stage == "model" for p, _ in params):
             model = own if own is not None and self.reuses_models else copy.copy(self.model)
             for p, apply in params:
@@ -136,6 +142,12 @@ class BoundTask:
             mujoco.mj_resetData(model, scratch)
         else:
             mujoco.mj_resetDataKeyframe(model, scratch, self.task.keyframe)
+        if setup is not None:
+            own_values = {p.name: float(values[p.name]) for p, _ in params}
+            call(self.task, "episode_setup", setup, model, scratch, own_values)
+            bodies = np.flatnonzero(model.body_mocapid >= 0)
+            model.body_pos[bodies] = scratch.mocap_pos[model.body_mocapid[bodies]]
+            model.body_quat[bodies] = scratch.mocap_quat[model.body_mocapid[bodies]]
         for p, apply in params:
             if p.apply.stage == "initial":
                 apply(model, scratch, values[p.name])

@@ -1,0 +1,224 @@
+"""A task's `episode_setup` (a suite's own reset) on gymnasium-robotics' Fetch model: the
+initial state and the mocap pose it leaves equal a plain loop doing the same by hand, the
+mocap pose survives into `mujoco.rollout`, model copies are never reused across episodes, an
+exception names the task file; and a closed-loop Fetch task whose policy moves the mocap
+records the mocap target where it was at every logged step."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import rerun as rr
+from conftest import REPO_ROOT
+from mujoco import rollout
+
+from mjtrial.closed_loop import Timing
+from mjtrial.engine import iter_batches
+from mjtrial.physics import FULLPHYSICS
+from mjtrial.recording import write_condition_recordings
+from mjtrial.recording.names import body_entity, logged_steps
+from mjtrial.stages.rollout import episode_records, recording_spec
+from mjtrial.task import (
+    BoundTask,
+    ClosedLoop,
+    Control,
+    JointPosition,
+    MocapAction,
+    Observation,
+    StateParameter,
+    Task,
+    TaskError,
+)
+
+FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
+NOMINAL = mujoco.MjModel.from_xml_path(str(FETCH))
+FINGERS = ("robot0:l_gripper_finger_joint", "robot0:r_gripper_finger_joint")
+# pick_and_place.py's initial_qpos (the object's position is the state parameters' origin)
+INITIAL_QPOS = {"robot0:slide0": 0.405, "robot0:slide1": 0.48, "robot0:slide2": 0.0}
+OBJECT_START = [1.25, 0.53, 0.4, 1.0, 0.0, 0.0, 0.0]
+
+
+def fetch_setup(model: mujoco.MjModel, data: mujoco.MjData, values) -> None:
+    """fetch_env.py's `_env_setup` (gripper_extra_height 0.2, n_substeps 20)."""
+    for name, value in INITIAL_QPOS.items():
+        data.qpos[model.joint(name).qposadr[0]] = value
+    adr = model.joint("object0:joint").qposadr[0]
+    data.qpos[adr : adr + 7] = OBJECT_START
+    for i in range(model.neq):  # reset_mocap_welds
+        if model.eq_type[i] == mujoco.mjtEq.mjEQ_WELD:
+            model.eq_data[i, :7] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    mujoco.mj_forward(model, data)
+    grip = data.site_xpos[model.site("robot0:grip").id]
+    mocap = model.body_mocapid[model.body("robot0:mocap").id]
+    data.mocap_pos[mocap] = np.array([-0.498, 0.005, -0.431 + 0.2]) + grip
+    data.mocap_quat[mocap] = [1.0, 0.0, 1.0, 0.0]
+    for _ in range(10):
+        mujoco.mj_step(model, data, nstep=20)
+
+
+class Wiggle:
+    """Elementwise actions: mocap deltas and the gripper, from the object's x and y."""
+
+    def reset(self, n: int) -> None:
+        pass
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        x, y = obs.T
+        return np.stack([np.sin(40 * x), np.cos(40 * y), -0.5 + 0 * x, np.sin(9 * y)], axis=1)
+
+
+def fetch_task(setup=fetch_setup, **changes) -> Task:
+    """A closed-loop Fetch task driving the arm through its mocap, as the suite does."""
+    task = Task(
+        name="fetch_mocap",
+        title="the Fetch arm moved through its mocap",
+        model=FETCH,
+        state_parameters=(
+            StateParameter("object_dx", "m", -0.1, 0.1, JointPosition("object0:joint", 0)),
+            StateParameter("object_dy", "m", -0.1, 0.1, JointPosition("object0:joint", 1)),
+        ),
+        protocol_parameters=(),
+        controller=ClosedLoop(
+            policy=lambda model, params: Wiggle(),
+            observations=("object_x", "object_y"),
+            timing=lambda model, params: Timing(20, 8),
+            actions=(
+                MocapAction(
+                    "robot0:mocap",
+                    relative_to="body",
+                    scale=0.05,
+                    max_step=0.05,
+                    orientation_offset=(1.0, 0.0, 1.0, 0.0),
+                ),
+                Control(FINGERS, relative=True),
+            ),
+        ),
+        success=lambda episodes: np.ones(len(episodes.physics), dtype=bool),
+        measure=lambda episodes: {},
+        observations=(
+            Observation.joint_position("object_x", "object0:joint", source=None),
+            Observation.joint_position("object_y", "object0:joint", source=None),
+        ),
+        episode_setup=setup,
+    )
+    return Task(**{**task.__dict__, **changes})
+
+
+VALUES = {"object_dx": np.array([0.0, 0.04, -0.07]), "object_dy": np.array([0.02, -0.05, 0.0])}
+
+
+def _by_hand(dx: float, dy: float) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """What a user writes: a copy of the model, reset, the suite's setup, the object moved."""
+    m = copy.copy(NOMINAL)
+    d = mujoco.MjData(m)
+    mujoco.mj_resetData(m, d)
+    fetch_setup(m, d, {})
+    adr = m.joint("object0:joint").qposadr[0]
+    d.qpos[adr] += dx
+    d.qpos[adr + 1] += dy
+    return m, d
+
+
+def test_the_setup_gives_the_state_and_mocap_pose_of_doing_it_by_hand():
+    bound = BoundTask.of(fetch_task(), NOMINAL)
+    assert not bound.reuses_models  # the setup may change any field: fresh copies
+    scratch = mujoco.MjData(NOMINAL)
+    for dx, dy in zip(VALUES["object_dx"], VALUES["object_dy"], strict=True):
+        model, state = bound.episode({"object_dx": dx, "object_dy": dy}, scratch=scratch)
+        m, d = _by_hand(dx, dy)
+        expected = np.empty(len(state))
+        mujoco.mj_getState(m, d, expected, FULLPHYSICS)
+        np.testing.assert_array_equal(state, expected)
+        np.testing.assert_array_equal(model.eq_data, m.eq_data)
+        assert not np.array_equal(model.eq_data, NOMINAL.eq_data)  # the setup did edit it
+        # the mocap pose survives into mujoco.rollout: 40 steps there equal 40 plain steps
+        with rollout.Rollout(nthread=0) as runner:
+            physics, _ = runner.rollout(
+                model, mujoco.MjData(model), state, np.zeros((1, 40, model.nu))
+            )
+        d.qacc_warmstart[:] = 0.0  # rollout starts from a zero warm start
+        rows = []
+        for _ in range(40):
+            mujoco.mj_step(m, d)
+            row = np.empty(len(state))
+            mujoco.mj_getState(m, d, row, FULLPHYSICS)
+            rows.append(row)
+        np.testing.assert_array_equal(physics[0], np.stack(rows))
+
+
+def test_a_setup_that_accumulates_gets_a_fresh_model_every_episode():
+    """A setup that adds to a model field would drift on a reused copy; episodes run alone
+    and together agree."""
+
+    def drifting(model, data, values):
+        fetch_setup(model, data, values)
+        model.body_mass[model.body("object0").id] += 1.0  # wrong on a reused copy
+
+    bound = BoundTask.of(fetch_task(setup=drifting), NOMINAL)
+    together = next(iter_batches(bound, VALUES, {}, thresholds={}, nthread=1)).episodes.physics
+    for i in range(3):
+        alone = {k: v[i : i + 1] for k, v in VALUES.items()}
+        batch = next(iter_batches(bound, alone, {}, thresholds={}, nthread=1, batch_size=1))
+        np.testing.assert_array_equal(batch.episodes.physics[0], together[i])
+
+
+def test_an_exception_in_the_setup_is_one_line_naming_the_task_file():
+    def broken(model, data, values):
+        raise KeyError("robot0:nope")
+
+    task = fetch_task(setup=broken, source=Path("tasks/fetch/task.py"))
+    bound = BoundTask.of(task, NOMINAL)
+    with pytest.raises(TaskError) as err:
+        bound.episode({"object_dx": 0.0, "object_dy": 0.0}, scratch=mujoco.MjData(NOMINAL))
+    assert str(err.value) == "tasks/fetch/task.py: episode_setup raised KeyError: 'robot0:nope'"
+
+
+def test_the_recording_draws_the_mocap_target_at_every_logged_step(tmp_path):
+    bound = BoundTask.of(fetch_task(), NOMINAL)
+    values = {"state_id": np.arange(3), **VALUES}
+    [batch] = iter_batches(bound, values, {}, thresholds={}, nthread=1)
+    mocap = batch.episodes.mocap
+    assert mocap.shape == (3, 160, 1, 7)
+    n_steps = batch.episodes.physics.shape[1]
+    spec = recording_spec(bound, n_steps, 50.0)
+    write_condition_recordings(
+        tmp_path,
+        spec=spec,
+        condition="c",
+        episodes=episode_records(bound.task, batch),
+        stamp={"mjtrial_stamp": 1, "rule": "test_episode_setup"},
+    )
+    entity = "/" + body_entity(NOMINAL, NOMINAL.body("robot0:mocap").id)
+    steps = logged_steps(n_steps, spec.log_every)
+    for i in range(3):
+        [path] = tmp_path.glob(f"c-state-{i:06d}.rrd")
+        reader = rr.chunk.RrdReader(str(path))
+        [recording] = reader.recordings()
+        chunks = [
+            c
+            for c in reader.store(store=recording).stream().filter(content=entity)
+            if c.entity_path == entity
+        ]
+        assert not any(
+            c.is_static and "Transform3D:translation" in c.to_record_batch().schema.names
+            for c in chunks
+        )  # a static pose would hide the logged ones
+        [pose] = [c.to_record_batch() for c in chunks if not c.is_static]
+        names = pose.schema.names
+        translation = np.array(
+            [t[0] for t in pose.column(names.index("Transform3D:translation")).to_pylist()]
+        )
+        quaternion = np.array(
+            [q[0] for q in pose.column(names.index("Transform3D:quaternion")).to_pylist()]
+        )
+        np.testing.assert_allclose(translation, mocap[i, steps, 0, :3], atol=1e-6)  # float32
+        w, x, y, z = (
+            mocap[i, steps, 0, 3:] / np.linalg.norm(mocap[i, steps, 0, 3:], axis=1)[:, None]
+        ).T
+        np.testing.assert_allclose(quaternion, np.stack([x, y, z, w], 1), atol=1e-6)
+    # the target moved during the episode, so a static pose would have been wrong
+    assert np.ptp(mocap[:, :, 0, 0], axis=1).min() > 0.01
