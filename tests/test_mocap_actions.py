@@ -215,3 +215,112 @@ def test_bad_actions_are_named(actions, message):
     with pytest.raises(TaskError) as err:
         bind_actions(NOMINAL, actions)
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+# --------------------------------------------------------------------------------------------
+# A policy file whose output drives both fingers from one column and the mocap from three
+# --------------------------------------------------------------------------------------------
+
+MOCAP_ENTRY = {
+    "body": "robot0:mocap",
+    "relative_to": "body",
+    "scale": 0.05,
+    "max_step": 0.05,
+    "orientation_offset": [1.0, 0.0, 1.0, 0.0],
+}
+
+
+class SessionPolicy:
+    """The graph run by hand: what the contract says, written without it (the gripper's
+    column onto the fingers' shared ctrlrange [0, 0.2], clipped; the mocap columns as given)."""
+
+    def __init__(self, session) -> None:
+        self.session = session
+
+    def reset(self, n: int) -> None:
+        pass
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        [action] = self.session.run(["action"], {"observations": obs.astype(np.float32)})
+        action = action.astype(np.float64)
+        low, high = NOMINAL.actuator_ctrlrange[0]
+        grip = np.clip(low + (action[:, :1] + 1.0) * (high - low) / 2.0, low, high)
+        return np.concatenate([grip, action[:, 1:]], axis=1)
+
+
+def test_a_policy_file_drives_both_fingers_from_one_column_and_the_mocap(tmp_path):
+    import dataclasses
+
+    from fetch_mocap import fetch_task
+    from policy_graphs import tanh_mlp, write
+
+    from mjtrial.engine import iter_batches
+    from mjtrial.policy_file import load_policy_file, policy_task
+    from mjtrial.task import BoundTask
+
+    path = write(
+        tmp_path,
+        "fetch",
+        tanh_mlp([2, 16, 4], seed=3),
+        task="fetch_mocap",
+        observations=["object_x", "object_y"],
+        actuators=[list(FINGERS)],
+        mocap=[MOCAP_ENTRY],
+        control_period=0.04,
+    )
+    task = fetch_task()
+    policy_file = load_policy_file(path, task)
+    values = {
+        "state_id": np.arange(3),
+        "object_dx": np.array([0.0, 0.05, -0.08]),
+        "object_dy": np.array([0.03, -0.06, 0.0]),
+    }
+    run = lambda t: next(iter_batches(BoundTask.of(t), values, {}, thresholds={}, nthread=1))  # noqa: E731
+    by_file = run(policy_task(task, policy_file)).episodes
+    by_hand_actions = (
+        Control(FINGERS),
+        MocapAction(
+            "robot0:mocap",
+            relative_to="body",
+            scale=0.05,
+            max_step=0.05,
+            orientation_offset=(1.0, 0.0, 1.0, 0.0),
+        ),
+    )
+    controller = dataclasses.replace(
+        task.controller,
+        policy=lambda model, params: SessionPolicy(policy_file.session),
+        actions=by_hand_actions,
+    )
+    by_hand = run(dataclasses.replace(task, controller=controller)).episodes
+    np.testing.assert_array_equal(by_file.physics, by_hand.physics)
+    np.testing.assert_array_equal(by_file.mocap, by_hand.mocap)
+    np.testing.assert_array_equal(by_file.ctrl[..., 0], by_file.ctrl[..., 1])  # one column
+    assert np.ptp(by_file.mocap[:, :, 0, :3], axis=1).max() > 0.01  # the arm was moved
+
+
+def test_a_contract_column_over_actuators_of_different_ranges_is_refused(tmp_path):
+    from fetch_mocap import fetch_task
+    from policy_graphs import tanh_mlp, write
+
+    from mjtrial.policy_file import PolicyFileError, load_policy_file
+    from mjtrial.task import TaskError
+
+    task = fetch_task()
+    model = mujoco.MjModel.from_xml_path(str(FETCH))
+    model.actuator_ctrlrange[1] = [0.0, 0.1]
+    path = write(
+        tmp_path,
+        "fetch",
+        tanh_mlp([2, 4, 4]),
+        task="fetch_mocap",
+        observations=["object_x", "object_y"],
+        actuators=[list(FINGERS)],
+        mocap=[MOCAP_ENTRY],
+        control_period=0.04,
+    )
+    with pytest.raises(TaskError) as err:
+        load_policy_file(path, task).policy(model, {})
+    assert isinstance(err.value, PolicyFileError)
+    assert str(err.value).startswith(f"{path.with_suffix('.yaml')}: actuators: ")
+    assert "different ctrlranges" in str(err.value)
