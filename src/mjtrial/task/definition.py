@@ -116,7 +116,7 @@ class Task:
         bands = props["analysis"]["properties"]["bands"]
         bands["properties"] = {
             f"{prefix}{p.name}": {
-                "$ref": "#/$defs/edges",
+                "$ref": "#/$defs/edges" if prefix else "#/$defs/signed_edges",
                 "description": f"{prefix.replace('abs_', '|')}{p.name}"
                 f"{'|' if prefix else ''} band edges, {p.unit}",
             }
