@@ -21,7 +21,7 @@ from mjtrial.task.declare import TaskError, _element
 class Control:
     """One output column driving one or more actuators: ctrl = scale * value, or, `relative`,
     the position of each actuator's joint at the control instant plus scale * value
-    (gymnasium-robotics' Fetch drives both fingers' position servos so from one column)."""
+    (gymnasium-robotics' Fetch drives two position servos of a hand so from one column)."""
 
     actuators: str | tuple[str, ...]
     _: KW_ONLY

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -16,9 +16,6 @@ import numpy as np
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.physics import STATE_QPOS
 from mjtrial.task.observation_model import ObservationModel
-
-if TYPE_CHECKING:
-    from mjtrial.task.actions import Control, MocapAction
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 # A policy file's action went NaN or infinite (`mjtrial.policy_file`): control stopped.
@@ -434,7 +431,7 @@ class ClosedLoop:
     timing: Callable[[mujoco.MjModel, Mapping[str, float]], Timing]
     pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
     source: Path | None = None
-    actions: tuple[Control | MocapAction, ...] = ()
+    actions: tuple[Any, ...] = ()  # `Control`, `MocapAction` (mjtrial.task.actions)
 
 
 SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
