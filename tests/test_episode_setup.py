@@ -137,3 +137,22 @@ def test_the_recording_draws_the_mocap_target_at_every_logged_step(tmp_path):
         np.testing.assert_allclose(quaternion, np.stack([x, y, z, w], 1), atol=1e-6)
     # the target moved during the episode, so a static pose would have been wrong
     assert np.ptp(mocap[:, :, 0, 0], axis=1).min() > 0.01
+
+
+def test_the_preflight_runs_the_setup_and_names_its_exception():
+    from mjtrial.task_checks import run_task_code
+
+    allowed = {"object_x": "test", "object_y": "test"}
+    run_task_code(
+        BoundTask.of(fetch_task(), NOMINAL), {"c": {}}, thresholds={}, allowed_privileged=allowed
+    )
+
+    def broken(model, data, values):
+        raise ValueError("no weld")
+
+    task = fetch_task(setup=broken, source=Path("tasks/fetch/task.py"))
+    with pytest.raises(TaskError) as err:
+        run_task_code(
+            BoundTask.of(task, NOMINAL), {"c": {}}, thresholds={}, allowed_privileged=allowed
+        )
+    assert str(err.value) == "tasks/fetch/task.py: episode_setup raised ValueError: no weld"
