@@ -130,10 +130,10 @@ class BoundTask:
         own = model
         model = self.model
         setup = self.task.episode_setup
-        if setup is not None:
-            model = copy.copy(self.model)
-        if any(p.apply.stage == "model" for p, _ in params):
+        edits_model = any(p.apply.stage == "model" for p, _ in params)
+        if edits_model or setup is not None:
             model = own if own is not None and self.reuses_models else copy.copy(self.model)
+        if edits_model:
             for p, apply in params:
                 if p.apply.stage == "model":
                     apply(model, scratch, values[p.name])
