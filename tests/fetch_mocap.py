@@ -12,8 +12,10 @@ from mjtrial.task import (
     ClosedLoop,
     Control,
     JointPosition,
+    Measure,
     MocapAction,
     Observation,
+    Series,
     StateParameter,
     Task,
 )
@@ -81,8 +83,14 @@ def fetch_task(setup=fetch_setup, **changes) -> Task:
                 Control(FINGERS, relative=True),
             ),
         ),
-        success=lambda episodes: np.ones(len(episodes.physics), dtype=bool),
-        measure=lambda episodes: {},
+        success=lambda episodes: episodes.mocap[:, -1, 0, 1] > 0.75,
+        measure=lambda episodes: {"final_target_y": episodes.mocap[:, -1, 0, 1]},
+        measures=(Measure("final_target_y", "m", "the mocap target's y at the end"),),
+        series=(
+            Series.joint_position(
+                "object x", "object0:joint", body="object0", plot="object position (m)"
+            ),
+        ),
         observations=(
             Observation.joint_position("object_x", "object0:joint", source=None),
             Observation.joint_position("object_y", "object0:joint", source=None),

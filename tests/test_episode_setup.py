@@ -13,7 +13,8 @@ import mujoco
 import numpy as np
 import pytest
 import rerun as rr
-from fetch_mocap import NOMINAL, fetch_setup, fetch_task
+from conftest import REPO_ROOT
+from fetch_mocap import FETCH, NOMINAL, fetch_setup, fetch_task
 from mujoco import rollout
 
 from mjtrial.engine import iter_batches
@@ -156,3 +157,43 @@ def test_the_preflight_runs_the_setup_and_names_its_exception():
             BoundTask.of(task, NOMINAL), {"c": {}}, thresholds={}, allowed_privileged=allowed
         )
     assert str(err.value) == "tasks/fetch/task.py: episode_setup raised ValueError: no weld"
+
+
+def test_verify_resimulates_a_mocap_task_alone_as_its_rollout_ran(tmp_path):
+    """The rollout stage's batches and verify's re-simulation (each episode alone, from the
+    states file, the task loaded from its file) give the same rows, a measure read from the
+    mocap targets included."""
+    from mjtrial.resimulation import resimulated_outcome
+    from mjtrial.stages.rollout import (
+        condition_batches,
+        condition_task,
+        read_state_values,
+        rollout_columns,
+    )
+    from mjtrial.stages.states import build_states
+
+    task_file = tmp_path / "task.py"
+    tests = Path(__file__).parent
+    task_file.write_text(
+        f"import sys\nsys.path.insert(0, {str(tests)!r})\n"
+        "from fetch_mocap import fetch_task\nTASK = fetch_task()\n"
+    )
+    ranges = {"object_dx": [-0.1, 0.1], "object_dy": [-0.1, 0.1]}
+    states = {"seed": 3, "development_seed": 4, "n": 6, "ranges": ranges, "task": str(task_file)}
+    states_path = tmp_path / "states.parquet"
+    build_states(states_slice=states, output=states_path, repo_root=REPO_ROOT)
+    condition = {"task": str(task_file), "condition": "c"}
+    bound = condition_task(condition, FETCH, repo_root=REPO_ROOT)
+    values = read_state_values(states_path, bound.task)
+    rows = {c: [] for c in rollout_columns(bound.task)}
+    for batch in condition_batches(bound, condition, values, nthread=2, batch_size=4):
+        rows["state_id"].append(batch.values["state_id"])
+        for c in list(rows)[1:]:
+            rows[c].append(batch.outcome[c])
+    ran = {c: np.concatenate(v) for c, v in rows.items()}
+    ids = [4, 0, 5]
+    again = resimulated_outcome(condition, FETCH, states_path, ids, repo_root=REPO_ROOT)
+    np.testing.assert_array_equal(again.column("state_id").to_numpy(), ids)
+    for c in ("success", "final_target_y", "steps_simulated"):
+        np.testing.assert_array_equal(again.column(c).to_numpy(), ran[c][ids])
+    assert len(set(ran["final_target_y"])) == 6  # each episode's own
