@@ -197,3 +197,43 @@ def test_verify_resimulates_a_mocap_task_alone_as_its_rollout_ran(tmp_path):
     for c in ("success", "final_target_y", "steps_simulated"):
         np.testing.assert_array_equal(again.column(c).to_numpy(), ran[c][ids])
     assert len(set(ran["final_target_y"])) == 6  # each episode's own
+
+
+def metaworld_setup(model: mujoco.MjModel, data: mujoco.MjData, values) -> None:
+    """Metaworld's `reset_mocap_welds`: every weld to identity, then the mocap on the body
+    welded to it."""
+    for i in range(model.neq):
+        if model.eq_type[i] == mujoco.mjtEq.mjEQ_WELD:
+            model.eq_data[i, :7] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    mujoco.mj_forward(model, data)
+    for i in range(model.neq):
+        mocap = model.body_mocapid[model.eq_obj1id[i]]
+        data.mocap_pos[mocap] = data.xpos[model.eq_obj2id[i]]
+        data.mocap_quat[mocap] = data.xquat[model.eq_obj2id[i]]
+
+
+def test_a_weld_reset_setup_equals_the_same_statements_written_by_hand():
+    task = fetch_task(setup=metaworld_setup)
+    bound = BoundTask.of(task, NOMINAL)
+    model, state = bound.episode(
+        {"object_dx": 0.03, "object_dy": -0.02}, scratch=mujoco.MjData(NOMINAL)
+    )
+    # by hand, statement by statement: a copy, reset, the weld, the mocap on the hand, the
+    # object moved (JointPosition adds to the reset pose)
+    m = copy.copy(NOMINAL)
+    d = mujoco.MjData(m)
+    m.eq_data[0, :7] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    mujoco.mj_forward(m, d)
+    hand = m.body("robot0:gripper_link").id
+    d.mocap_pos[0], d.mocap_quat[0] = d.xpos[hand], d.xquat[hand]
+    adr = m.joint("object0:joint").qposadr[0]
+    d.qpos[adr] += 0.03
+    d.qpos[adr + 1] += -0.02
+    expected = np.empty(len(state))
+    mujoco.mj_getState(m, d, expected, FULLPHYSICS)
+    np.testing.assert_array_equal(state, expected)
+    np.testing.assert_array_equal(model.eq_data, m.eq_data)
+    mocap = m.body("robot0:mocap").id
+    np.testing.assert_array_equal(model.body_pos[mocap], d.mocap_pos[0])  # kept for resets
+    np.testing.assert_array_equal(model.body_quat[mocap], d.mocap_quat[0])
+    assert not np.array_equal(model.body_pos[mocap], NOMINAL.body_pos[mocap])
