@@ -15,8 +15,14 @@ each episode's full state before its steps), and the policy must compute each ro
 alone (`check_batch_independence` tests a policy for it before work, and every batch replays
 its recorded observations through the policy in other batches: `check_replayed`). With no
 constraint active the solver has no warm start to carry, and the engine's episodes equal the
-reference's bit for bit; a model with contacts would differ by the warm start MuJoCo keeps
-between steps.
+reference's bit for bit. With one active (a contact, a mocap weld) the solver starts from the
+warm start MuJoCo keeps between steps, which `mujoco.rollout` sets to zero at each call: the
+reference does the same at each control instant, so the two agree bit for bit there too, and a
+plain loop that never resets it differs in the last bits.
+
+Actions: the policy's output columns drive the actuators' ctrl and mocap bodies' targets
+(`mjtrial.actuation`); a mocap target goes to `mujoco.rollout` as a control, held until the
+next control instant.
 
 Timing: a control instant every `steps_per_control` physics steps; the observation used at
 instant k is measured `latency_steps` physics steps earlier (the initial state's while k's time
@@ -44,6 +50,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from mjtrial.actuation import MOCAP_SPEC, Actuation, body_poses, initial_targets, qpos_of
 from mjtrial.physics import FULLPHYSICS
 
 # What mujoco.rollout's control columns hold: the actuators' ctrl, then every body's applied
@@ -180,6 +187,8 @@ class ClosedLoopBatch:
         which, like `mujoco.rollout`, reports only the frozen state).
       failed_action: (n_episodes,) True where the policy marked its own action failed
         (`failed_episodes`), or None for a policy that marks none.
+      mocap: (n_episodes, n_controls, nmocap, 7) the mocap targets (pos, quat w-x-y-z) set at
+        each instant, or None when the policy moves no mocap body.
     """
 
     physics: np.ndarray
@@ -187,9 +196,12 @@ class ClosedLoopBatch:
     ctrl: np.ndarray
     warnings: np.ndarray | None = None
     failed_action: np.ndarray | None = None
+    mocap: np.ndarray | None = None
 
 
 def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
+    """The policy's answer (n, nu), nu its output columns (every actuator's ctrl unless the
+    task declares actions: `mjtrial.actuation`)."""
     ctrl = np.asarray(ctrl, dtype=np.float64)
     if ctrl.shape != (n, nu):
         raise PolicyError(f"policy: expected controls of shape ({n}, {nu}), got {ctrl.shape}")
@@ -212,6 +224,7 @@ def run_batch(
     datas: list[mujoco.MjData],
     pushes: Pushes | None = None,
     check: bool = True,
+    actuation: Actuation | None = None,
 ) -> ClosedLoopBatch:
     """Run a batch of closed-loop episodes in lockstep.
 
@@ -228,10 +241,19 @@ def run_batch(
       check: replay the first `REPLAYED_INSTANTS` instants' observations through the policy in
         other batches (`check_replayed`) and raise `PolicyError` if a row's controls differ;
         off only to measure its cost.
+      actuation: what the policy's output columns drive (default: every actuator's ctrl); one
+        that moves mocap bodies has their targets sent to `mujoco.rollout` as controls, from
+        each episode's start pose (its model's, `actuation.initial_targets`).
     """
     n, nstate = initial.shape
     model = models[0]
     nu, nbody, s = model.nu, model.nbody, timing.steps_per_control
+    actuation = actuation or Actuation.every_actuator(model)
+    moves = actuation.moves_mocap
+    targets = initial_targets(models) if moves else None
+    mocap_log = np.empty((n, timing.n_controls, model.nmocap, 7)) if moves else None
+    scratch = mujoco.MjData(model) if actuation.welded_bodies else None
+    spec = CONTROL_SPEC | MOCAP_SPEC if moves else CONTROL_SPEC
     observer = Observer.of(observe)
     physics = np.empty((n, timing.n_steps, nstate))
     sensordata = np.empty((n, timing.n_steps, model.nsensordata))
@@ -242,11 +264,12 @@ def run_batch(
     # Preallocated rollout outputs and controls, reused every call (skip_checks needs them whole).
     step_states = np.empty((n, s + extra, nstate))
     step_sensors = np.empty((n, s + extra, model.nsensordata))
-    controls = np.zeros((n, s + extra, nu + nbody * 6))
+    controls = np.zeros((n, s + extra, nu + nbody * 6 + (model.nmocap * 7 if moves else 0)))
     state = np.ascontiguousarray(initial, dtype=np.float64)
     initial_sensors = sensors_at(models, state, mujoco.MjData(model)) if observer.sensed else None
     replayed = min(timing.n_controls, REPLAYED_INSTANTS) if check else 0
     observed: np.ndarray | None = None  # (n, replayed, n_observations), for check_replayed
+    answered = np.empty((n, replayed, actuation.n_outputs))  # what the policy gave them
     policy.reset(n)
     for k in range(timing.n_controls):
         j = timing.measured_step(k)
@@ -265,17 +288,29 @@ def run_batch(
             if observed is None:
                 observed = np.empty((n, replayed, *obs.shape[1:]))
             observed[:, k] = obs  # a copy: the policy may change its argument
-        ctrl = _checked_controls(policy(obs), n, nu)
+        answer = _checked_controls(policy(obs), n, actuation.n_outputs)
+        if k < replayed:
+            answered[:, k] = answer
+        welded = (
+            body_poses(models, state, actuation.welded_bodies, scratch) if scratch else None
+        )
+        ctrl, targets = actuation.apply(answer, qpos_of(state, model.nq), targets, welded)
         ctrl_log[:, k] = ctrl
         controls[:, :, :nu] = ctrl[:, None, :]
         if pushes is not None:
-            controls[:, :, nu:] = pushes.xfrc(nbody, k * s, s + extra)
+            controls[:, :, nu : nu + nbody * 6] = pushes.xfrc(nbody, k * s, s + extra)
+        if moves:
+            mocap_log[:, k] = targets
+            pos, quat = targets[:, :, :3], targets[:, :, 3:]
+            at = nu + nbody * 6
+            controls[:, :, at : at + pos[0].size] = pos.reshape(n, 1, -1)
+            controls[:, :, at + pos[0].size :] = quat.reshape(n, 1, -1)
         runner.rollout(
             models,
             datas,
             state,
             controls,
-            control_spec=CONTROL_SPEC,
+            control_spec=spec,
             skip_checks=True,
             nstep=s + extra,
             state=step_states,
@@ -287,9 +322,13 @@ def run_batch(
         state = np.ascontiguousarray(step_states[:, s - 1])
     failed = failed_episodes(policy, n)  # before the replay resets the policy
     if observed is not None:
-        check_replayed(policy, observed, ctrl_log[:, :replayed])
+        check_replayed(policy, observed, answered)
     return ClosedLoopBatch(
-        physics=physics, sensordata=sensordata, ctrl=ctrl_log, failed_action=failed
+        physics=physics,
+        sensordata=sensordata,
+        ctrl=ctrl_log,
+        failed_action=failed,
+        mocap=mocap_log,
     )
 
 
@@ -301,32 +340,51 @@ def reference_episode(
     timing: Timing,
     *,
     pushes: Pushes | None = None,
+    actuation: Actuation | None = None,
 ) -> ClosedLoopBatch:
     """One episode with plain `mj_step`, the policy called once per control step on a batch of
     one: what a user writes without the engine, and the engine's reference.
 
     Like `mujoco.rollout`, it stops stepping at the first MuJoCo warning and repeats the frozen
     state. A sensed observation's sensors are computed at the measured state by `mj_setState`
-    and `mj_forward` on an MjData of their own. Returns a batch of one episode.
+    and `mj_forward` on an MjData of their own. The actions (`actuation`) are written where a
+    user writes them: `data.ctrl`, and `data.mocap_pos` / `data.mocap_quat` from the mocap's
+    previous target there and the welded body's `data.xpos` / `data.xquat` (`mj_kinematics`
+    first). Returns a batch of one episode.
     """
     observer = Observer.of(observe)
     m = copy.copy(model)
     d = mujoco.MjData(m)
     probe = mujoco.MjData(m) if observer.sensed else None
     mujoco.mj_setState(m, d, initial, FULLPHYSICS)
+    actuation = actuation or Actuation.every_actuator(m)
+    welded = list(actuation.welded_bodies)
     nstate = initial.shape[0]
     states = [np.asarray(initial, dtype=np.float64)]
     sensors = []
     ctrl_log = np.empty((timing.n_controls, m.nu))
+    mocap_log = np.empty((timing.n_controls, m.nmocap, 7))
     policy.reset(1)
     halted = False
     for k in range(timing.n_controls):
         measured = states[timing.measured_step(k)][None]
         sensed = sensors_at([m], measured, probe) if probe is not None else None
         obs = np.asarray(observer.read(k, measured, sensed))
-        ctrl = _checked_controls(policy(obs), 1, m.nu)[0]
-        ctrl_log[k] = ctrl
-        d.ctrl[:] = ctrl
+        answer = _checked_controls(policy(obs), 1, actuation.n_outputs)
+        if welded:
+            mujoco.mj_kinematics(m, d)
+        target = np.concatenate([d.mocap_pos, d.mocap_quat], axis=1)[None]
+        pose = np.concatenate([d.xpos[welded], d.xquat[welded]], axis=1)[None]
+        ctrl, target = actuation.apply(answer, d.qpos[None].copy(), target, pose)
+        ctrl_log[k] = ctrl[0]
+        mocap_log[k] = target[0]
+        # `mujoco.rollout` starts each control block from a zero warm start, and so does this:
+        # with a constraint active (a weld, a contact) the solver's result depends on it
+        d.qacc_warmstart[:] = 0.0
+        d.ctrl[:] = ctrl[0]
+        if actuation.moves_mocap:
+            d.mocap_pos[:] = target[0, :, :3]
+            d.mocap_quat[:] = target[0, :, 3:]
         for j in range(k * timing.steps_per_control, (k + 1) * timing.steps_per_control):
             if pushes is not None:
                 d.xfrc_applied[:] = 0.0
@@ -346,6 +404,7 @@ def reference_episode(
         ctrl=ctrl_log[None],
         warnings=np.array([w.number for w in d.warning]),
         failed_action=failed_episodes(policy, 1),
+        mocap=mocap_log[None] if actuation.moves_mocap else None,
     )
 
 

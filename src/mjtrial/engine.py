@@ -156,7 +156,7 @@ def iter_batches(
     task, model = bound.task, bound.model
     if batch_size is None:
         batch_size = batch_size_for(model, episode_steps(bound, condition))
-    if any(p.apply.stage == "model" for p in task.state_parameters):
+    if task.episode_setup or any(p.apply.stage == "model" for p in task.state_parameters):
         # each batch slot holds a copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
     params = task.parameters(condition)
@@ -189,6 +189,7 @@ def iter_batches(
                 models.append(m)
                 initial.append(s)
             initial_states = np.stack(initial)
+            mocap = None  # (size, n_steps, nmocap, 7) when an action moves a mocap body
             if isinstance(controller, OpenLoop):
                 physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
                 failed_action = None
@@ -215,6 +216,7 @@ def iter_batches(
                         runner=runner,
                         datas=datas,
                         pushes=pushes,
+                        actuation=bound.actuation,
                     )
                 except closed_loop.PolicyError as err:
                     where = controller.source or task.source or task.name
@@ -222,6 +224,8 @@ def iter_batches(
                 physics, sensordata = result.physics, result.sensordata
                 failed_action = result.failed_action
                 applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
+                if result.mocap is not None:
+                    mocap = np.repeat(result.mocap, timing.steps_per_control, axis=1)
             stopped, broken = halted(physics), nonfinite(physics)
             ok = ~stopped & ~broken
             episodes = Episodes(
@@ -232,6 +236,7 @@ def iter_batches(
                 ok,
                 applied,
                 {p: rows[p] for p in episode_values},
+                mocap,
             )
             measures = dict(call(task, "measure", task.measure, episodes))
             missing = [m.name for m in task.own_measures if m.name not in measures]
@@ -264,6 +269,7 @@ def iter_batches(
                             ),
                             timing,
                             pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
+                            actuation=bound.actuation,
                         ).warnings
                     )
             outcome = {

@@ -4,7 +4,9 @@ the closed-loop engine's batches.
 The contract (`workflow/schemas/policy.schema.yaml`) is `<file>.yaml` beside `<file>.onnx`, else
 `policy.yaml` in the same folder. It names the task's observations that feed the graph (so the
 privileged-observation check applies to them as to any policy), the actuators its output drives
-and how (`ctrlrange`: [-1, 1] onto each actuator's range; `raw`), the control period it was
+and how (`ctrlrange`: [-1, 1] onto each actuator's range; `raw`; one column may drive several
+actuators), the mocap bodies its further columns move (`mjtrial.task.MocapAction`, 3 columns
+each), the control period it was
 trained at, an optional normalization and an optional recurrent state. Everything is checked
 against the task and the graph before any rollout: each mismatch is one line naming the file.
 
@@ -37,7 +39,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
-from mjtrial.task import ClosedLoop, Task, TaskError
+from mjtrial.task import ClosedLoop, Control, MocapAction, Task, TaskError
 
 if TYPE_CHECKING:
     import onnxruntime
@@ -84,13 +86,32 @@ class Contract:
     observations: tuple[str, ...]
     input: str
     output: str
-    actuators: tuple[str, ...]
+    actuators: tuple[str | tuple[str, ...], ...]  # per output column: one actuator or several
     action_scale: str
     control_period: float
     mean: np.ndarray | None = None  # (n_columns,) normalization, or None
     std: np.ndarray | None = None
     recurrent: tuple[Recurrent, ...] = ()
     producer: str = ""
+    mocap: tuple[Mapping[str, Any], ...] = ()  # `MocapAction` arguments, 3 columns each
+
+    @property
+    def n_outputs(self) -> int:
+        return len(self.actuators) + 3 * len(self.mocap)
+
+    @property
+    def actions(self) -> tuple[Control | MocapAction, ...]:
+        """The task's actions the output drives; () when it is the plain one column per
+        actuator (the policy then gives every actuator's ctrl, as before actions existed)."""
+        if not self.mocap and all(isinstance(a, str) for a in self.actuators):
+            return ()
+        return (
+            *(Control(a) for a in self.actuators),
+            *(
+                MocapAction(**{k: tuple(v) if isinstance(v, list) else v for k, v in m.items()})
+                for m in self.mocap
+            ),
+        )
 
 
 def contract_path(onnx_file: Path) -> Path:
@@ -126,13 +147,14 @@ def read_contract(onnx_file: Path) -> Contract:
         observations=tuple(raw["observations"]),
         input=raw["input"],
         output=raw["output"],
-        actuators=tuple(raw["actuators"]),
+        actuators=tuple(a if isinstance(a, str) else tuple(a) for a in raw["actuators"]),
         action_scale=raw["action_scale"],
         control_period=float(raw["control_period"]),
         mean=None if norm is None else np.asarray(norm["mean"], dtype=np.float64),
         std=None if norm is None else np.asarray(norm["std"], dtype=np.float64),
         recurrent=tuple(Recurrent(**r) for r in raw.get("recurrent") or ()),
         producer=raw.get("producer", ""),
+        mocap=tuple(raw.get("mocap") or ()),
     )
 
 
@@ -208,7 +230,12 @@ def check_graph(
     inputs = {a.name: a for a in session.get_inputs()}
     outputs = {a.name: a for a in session.get_outputs()}
     fed = {contract.input: (n_columns, f"the {n_columns} observation column(s)")}
-    read = {contract.output: (len(contract.actuators), "one per actuator of the contract")}
+    read = {
+        contract.output: (
+            contract.n_outputs,
+            "one per actuator entry of the contract, 3 per mocap body",
+        )
+    }
     for r in contract.recurrent:
         fed[r.input] = read[r.output] = (r.size, "the recurrent state's size")
     for name, (width, what) in fed.items():
@@ -253,6 +280,8 @@ class OnnxPolicy:
     scaled in float64 and clipped to each ctrllimited actuator's range (what MuJoCo applies, and
     so what the recordings show), `raw` actions too. A row whose action is not finite gets
     ctrl 0 from then on, and `failed_episodes()` marks it (the engine's `NONFINITE_ACTION`).
+    The last `n_mocap` columns (a contract's mocap bodies) are given as they are, after the
+    actuators' columns.
     """
 
     def __init__(
@@ -263,12 +292,13 @@ class OnnxPolicy:
         columns: np.ndarray,
         ctrl_range: np.ndarray,
         nu: int,
+        n_mocap: int = 0,
     ) -> None:
         self.session, self.contract = session, contract
         self.columns = np.asarray(columns, dtype=np.int64)  # the ctrl column of each output
         self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
         self.half_span = (self.high - self.low) / 2.0
-        self.nu = nu
+        self.nu, self.n_mocap = nu, n_mocap
         self.outputs = [contract.output, *(r.output for r in contract.recurrent)]
         self.state: dict[str, np.ndarray] = {}
         self.failed = np.zeros(0, dtype=bool)
@@ -295,12 +325,16 @@ class OnnxPolicy:
         finite = np.isfinite(action)
         if not finite.all():
             self.failed |= ~finite.all(axis=1)
+        moved = action[:, action.shape[1] - self.n_mocap :]
+        action = action[:, : action.shape[1] - self.n_mocap]
         if self.contract.action_scale == "ctrlrange":
             action = self.low + (action + 1.0) * self.half_span
         # clipped as MuJoCo clamps a ctrllimited actuator: the ctrl logged is the ctrl applied
         action = np.minimum(np.maximum(action, self.low), self.high)
         ctrl = np.zeros((len(x), self.nu))
         ctrl[:, self.columns] = action
+        if self.n_mocap:
+            ctrl[:, self.nu - self.n_mocap :] = moved
         if self.failed.any():
             ctrl[self.failed] = 0.0
         return ctrl
@@ -353,30 +387,47 @@ class PolicyFile:
                 f"{where}: control_period {self.contract.control_period:g} s; expected the "
                 f"task's, {period:g} s, under this condition"
             )
-        columns = []
-        for name in self.contract.actuators:
-            index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
-            if index < 0:
-                names = [model.actuator(i).name for i in range(model.nu)]
+        columns, ranges = [], []
+        for entry in self.contract.actuators:
+            names = (entry,) if isinstance(entry, str) else entry
+            indices = []
+            for name in names:
+                index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+                if index < 0:
+                    known = [model.actuator(i).name for i in range(model.nu)]
+                    raise PolicyFileError(
+                        f"{where}: actuators: {name!r} is not an actuator of the model (its "
+                        f"actuators: {known})"
+                    )
+                if (
+                    self.contract.action_scale == "ctrlrange"
+                    and not model.actuator_ctrllimited[index]
+                ):
+                    raise PolicyFileError(
+                        f"{where}: action_scale ctrlrange: actuator {name!r} has no ctrlrange; "
+                        "expected a ctrllimited actuator, or action_scale raw"
+                    )
+                indices.append(index)
+            # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as is)
+            limited = model.actuator_ctrllimited[indices].astype(bool)[:, None]
+            own = np.where(limited, model.actuator_ctrlrange[indices], [-np.inf, np.inf])
+            if not (own == own[0]).all():
                 raise PolicyFileError(
-                    f"{where}: actuators: {name!r} is not an actuator of the model (its "
-                    f"actuators: {names})"
+                    f"{where}: actuators: {list(names)} driven by one column have different "
+                    "ctrlranges; expected one range for the column"
                 )
-            if self.contract.action_scale == "ctrlrange" and not model.actuator_ctrllimited[index]:
-                raise PolicyFileError(
-                    f"{where}: action_scale ctrlrange: actuator {name!r} has no ctrlrange; "
-                    "expected a ctrllimited actuator, or action_scale raw"
-                )
-            columns.append(index)
-        # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as given)
-        limited = model.actuator_ctrllimited[columns].astype(bool)[:, None]
-        ctrl_range = np.where(limited, model.actuator_ctrlrange[columns], [-np.inf, np.inf])
+            columns.append(indices[0])
+            ranges.append(own[0])
+        actions = self.contract.actions
+        n_mocap = 3 * len(self.contract.mocap)
         return OnnxPolicy(
             self.session,
             self.contract,
-            columns=np.array(columns),
-            ctrl_range=ctrl_range,
-            nu=model.nu,
+            # with actions, the policy's answer is the output's columns themselves
+            columns=np.arange(len(columns)) if actions else np.array(columns),
+            ctrl_range=np.array(ranges).reshape(len(columns), 2),
+            nu=self.contract.n_outputs if actions else model.nu,
+            n_mocap=n_mocap,
         )
 
 
@@ -427,6 +478,7 @@ def policy_task(task: Task, policy_file: PolicyFile) -> Task:
             policy=policy_file.policy,
             observations=policy_file.observations,
             source=policy_file.contract.source,
+            actions=policy_file.contract.actions,
         ),
     )
 

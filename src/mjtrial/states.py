@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -40,3 +40,80 @@ def generate_initial_states(
             raise ValueError(f"ranges.{name}: expected low < high, got [{low}, {high}]")
         columns[name] = rng.uniform(low, high, n)
     return pa.table(columns)
+
+
+# A constraint that keeps under MIN_ACCEPTANCE of PROBE_DRAWS states is refused: the redraws
+# would cost over 100 times the states' draw, and a constraint that tight is usually a mistake.
+PROBE_DRAWS = 10_000
+MIN_ACCEPTANCE = 0.01
+
+
+class ConstraintError(ValueError):
+    """A `valid_state` constraint that keeps too few states, or answers with the wrong shape."""
+
+
+def draw_valid_states(
+    *,
+    seed: int,
+    n: int,
+    ranges: Mapping[str, Sequence[float]],
+    parameters: Sequence[str],
+    valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
+) -> tuple[pa.Table, int]:
+    """N initial states that satisfy a constraint, and how many drawn states it rejected.
+
+    The rule, deterministic for a seed: one generator `default_rng(seed)` draws rounds, each
+    round exactly `generate_initial_states`' draw (n values per parameter, in draw order), the
+    first round being its whole table; `valid` is asked about each round's n rows; the valid
+    rows are kept in draw order, round after round, until n are kept. The states are those
+    first n valid rows, `state_id` 0..n-1. The count returned is the invalid rows drawn before
+    the n-th valid one (the redraws).
+
+    Before that, the constraint is asked about `PROBE_DRAWS` states (a generator of the same
+    seed, one draw of that many per parameter): under `MIN_ACCEPTANCE` valid is refused
+    (`ConstraintError`), as is an answer that is not (rows,) booleans.
+    """
+    if n < 1:
+        raise ValueError(f"n: expected at least 1 state, got {n}")
+    probe = generate_initial_states(seed=seed, n=PROBE_DRAWS, ranges=ranges, parameters=parameters)
+    rate = float(np.mean(_valid_rows(valid, probe, parameters)))
+    if rate < MIN_ACCEPTANCE:
+        raise ConstraintError(
+            f"expected at least {MIN_ACCEPTANCE:.0%} of states valid, got {rate:.2%} of the "
+            f"first {PROBE_DRAWS:,} drawn"
+        )
+    rng = np.random.default_rng(seed)
+    kept: list[np.ndarray] = []  # per round, its valid rows (k, n_parameters)
+    count = rejected = 0
+    while count < n:
+        block = np.column_stack([rng.uniform(*ranges[p], n) for p in parameters])
+        ok = _valid_rows(valid, _table(block, parameters), parameters)
+        rows = np.flatnonzero(ok)
+        needed = rows[: n - count]
+        # the invalid rows before the last one kept (the whole round's if it is not the last)
+        seen = ok[: needed[-1] + 1] if count + len(needed) == n else ok
+        rejected += int((~seen).sum())
+        kept.append(block[needed])
+        count += len(needed)
+    return _table(np.concatenate(kept), parameters), rejected
+
+
+def _table(rows: np.ndarray, parameters: Sequence[str]) -> pa.Table:
+    columns = {"state_id": np.arange(len(rows), dtype=np.int64)}
+    columns |= {p: np.ascontiguousarray(rows[:, i]) for i, p in enumerate(parameters)}
+    return pa.table(columns)
+
+
+def _valid_rows(
+    valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
+    table: pa.Table,
+    parameters: Sequence[str],
+) -> np.ndarray:
+    values = {p: table.column(p).to_numpy() for p in parameters}
+    out = np.asarray(valid(values))
+    if out.shape != (table.num_rows,) or out.dtype != bool:
+        raise ConstraintError(
+            f"expected ({table.num_rows},) booleans, one per state, got shape {out.shape} of "
+            f"{out.dtype}"
+        )
+    return out

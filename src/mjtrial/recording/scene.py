@@ -262,13 +262,16 @@ def _static_pose(model: mujoco.MjModel, body: int) -> Any:
         )
 
 
-def static_scene(model: mujoco.MjModel, *, meshes: bool = True) -> list[tuple[str, list[Any]]]:
+def static_scene(
+    model: mujoco.MjModel, *, meshes: bool = True, moving_mocap: bool = False
+) -> list[tuple[str, list[Any]]]:
     """(entity, archetypes) logged statically: view coordinates, geoms, poses that never change.
 
     The world body's geoms go on ``world``; a body without joints gets its pose in its parent
     here, once (a body with joints gets it per step, `BodyPoses`). So does a mocap body: every
     reset takes its pose from the model, which is the episode's own when a state parameter
-    moves it (`MocapPosition`), and no control of an episode moves it. With `meshes` False,
+    moves it (`MocapPosition`), unless the policy moves it (`moving_mocap`: its pose is then
+    logged per step, and a static one would hide it). With `meshes` False,
     mesh geoms are left out, and so is the pose of a body that holds only meshes and bodies
     like it (`mesh_scene` has them). A body that draws nothing, with nothing drawn or moving
     below it (a camera's frame), is left out: its pose would cost each recording a chunk (a
@@ -284,7 +287,7 @@ def static_scene(model: mujoco.MjModel, *, meshes: bool = True) -> list[tuple[st
         if not needed[b]:
             continue
         archetypes = body_geometry(model, b, meshes=meshes)
-        if model.body_jntnum[b] == 0:
+        if model.body_jntnum[b] == 0 and not (moving_mocap and model.body_mocapid[b] >= 0):
             archetypes.insert(0, _static_pose(model, b))
         if archetypes:
             items.append((body_entity(model, b), archetypes))

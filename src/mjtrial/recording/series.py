@@ -75,7 +75,12 @@ class Chunker:
     """
 
     def __init__(
-        self, model: mujoco.MjModel, signals: Sequence[Signal], *, meshes: bool = True
+        self,
+        model: mujoco.MjModel,
+        signals: Sequence[Signal],
+        *,
+        meshes: bool = True,
+        moving_mocap: bool = False,
     ) -> None:
         self.signal_reads = [s.read for s in signals]
         self.nstate = mujoco.mj_stateSize(model, FULLPHYSICS)
@@ -83,7 +88,7 @@ class Chunker:
         self.signals = _grouped(model, signals)
         self.plots = plots(signals, self.signals)
         self.poses = BodyPoses(model)
-        scene = static_scene(model, meshes=meshes)
+        scene = static_scene(model, meshes=meshes, moving_mocap=moving_mocap)
         self.geometry = [c for e, a in scene for c in archetype_columns(e, a)]
         with strict():
             styles = [(e, [rr.SeriesLines(names=list(names))]) for e, names, _ in self.signals]
@@ -94,6 +99,16 @@ class Chunker:
             for m in self.poses.moving
         ]
         self._signal_fields = [tag(fields[SCALARS], e) for e, _, _ in self.signals]
+        # (mocap index, its fields) of each mocap body a policy moves: its target per step
+        mocap_bodies = np.flatnonzero(model.body_mocapid >= 0) if moving_mocap else []
+        self._mocap_fields = [
+            (
+                int(model.body_mocapid[b]),
+                tag(fields[TRANSLATION], body_entity(model, b)),
+                tag(fields[QUATERNION], body_entity(model, b)),
+            )
+            for b in mocap_bodies
+        ]
         self._offsets: dict[tuple[int, int], pa.Array] = {}
 
     def _list_offsets(self, n: int, width: int) -> pa.Array:
@@ -115,13 +130,18 @@ class Chunker:
         return pa.ListArray.from_arrays(self._list_offsets(n, width), flat, type=field.type)
 
     def series(
-        self, episodes: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]
+        self,
+        episodes: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+        mocap: Sequence[np.ndarray] | None = None,
     ) -> pa.RecordBatch:
         """Time series of episodes, from each one's logged rows of physics, sensors and ctrl.
 
         Args:
           episodes: (rows, sensors, ctrl) per episode: (n, nstate) physics, (n, nsensordata)
             sensors and (n, nu) ctrl at the n logged steps, the same n for all.
+          mocap: per episode, (n, nmocap, 7) the mocap targets during the logged steps (pos,
+            quat w-x-y-z), for a chunker of `moving_mocap`; drawn as MuJoCo places the body
+            (its quaternion normalized).
 
         Returns:
           the columns of all episodes, one after another: episode i's are rows i*n to (i+1)*n
@@ -137,6 +157,13 @@ class Chunker:
         for (pos, quat), (t_field, q_field) in zip(poses, self._pose_fields, strict=True):
             columns.append((t_field, self._list(t_field, pos)))
             if quat is not None:
+                columns.append((q_field, self._list(q_field, mujoco_to_rerun_quat(quat))))
+        if self._mocap_fields:
+            targets = np.concatenate(list(mocap))
+            for index, t_field, q_field in self._mocap_fields:
+                quat = targets[:, index, 3:]
+                quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+                columns.append((t_field, self._list(t_field, targets[:, index, :3])))
                 columns.append((q_field, self._list(q_field, mujoco_to_rerun_quat(quat))))
         signals = np.empty((len(rows), len(self.signal_reads)))
         for i, read in enumerate(self.signal_reads):

@@ -82,6 +82,7 @@ class EpisodeRecord:
     success: bool
     measures: Mapping[str, float]
     failure_category: str | None = None
+    mocap: np.ndarray | None = None  # (n_steps, nmocap, 7) targets a policy moved, or None
 
 
 def stamp_json(stamp: Mapping[str, Any]) -> str:
@@ -190,6 +191,7 @@ class _Pending:
     sensors: np.ndarray  # logged rows of sensordata
     ctrl: np.ndarray  # logged rows of ctrl
     geometry: list[Any] | None = None  # the episode's own scene's columns, where it differs
+    mocap: np.ndarray | None = None  # logged rows of the mocap targets, when a policy moves them
 
 
 _GROUP = 32  # episodes whose recordings are built at once (numpy's cost is per call)
@@ -210,6 +212,7 @@ class RecordingSpec:
     # `episode_model(values)`: the episode's own model, for a task whose state parameters edit
     # it (a goal geom moved per episode); None when every episode runs on `model` itself
     episode_model: Callable[[Mapping[str, float]], mujoco.MjModel] | None = None
+    moves_mocap: bool = False  # a policy moves the mocap bodies: their targets logged per step
 
 
 # What a recording's static scene is drawn from: an episode whose model differs here gets its own.
@@ -220,14 +223,19 @@ SCENE_FIELDS = (
 
 
 def episode_geometry(
-    model: mujoco.MjModel, nominal: mujoco.MjModel, *, meshes: bool = True
+    model: mujoco.MjModel,
+    nominal: mujoco.MjModel,
+    *,
+    meshes: bool = True,
+    moving_mocap: bool = False,
 ) -> list[Any] | None:
     """The static scene's columns of an episode's own model, or None when it draws as `nominal`
     (a mass drawn per episode changes no drawing; a goal geom moved per episode does). Without
     `meshes`, the scene leaves its meshes out (a mesh store has them)."""
     if all(np.array_equal(getattr(model, f), getattr(nominal, f)) for f in SCENE_FIELDS):
         return None
-    return [c for e, a in static_scene(model, meshes=meshes) for c in archetype_columns(e, a)]
+    scene = static_scene(model, meshes=meshes, moving_mocap=moving_mocap)
+    return [c for e, a in scene for c in archetype_columns(e, a)]
 
 
 @dataclass(frozen=True)
@@ -289,7 +297,9 @@ class EpisodeStores:
         # once), which each recording names in its `meshes` property
         self.meshes = mesh_store(spec.model, stamp_text) if share_meshes else None
         inline = self.meshes is None
-        self.chunker = chunker = Chunker(spec.model, spec.signals, meshes=inline)
+        self.chunker = chunker = Chunker(
+            spec.model, spec.signals, meshes=inline, moving_mocap=spec.moves_mocap
+        )
         self.episode_field = episode_field(spec.state_names, spec.measure_names)
         # the same in every recording: geometry, static poses, series names and the stamp
         self.shared = [
@@ -306,7 +316,10 @@ class EpisodeStores:
     def build(self, group: list[_Pending]) -> Iterator[tuple[str, ChunkStore]]:
         """(recording id, store) of each episode of a group from `groups`."""
         n = len(self.steps)
-        series = self.chunker.series([(p.rows, p.sensors, p.ctrl) for p in group])
+        series = self.chunker.series(
+            [(p.rows, p.sensors, p.ctrl) for p in group],
+            [p.mocap for p in group] if self.spec.moves_mocap else None,
+        )
         name_field = recording_name_field()
         field = self.episode_field
         properties = record_batch(
@@ -335,7 +348,12 @@ class EpisodeStores:
 
     def _episode_geometry(self, model: mujoco.MjModel) -> list[Any] | None:
         """`episode_geometry` of an episode's own model; its meshes must be the store's."""
-        geometry = episode_geometry(model, self.spec.model, meshes=self.meshes is None)
+        geometry = episode_geometry(
+            model,
+            self.spec.model,
+            meshes=self.meshes is None,
+            moving_mocap=self.spec.moves_mocap,
+        )
         if geometry is not None and self.meshes is not None:
             own = mesh_store(model, "")
             if own is None or own.recording_id != self.meshes.recording_id:
@@ -369,6 +387,7 @@ class EpisodeStores:
                         if spec.episode_model is None
                         else self._episode_geometry(spec.episode_model(ep.values))
                     ),
+                    mocap=_logged_mocap(ep, spec, self.steps),
                 )
             )
             seen.add(sid)
@@ -377,6 +396,16 @@ class EpisodeStores:
                 group = []
         if group:
             yield group
+
+
+def _logged_mocap(ep: EpisodeRecord, spec: RecordingSpec, steps: np.ndarray) -> np.ndarray | None:
+    """The episode's mocap targets at the logged steps, when a policy moves them."""
+    if not spec.moves_mocap:
+        return None
+    shape = (spec.n_steps, spec.model.nmocap, 7)
+    if ep.mocap is None or np.shape(ep.mocap) != shape:
+        raise ValueError(f"mocap: expected shape {shape}, got {np.shape(ep.mocap)}")
+    return np.asarray(ep.mocap, dtype=np.float64)[steps]
 
 
 def write_condition_recordings(

@@ -257,6 +257,17 @@ def _setup(
                 if p in states["ranges"]
             ],
         ),
+        *(
+            [
+                "",
+                "Only states the task's `valid_state` accepts were kept: the draw was repeated "
+                "from the same generator in rounds and the valid states kept in draw order "
+                "(`mjtrial.states.draw_valid_states`); the manifest's `states_redrawn` counts "
+                "those rejected.",
+            ]
+            if task.valid_state is not None
+            else []
+        ),
         "",
         f"Development states came from a different seed, {states['development_seed']}"
         + _development_use(config)

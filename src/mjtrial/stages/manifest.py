@@ -17,6 +17,7 @@ from mjtrial.conditions import model_edits
 from mjtrial.layout import CONFIG_FILE
 from mjtrial.physics import compiled_sha256, load_model
 from mjtrial.stages.stamping import make_stage_stamp
+from mjtrial.stages.states import EVALUATION_RULE, REDRAWN
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import load_task
 
@@ -136,6 +137,10 @@ def manifest_record(
         },
         "stamps": stamps,
     }
+    # a task's `valid_state`: the drawn states it rejected (the states stamp's record)
+    for stamp in stamps.values():
+        if stamp.get("rule") == EVALUATION_RULE and REDRAWN in stamp["extra"]:
+            manifest[REDRAWN] = stamp["extra"][REDRAWN]
     return manifest, {rel(p): p for p in [*outputs, summary_path]}
 
 

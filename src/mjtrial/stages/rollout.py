@@ -206,13 +206,17 @@ def recording_spec(bound: BoundTask, n_steps: int, rate_hz: float) -> RecordingS
         n_steps=n_steps,
         log_every=log_every(rate_hz, model.opt.timestep),
         episode_model=episode_model(bound),
+        moves_mocap=bound.actuation is not None and bound.actuation.moves_mocap,
     )
 
 
 def episode_model(bound: BoundTask) -> Callable[[Mapping[str, float]], mujoco.MjModel] | None:
     """The function from an episode's state values to its own model, for a task whose state
-    parameters edit the model (what its recording draws); None when none do."""
-    if not any(p.apply.stage == "model" for p in bound.task.state_parameters):
+    parameters or `episode_setup` edit the model (what its recording draws); None when none do."""
+    task = bound.task
+    if task.episode_setup is None and not any(
+        p.apply.stage == "model" for p in task.state_parameters
+    ):
         return None
     scratch = mujoco.MjData(bound.model)
     slot = copy.copy(bound.model) if bound.reuses_models else None
@@ -234,6 +238,7 @@ def episode_records(task: Task, batch: engine.Batch) -> Iterator[recording.Episo
             success=bool(out["success"][i]),
             measures={m: float(out[m][i]) for m in measures},
             failure_category=out["failure_category"][i],
+            mocap=None if batch.episodes.mocap is None else batch.episodes.mocap[i],
         )
 
 

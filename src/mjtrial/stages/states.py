@@ -12,8 +12,8 @@ import pyarrow as pa
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
-from mjtrial.states import generate_initial_states
-from mjtrial.task import load_task
+from mjtrial.states import ConstraintError, draw_valid_states, generate_initial_states
+from mjtrial.task import TaskError, call, load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -85,13 +85,15 @@ def build_states(
     Both sets are drawn, to refuse a configuration whose development and evaluation states
     share a state: no reported number may come from a state used for tuning.
     """
-    table, tuning = draw_states(states_slice, repo_root=repo_root)
+    table, tuning, redrawn = draw_counted_states(states_slice, repo_root=repo_root)
     stamp = make_stage_stamp(
         rule or states_rule(development=development),
         dict(states_slice),
         task_inputs(states_slice["task"], repo_root=repo_root),
         seeds={"states": states_slice["seed"], "development": states_slice["development_seed"]},
         repo_root=repo_root,
+        # a task's `valid_state`: the drawn states it rejected, per set (`draw_valid_states`)
+        extra=None if redrawn is None else {REDRAWN: redrawn},
     )
     chosen, seed = (tuning, "development_seed") if development else (table, "seed")
     provenance.write_parquet(chosen, output, stamp)
@@ -107,19 +109,42 @@ def build_states(
 
 def draw_states(states_slice: Mapping[str, Any], *, repo_root: Path) -> tuple[pa.Table, pa.Table]:
     """The evaluation and development states of a states slice, the task's parameters drawn
-    in its order; refused when the two sets share a state."""
-    parameters = [
-        p.name for p in load_task(states_slice["task"], repo_root=repo_root).state_parameters
-    ]
-    table, tuning = (
-        generate_initial_states(
-            seed=states_slice[key],
-            n=states_slice["n"],
-            ranges=states_slice["ranges"],
-            parameters=parameters,
-        )
-        for key in ("seed", "development_seed")
-    )
+    in its order (`draw_counted_states`); refused when the two sets share a state."""
+    table, tuning, _ = draw_counted_states(states_slice, repo_root=repo_root)
+    return table, tuning
+
+
+# The states stamp's record of the states a task's `valid_state` rejected: set -> count.
+REDRAWN = "states_redrawn"
+
+
+def draw_counted_states(
+    states_slice: Mapping[str, Any], *, repo_root: Path
+) -> tuple[pa.Table, pa.Table, dict[str, int] | None]:
+    """`draw_states`' two sets, and for a task with a `valid_state` the number of drawn states
+    it rejected in each ({"evaluation": k, "development": k}; None without one). The task's
+    constraint is applied to both sets by the same rule (`mjtrial.states.draw_valid_states`);
+    without one the states are `generate_initial_states`' draw."""
+    task = load_task(states_slice["task"], repo_root=repo_root)
+    parameters = [p.name for p in task.state_parameters]
+    drawn = {}
+    for key, kind in (("seed", "evaluation"), ("development_seed", "development")):
+        given = dict(seed=states_slice[key], n=states_slice["n"], parameters=parameters)
+        if task.valid_state is None:
+            drawn[kind] = (generate_initial_states(ranges=states_slice["ranges"], **given), 0)
+            continue
+        try:
+            drawn[kind] = draw_valid_states(
+                ranges=states_slice["ranges"],
+                valid=lambda values: call(task, "valid_state", task.valid_state, values),
+                **given,
+            )
+        except ConstraintError as err:
+            raise TaskError(f"{task.source or task.name}: valid_state: {err}") from None
+    (table, evaluation), (tuning, development) = drawn["evaluation"], drawn["development"]
+    redrawn = None
+    if task.valid_state is not None:
+        redrawn = {"evaluation": evaluation, "development": development}
     rows = {tuple(r) for r in np.column_stack([table.column(c) for c in parameters])}
     dev_rows = np.column_stack([tuning.column(c) for c in parameters])
     if any(tuple(r) in rows for r in dev_rows):
@@ -127,4 +152,4 @@ def draw_states(states_slice: Mapping[str, Any], *, repo_root: Path) -> tuple[pa
             "states.development_seed: development and evaluation states overlap; "
             "expected disjoint seeds"
         )
-    return table, tuning
+    return table, tuning, redrawn

@@ -12,7 +12,8 @@ gymnasium's `reset(seed=...)`, in declarations rather than callbacks where mjtri
   table's columns are their names, drawn in this order;
 - `protocol_parameters`: what conditions, sweeps and variants may set, with types and bounds;
 - `controller`: `OpenLoop` (a control sequence per condition, run by `mujoco.rollout`) or
-  `ClosedLoop` (a policy called on a batch of observations at the control rate);
+  `ClosedLoop` (a policy called on a batch of observations at the control rate, whose output
+  columns drive actuators' ctrl and mocap bodies' targets: `Control`, `MocapAction`);
 - `observations`: each with its real-world source, or privileged (`source=None`): a joint's
   position, a state parameter's value, a `<sensor>` of the model (`Observation.sensor`), each
   through an optional `ObservationModel` (noise, bias, quantization, dropped readings);
@@ -24,6 +25,7 @@ name (`package.module`), or offered by an installed package through the entry po
 """
 
 from mjtrial.closest_calls import Margin
+from mjtrial.task.actions import Control, MocapAction
 from mjtrial.task.bound import BoundTask
 from mjtrial.task.declare import (
     DISTURBANCE,
@@ -73,6 +75,7 @@ __all__ = [
     "BodyMass",
     "BoundTask",
     "ClosedLoop",
+    "Control",
     "Custom",
     "Disturbance",
     "Episodes",
@@ -81,6 +84,7 @@ __all__ = [
     "JointVelocity",
     "Margin",
     "Measure",
+    "MocapAction",
     "MocapPosition",
     "Rotation",
     "ModelValue",

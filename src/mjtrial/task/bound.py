@@ -10,10 +10,19 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from mjtrial.actuation import Actuation
 from mjtrial.closed_loop import Observer
 from mjtrial.physics import FULLPHYSICS, ModelError, load_model
-from mjtrial.task.declare import ModelCheckError, Observation, SeriesRead, TaskError, _element
-from mjtrial.task.definition import Task
+from mjtrial.task.actions import bind_actions
+from mjtrial.task.declare import (
+    ClosedLoop,
+    ModelCheckError,
+    Observation,
+    SeriesRead,
+    TaskError,
+    _element,
+)
+from mjtrial.task.definition import Task, call
 from mjtrial.task.observation_model import with_errors
 
 # --------------------------------------------------------------------------------------------
@@ -31,6 +40,7 @@ class BoundTask:
     # per observation of the physics state: its read; of a sensor: its sensordata columns
     observe: Mapping[str, Callable[[np.ndarray], np.ndarray] | slice]
     series: tuple[SeriesRead, ...] = ()  # per `task.series`: its bound read
+    actuation: Actuation | None = None  # a closed-loop policy's output columns, bound
 
     @classmethod
     def of(cls, task: Task, model: mujoco.MjModel | None = None) -> BoundTask:
@@ -79,15 +89,22 @@ class BoundTask:
                 series.append(x.read(model))
             except TaskError as err:
                 raise TaskError(f"{where}: series {x.name!r}: {err}") from None
-        return cls(task, model, tuple(appliers), observe, tuple(series))
+        actuation = None
+        if isinstance(task.controller, ClosedLoop):
+            try:
+                actuation = bind_actions(model, task.controller.actions)
+            except TaskError as err:
+                raise TaskError(f"{task.controller.source or where}: {err}") from None
+        return cls(task, model, tuple(appliers), observe, tuple(series), actuation)
 
     @property
     def reuses_models(self) -> bool:
         """Whether an episode's model copy can serve another episode: every model parameter
         sets its value whatever was there (`BodyMass`, `ModelValue`; a `Custom` may not), so
         applying the next episode's values and recomputing the constants gives the model a
-        fresh copy would. A copy of a model with textures costs 16 ms (dm_control's reacher)."""
-        return all(
+        fresh copy would. A copy of a model with textures costs 16 ms (dm_control's reacher).
+        A task's `episode_setup` may change any field, so its episodes get fresh copies."""
+        return self.task.episode_setup is None and all(
             getattr(p.apply, "sets", False)
             for p in self.task.state_parameters
             if p.apply.stage == "model"
@@ -105,13 +122,18 @@ class BoundTask:
         Model parameters are applied to a copy of the model (`model`, a copy of an earlier
         episode's that this one may reuse when `reuses_models`, else a fresh one), in
         declaration order, then its constants recomputed; the copy is reset to the task's
-        keyframe (or qpos0), then the initial parameters are applied in declaration order.
+        keyframe (or qpos0), the task's `episode_setup` runs, then the initial parameters are
+        applied in declaration order. The mocap poses the setup leaves are kept in the copy's
+        `body_pos` / `body_quat`, from which every reset (`mujoco.rollout`'s) takes them.
         """
         params = list(zip(self.task.state_parameters, self.appliers, strict=True))
         own = model
         model = self.model
-        if any(p.apply.stage == "model" for p, _ in params):
+        setup = self.task.episode_setup
+        edits_model = any(p.apply.stage == "model" for p, _ in params)
+        if edits_model or setup is not None:
             model = own if own is not None and self.reuses_models else copy.copy(self.model)
+        if edits_model:
             for p, apply in params:
                 if p.apply.stage == "model":
                     apply(model, scratch, values[p.name])
@@ -120,6 +142,12 @@ class BoundTask:
             mujoco.mj_resetData(model, scratch)
         else:
             mujoco.mj_resetDataKeyframe(model, scratch, self.task.keyframe)
+        if setup is not None:
+            own_values = {p.name: float(values[p.name]) for p, _ in params}
+            call(self.task, "episode_setup", setup, model, scratch, own_values)
+            bodies = np.flatnonzero(model.body_mocapid >= 0)
+            model.body_pos[bodies] = scratch.mocap_pos[model.body_mocapid[bodies]]
+            model.body_quat[bodies] = scratch.mocap_quat[model.body_mocapid[bodies]]
         for p, apply in params:
             if p.apply.stage == "initial":
                 apply(model, scratch, values[p.name])

@@ -424,6 +424,8 @@ class ClosedLoop:
         `DISTURBANCE` columns (`values[name]` is an array over the batch), or None.
       source: the file the policy and its observations come from when it is not the task file
         (a policy file's contract): errors about them name it.
+      actions: what the policy's output columns drive, in order (`Control`, `MocapAction`);
+        empty: every actuator's ctrl, in order.
     """
 
     policy: Callable[[mujoco.MjModel, Mapping[str, float]], BatchPolicy]
@@ -431,6 +433,7 @@ class ClosedLoop:
     timing: Callable[[mujoco.MjModel, Mapping[str, float]], Timing]
     pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
     source: Path | None = None
+    actions: tuple[Any, ...] = ()  # `Control`, `MocapAction` (mjtrial.task.actions)
 
 
 SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -530,6 +533,8 @@ class Episodes:
         every episode, broadcast).
       values: state parameter -> (n,) each episode's value (a goal drawn per episode, applied
         to the episode's own model, is read here: `model` is the condition's nominal one).
+      mocap: (n, n_steps, nmocap, 7) the mocap targets (pos, quat w-x-y-z) during each step,
+        or None when no action moves a mocap body (they stay at each episode's start pose).
     """
 
     model: mujoco.MjModel
@@ -539,6 +544,7 @@ class Episodes:
     healthy: np.ndarray
     ctrl: np.ndarray
     values: Mapping[str, np.ndarray] = field(default_factory=dict)
+    mocap: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,16 @@ class Task:
     trace_marks: Callable[[mujoco.MjModel, Mapping[str, float]], Mapping[str, float]] | None = None
     trace_levels: tuple[tuple[str, float], ...] = ()  # (label, value) lines across the traces
     margin: Margin | None = None  # the success test's margin (the closest calls; None: none)
+    # `episode_setup(model, data, values)`: a suite's own reset, run on each episode's model
+    # copy after the reset to the keyframe and before the "initial" state parameters (values:
+    # the episode's state parameter values). It may set model fields (a weld's eq_data), data
+    # (qpos, mocap_pos, mocap_quat) and step the physics (`BoundTask.episode`).
+    episode_setup: Callable[[mujoco.MjModel, mujoco.MjData, Mapping[str, float]], None] | None = (
+        None
+    )
+    # `valid_state(values)`: (n,) True where a drawn state is allowed (values: state parameter
+    # -> (n,)); the others are redrawn from the seed (`mjtrial.states.draw_states`).
+    valid_state: Callable[[Mapping[str, np.ndarray]], np.ndarray] | None = None
     source: Path | None = field(default=None, compare=False)  # the task file, set at load
 
     @property
@@ -106,7 +116,7 @@ class Task:
         bands = props["analysis"]["properties"]["bands"]
         bands["properties"] = {
             f"{prefix}{p.name}": {
-                "$ref": "#/$defs/edges",
+                "$ref": "#/$defs/edges" if prefix else "#/$defs/signed_edges",
                 "description": f"{prefix.replace('abs_', '|')}{p.name}"
                 f"{'|' if prefix else ''} band edges, {p.unit}",
             }
