@@ -11,9 +11,9 @@ every control instant of the engine; the plain loop here does the same
 that carries it differs in the last bits (about 4e-14 here), which says nothing about the
 actions.
 
-One difference from the suite, on purpose: Fetch reads `data.xpos` as the last `mj_step` left
-it (the pose before that step), the engine reads the pose at the control instant
-(`mj_kinematics` first, as the loop here does).
+The welded body's pose is read as the suite reads it: `data.xpos` as the last `mj_step` left it
+(the pose of the state one physics step before the control instant; after the reset's
+`mj_forward`, the initial state's).
 """
 
 from __future__ import annotations
@@ -93,13 +93,13 @@ def _plain_loop(m: mujoco.MjModel, initial: np.ndarray, n_controls: int) -> np.n
     """Fetch's step written out: the action, then 20 mj_steps (n_steps, nstate)."""
     d = mujoco.MjData(m)
     mujoco.mj_setState(m, d, initial, FULLPHYSICS)
+    mujoco.mj_forward(m, d)  # the suite's reset ends so
     policy, rows = Wiggle(), []
     policy.reset(1)
     state = initial
     for _ in range(n_controls):
         action = np.clip(policy(_observe(state[None]))[0], -1.0, 1.0)
         d.qacc_warmstart[:] = 0.0  # as mujoco.rollout starts each call (the module docstring)
-        mujoco.mj_kinematics(m, d)
         for i in range(m.nu):  # ctrl_set_action: a position servo's target relative to qpos
             d.ctrl[i] = d.qpos[m.jnt_qposadr[m.actuator_trnid[i, 0]]] + action[3]
         # mocap_set_action: reset_mocap2body_xpos, then the deltas added

@@ -213,6 +213,14 @@ def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
     return ctrl
 
 
+def _pose_state(initial: np.ndarray, physics: np.ndarray, step: int) -> np.ndarray:
+    """(n, nstate) the states whose kinematics `data.xpos` holds after `step` physics steps:
+    `mj_step` computes positions before it integrates, so a plain loop that reads the welded
+    body's pose after stepping (gymnasium-robotics' `reset_mocap2body_xpos`) reads the pose of
+    the state one step before; at the start, the reset's `mj_forward` gives the initial one."""
+    return initial if step < 2 else physics[:, step - 2]
+
+
 def run_batch(
     models: list[mujoco.MjModel],
     initial: np.ndarray,
@@ -292,7 +300,11 @@ def run_batch(
         if k < replayed:
             answered[:, k] = answer
         welded = (
-            body_poses(models, state, actuation.welded_bodies, scratch) if scratch else None
+            body_poses(
+                models, _pose_state(initial, physics, k * s), actuation.welded_bodies, scratch
+            )
+            if scratch
+            else None
         )
         ctrl, targets = actuation.apply(answer, qpos_of(state, model.nq), targets, welded)
         ctrl_log[:, k] = ctrl
@@ -349,8 +361,8 @@ def reference_episode(
     state. A sensed observation's sensors are computed at the measured state by `mj_setState`
     and `mj_forward` on an MjData of their own. The actions (`actuation`) are written where a
     user writes them: `data.ctrl`, and `data.mocap_pos` / `data.mocap_quat` from the mocap's
-    previous target there and the welded body's `data.xpos` / `data.xquat` (`mj_kinematics`
-    first). Returns a batch of one episode.
+    previous target there or the welded body's `data.xpos` / `data.xquat` as the last `mj_step`
+    left them (`_pose_state`). Returns a batch of one episode.
     """
     observer = Observer.of(observe)
     m = copy.copy(model)
@@ -371,7 +383,7 @@ def reference_episode(
         sensed = sensors_at([m], measured, probe) if probe is not None else None
         obs = np.asarray(observer.read(k, measured, sensed))
         answer = _checked_controls(policy(obs), 1, actuation.n_outputs)
-        if welded:
+        if welded and k == 0:  # later, `data.xpos` is what the last `mj_step` left
             mujoco.mj_kinematics(m, d)
         target = np.concatenate([d.mocap_pos, d.mocap_quat], axis=1)[None]
         pose = np.concatenate([d.xpos[welded], d.xquat[welded]], axis=1)[None]

@@ -68,9 +68,10 @@ class MocapAction:
       body: the mocap body.
       relative_to: "absolute" (target = scale * value), "target" (the previous target plus
         scale * value, Metaworld's rule; the first is the body's pose at the episode's start)
-        or "body" (the current pose of the body welded to it plus scale * value,
-        gymnasium-robotics' Fetch: it reads `data.xpos` left by the last `mj_step`, which is
-        one physics step old; here the pose is that of the state at the control instant).
+        or "body" (the pose of the body welded to it plus scale * value, gymnasium-robotics'
+        Fetch: as there, the pose `data.xpos` holds after the last `mj_step`, which is the
+        state's one physics step before the control instant; the initial state's at the
+        first instant).
       scale: multiplies the values.
       max_step: the scaled step clipped to [-max_step, max_step] per axis (relative only).
       low, high: the box the target position is clipped to (both or neither).
