@@ -213,6 +213,16 @@ def _task_lines(record: Mapping[str, Any] | None) -> list[str]:
     return lines
 
 
+def _redrawn_text(redrawn: Mapping[str, int] | None) -> str:
+    """How many drawn states `valid_state` rejected, per set (the manifest's record)."""
+    if not redrawn:
+        return "the manifest's `states_redrawn` counts those rejected."
+    counts = [
+        f"{redrawn[k]} for the {k} states" for k in ("evaluation", "development") if k in redrawn
+    ]
+    return f"draws rejected and redrawn: {', '.join(counts)}."
+
+
 def _setup(
     summary: Mapping[str, Any],
     config: Mapping[str, Any],
@@ -262,8 +272,8 @@ def _setup(
                 "",
                 "Only states the task's `valid_state` accepts were kept: the draw was repeated "
                 "from the same generator in rounds and the valid states kept in draw order "
-                "(`mjtrial.states.draw_valid_states`); the manifest's `states_redrawn` counts "
-                "those rejected.",
+                "(`mjtrial.states.draw_valid_states`); "
+                + _redrawn_text(manifest.get("states_redrawn")),
             ]
             if task.valid_state is not None
             else []

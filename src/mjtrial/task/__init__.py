@@ -30,6 +30,7 @@ from mjtrial.task.bound import BoundTask
 from mjtrial.task.declare import (
     DISTURBANCE,
     ENGINE_MEASURES,
+    EPISODE_SETUP,
     FAILURE_CATEGORY,
     NONFINITE,
     NONFINITE_ACTION,
@@ -51,6 +52,7 @@ from mjtrial.task.declare import (
     Observation,
     OpenLoop,
     ProtocolParameter,
+    ReadBySetup,
     Rotation,
     Series,
     SeriesRead,
@@ -65,6 +67,7 @@ from mjtrial.task.observation_model import ObservationModel
 __all__ = [
     "DISTURBANCE",
     "ENGINE_MEASURES",
+    "EPISODE_SETUP",
     "ENTRY_POINT_GROUP",
     "FAILURE_CATEGORY",
     "NONFINITE",
@@ -93,6 +96,7 @@ __all__ = [
     "ObservationModel",
     "OpenLoop",
     "ProtocolParameter",
+    "ReadBySetup",
     "Series",
     "SeriesRead",
     "StateParameter",

@@ -59,6 +59,11 @@ class BoundTask:
                 raise ModelCheckError(task.model, str(err)) from None
         appliers, observe, series = [], {}, []
         for p in task.state_parameters:
+            if p.apply.stage == "setup" and task.episode_setup is None:
+                raise TaskError(
+                    f"{where}: state parameter {p.name!r}: EPISODE_SETUP expected the task to "
+                    "declare an episode_setup that reads it"
+                )
             try:
                 appliers.append(p.apply.bind(model))
             except TaskError as err:

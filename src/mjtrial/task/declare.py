@@ -246,6 +246,23 @@ disturbance during the episode, not an initial condition)."""
 
 
 @dataclass(frozen=True)
+class ReadBySetup:
+    """Applied by the task's `episode_setup`, which is given every state value: a suite's reset
+    places objects and goals relative to where its own settling left the robot, which no
+    declared applier can express."""
+
+    stage = "setup"
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        return None
+
+
+EPISODE_SETUP = ReadBySetup()
+"""A state parameter's `apply` when the task's `episode_setup` reads it (a block placed relative
+to where the suite's reset left the gripper)."""
+
+
+@dataclass(frozen=True)
 class StateParameter:
     """One column of the states table: drawn uniformly in [low, high] (config `states.ranges`
     may change the range), then applied to each episode."""
@@ -255,7 +272,14 @@ class StateParameter:
     low: float
     high: float
     apply: (
-        BodyMass | JointPosition | JointVelocity | ModelValue | MocapPosition | Custom | Disturbance
+        BodyMass
+        | JointPosition
+        | JointVelocity
+        | ModelValue
+        | MocapPosition
+        | Custom
+        | Disturbance
+        | ReadBySetup
     )
     description: str = ""
     nominal: float | None = None  # the careless evaluation's single state (default: mid-range)
