@@ -18,6 +18,7 @@ import rerun as rr
 
 from mjtrial.recording.arrow import strict
 from mjtrial.recording.names import WORLD, body_entity
+from mjtrial.task.address import describe
 
 # Geoms in these groups are drawn: the ones MuJoCo's viewer shows by default. Groups 3-5 hold,
 # by convention, collision duplicates and helpers that the viewer hides.
@@ -158,7 +159,8 @@ def body_geometry(model: mujoco.MjModel, body: int) -> list[Any]:
             n_vertices += nv
         else:
             name = mujoco.mjtGeom(gtype).name
-            warnings.warn(f"geom {g} ({name}): no rerun equivalent, not drawn", stacklevel=3)
+            label = describe(model, "geom", g)
+            warnings.warn(f"{label} ({name}): no rerun equivalent, not drawn", stacklevel=3)
 
     out: list[Any] = []
     with strict():

@@ -11,6 +11,8 @@ from itertools import combinations
 
 import mujoco
 
+from mjtrial.task.address import describe
+
 _OBJ = mujoco.mjtObj
 _TRN = mujoco.mjtTrn
 # what a unit of generalized force is on each joint type
@@ -23,7 +25,8 @@ _JOINT_FORCE_UNIT = {
 
 
 def _name(model: mujoco.MjModel, kind: mujoco.mjtObj, i: int) -> str:
-    return mujoco.mj_id2name(model, kind, i) or f"{kind.name[6:].lower()} {i}"
+    # an unnamed element by what it is attached to ("geom 27 of body robot0:base_link")
+    return describe(model, kind, i)
 
 
 def _driven(model: mujoco.MjModel, i: int) -> tuple[str, str]:
