@@ -1,6 +1,6 @@
 """Addresses of model elements, named or not, and labels for them.
 
-Benchmark models leave elements unnamed (Fetch's weld, equality 0; Metaworld's gripper
+Benchmark models leave elements unnamed (Fetch's weld, equality 0; Metaworld's hand
 actuators), so wherever a task, a condition's model edits or a policy contract names an element
 it may also give:
 
@@ -11,7 +11,8 @@ it may also give:
 
 `resolve` turns a name or an address into the index; `describe` labels an element for a
 report or a recording: its name, else what it is attached to ("actuator 0 on joint
-robot0:l_gripper_finger_joint", "weld 0 (robot0:mocap to robot0:gripper_link)").
+robot0:slide0", "weld 0 (robot0:mocap to robot0:wrist_roll_link)", "geom 1 of body
+robot0:mocap").
 """
 
 from __future__ import annotations

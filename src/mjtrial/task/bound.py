@@ -15,7 +15,7 @@ from mjtrial.physics import FULLPHYSICS, ModelError, load_model
 from mjtrial.task.declare import ModelCheckError, Observation, SeriesRead, TaskError, _element
 from mjtrial.task.definition import Task
 from mjtrial.task.observation_model import with_errors
-from mjtrial.task.poses import PoseProbe
+from mjtrial.task.poses import PoseError, PoseProbe
 
 # --------------------------------------------------------------------------------------------
 # Episodes' models and initial states
@@ -75,7 +75,7 @@ class BoundTask:
                     observe[o.name] = o.pose.bind(model)  # read on each episode's model
                 else:
                     observe[o.name] = _sensor(model, o) if o.sensor_name else o.read(model)
-            except TaskError as err:
+            except (TaskError, PoseError) as err:
                 raise TaskError(f"{where}: observation {o.name!r}: {err}") from None
         for x in task.series:
             try:

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -17,9 +17,7 @@ from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.physics import STATE_QPOS
 from mjtrial.task import address
 from mjtrial.task.observation_model import ObservationModel
-
-if TYPE_CHECKING:
-    from mjtrial.task.poses import Pose
+from mjtrial.task.poses import Pose
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 # A policy file's action went NaN or infinite (`mjtrial.policy_file`): control stopped.
@@ -322,11 +320,12 @@ class Observation:
     """A quantity the controller may read: `read(model)` gives a function from a batch of
     mjSTATE_FULLPHYSICS rows (n, nstate) to (n, size) values, or `parameter` names a state
     parameter whose per-episode value it is (`Observation.episode_value`), or `sensor_name`
-    a sensor of the model (`Observation.sensor`). `source` names the real sensor it stands
-    for (encoder, IMU, camera pose estimate); None marks it privileged: the simulator knows
-    it, a robot would not. `errors`: its noise, bias, quantization and dropped readings, as
-    protocol parameters (`ObservationModel`; the constructors' `noise`, `bias`, `quantum`
-    and `dropout` arguments build it)."""
+    a sensor of the model (`Observation.sensor`), or `pose` a body's or site's pose
+    (`Observation.body_position` and its siblings); `columns(model)` is its width. `source`
+    names the real sensor it stands for (encoder, IMU, camera pose estimate); None marks it
+    privileged: the simulator knows it, a robot would not. `errors`: its noise, bias,
+    quantization and dropped readings, as protocol parameters (`ObservationModel`; the
+    constructors' `noise`, `bias`, `quantum` and `dropout` arguments build it)."""
 
     name: str
     source: str | None
@@ -354,8 +353,6 @@ class Observation:
         source: str | None,
         errors: dict[str, str | None],
     ) -> Observation:
-        from mjtrial.task.poses import Pose  # noqa: PLC0415 - poses reads this module's names
-
         pose = Pose(quantity, element, frame)
         return cls(name, source, None, pose.size, errors=_errors(**errors), pose=pose)
 

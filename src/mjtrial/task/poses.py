@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from mjtrial.physics import FULLPHYSICS
-from mjtrial.task.declare import TaskError, _element
+from mjtrial.task import address
 
 # quantity -> (element kind, columns)
 QUANTITIES = {
@@ -30,6 +30,18 @@ QUANTITIES = {
     "body_orientation": ("body", 4),
     "site_orientation": ("site", 4),
 }
+
+
+class PoseError(ValueError):
+    """A pose observation's element that does not resolve or cannot be read (one line)."""
+
+
+def _element(model: mujoco.MjModel, kind: str, ref: str) -> int:
+    try:
+        return address.resolve(model, kind, ref)
+    except address.AddressError as err:
+        raise PoseError(str(err)) from None
+
 
 PoseRead = Callable[[mujoco.MjData], np.ndarray]
 """(data after `mj_kinematics`) -> (size,) the pose observation's value."""
@@ -48,7 +60,7 @@ def _frame_of(model: mujoco.MjModel, kind: str, ref: str) -> tuple[int, int]:
     index = _element(model, kind, ref)
     body = index if kind == "body" else int(model.site_bodyid[index])
     if _moves_with_mocap(model, body):
-        raise TaskError(
+        raise PoseError(
             f"{kind} {ref!r} is or moves with a mocap body, whose pose an mjSTATE_FULLPHYSICS "
             "state does not hold; expected a body or site driven by the physics"
         )
@@ -70,7 +82,7 @@ class Pose:
         return QUANTITIES[self.quantity][1]
 
     def bind(self, model: mujoco.MjModel) -> PoseRead:
-        """The read of the value from data after `mj_kinematics`; a `TaskError` (one line) if an
+        """The read of the value from data after `mj_kinematics`; a `PoseError` (one line) if an
         element does not resolve or moves with a mocap body."""
         kind, _ = QUANTITIES[self.quantity]
         index, _ = _frame_of(model, kind, self.element)
