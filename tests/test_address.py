@@ -10,10 +10,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from policy_graphs import tanh_mlp, write
 
 from mjtrial.physics import compiled_sha256, load_model, load_spec
+from mjtrial.policy_file import PolicyFileError, load_policy_file
+from mjtrial.report.model import actuator_lines
 from mjtrial.studies.variants import SPEC_ELEMENTS, apply_overrides, variant_model
-from mjtrial.task import ModelValue, TaskError, address
+from mjtrial.task import ModelValue, TaskError, address, load_task
 
 REPO = Path(__file__).resolve().parents[1]
 FETCH_DIR = REPO / "tasks" / "fetch_pick" / "assets"
@@ -193,8 +196,29 @@ def test_a_state_parameter_sets_an_unnamed_element(fetch):
 
 
 def test_the_report_labels_an_unnamed_actuator_by_its_joint():
-    from mjtrial.report.model import actuator_lines
-
     lines = actuator_lines(mujoco.MjModel.from_xml_string(UNNAMED))
     assert any(line.startswith("  - `actuator 0 on joint j`") for line in lines)
     assert not any("`actuator 0`" in line for line in lines)
+
+
+@pytest.mark.parametrize("ref", ["cart_motor", "#0", "on:cart_slide"])
+def test_a_policy_contract_names_an_actuator_by_address(tmp_path, ref):
+    task = load_task(REPO / "tasks" / "cartpole_latency" / "task.py")
+    policy = load_policy_file(write(tmp_path, "net", tanh_mlp([2, 8, 1]), actuators=[ref]), task)
+    model = load_model(task.model)
+    params = task.parameters({})
+    np.testing.assert_array_equal(policy.policy(model, params).columns, [0])
+
+
+def test_a_policy_contracts_bad_actuator_address_is_one_line(tmp_path):
+    task = load_task(REPO / "tasks" / "cartpole_latency" / "task.py")
+    path = write(tmp_path, "net", tanh_mlp([2, 8, 1]), actuators=["on:pole_hinge"])
+    policy = load_policy_file(path, task)
+    with pytest.raises(
+        PolicyFileError,
+        match=r"net\.yaml: actuators: 'on:pole_hinge': expected an "
+        r"actuator attached to an element named 'pole_hinge', found none \(its "
+        r"actuators: \['cart_motor'\]\)$",
+    ) as err:
+        policy.policy(load_model(task.model), task.parameters({}))
+    assert "\n" not in str(err.value)
