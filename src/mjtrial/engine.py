@@ -205,6 +205,7 @@ def iter_batches(
                     {p: rows[p] for p in episode_values},
                     params=params,
                     n_controls=timing.n_controls,
+                    models=models,
                 )
                 try:
                     result = closed_loop.run_batch(
@@ -266,6 +267,7 @@ def iter_batches(
                                 {p: rows[p][i : i + 1] for p in episode_values},
                                 params=params,
                                 n_controls=timing.n_controls,
+                                models=models[i : i + 1],
                             ),
                             timing,
                             pushes=pushes.rows(slice(i, i + 1)) if pushes else None,

@@ -100,7 +100,7 @@ def check_policy_file(
         equal_nan=True,
     )
     batch_policy = policy.policy(bound.model, task.parameters(condition))
-    width = sum(declared[n].size for n in policy.observations)
+    width = sum(bound.widths(policy.observations))
     call_seconds = {}
     # a reference episode's batch, and the engine's for this task
     for n in sorted({1, batch_size_for(bound.model, episode_steps(bound, condition))}):

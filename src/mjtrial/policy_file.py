@@ -39,7 +39,8 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
-from mjtrial.task import ClosedLoop, Control, MocapAction, Task, TaskError
+from mjtrial.physics import ModelError, load_model
+from mjtrial.task import ClosedLoop, Control, MocapAction, Task, TaskError, address
 
 if TYPE_CHECKING:
     import onnxruntime
@@ -392,13 +393,13 @@ class PolicyFile:
             names = (entry,) if isinstance(entry, str) else entry
             indices = []
             for name in names:
-                index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
-                if index < 0:
-                    known = [model.actuator(i).name for i in range(model.nu)]
+                try:  # a name, or an unnamed actuator's `#<index>` / `on:<joint>` (`address`)
+                    index = address.resolve(model, "actuator", name)
+                except address.AddressError as err:
+                    known = [address.describe(model, "actuator", i) for i in range(model.nu)]
                     raise PolicyFileError(
-                        f"{where}: actuators: {name!r} is not an actuator of the model (its "
-                        f"actuators: {known})"
-                    )
+                        f"{where}: actuators: {name!r}: {err} (its actuators: {known})"
+                    ) from None
                 if (
                     self.contract.action_scale == "ctrlrange"
                     and not model.actuator_ctrllimited[index]
@@ -453,7 +454,7 @@ def load_policy_file(path: str | Path, task: Task) -> PolicyFile:
                 f"{where}: observations: {name!r} is not an observation of task {task.name!r} "
                 f"(declared: {sorted(declared)})"
             )
-    n_columns = sum(declared[name].size for name in contract.observations)
+    n_columns = sum(_widths(task, contract.observations, where))
     for key in ("mean", "std"):
         values = getattr(contract, key)
         if values is not None and values.shape != (n_columns,):
@@ -464,6 +465,20 @@ def load_policy_file(path: str | Path, task: Task) -> PolicyFile:
     session = open_session(path)
     check_graph(contract, session, path, n_columns)
     return PolicyFile(path, contract, file_sha256(path), file_sha256(where), task, session)
+
+
+def _widths(task: Task, names: Sequence[str], where: Path) -> list[int]:
+    """Each observation's number of columns: a sensor's is its dimension in the task's model
+    (a `framepos` has 3), loaded only for one."""
+    declared = {o.name: o for o in task.observations}
+    model = None
+    if any(declared[n].sensor_name is not None for n in names):
+        try:
+            model = load_model(task.model)
+            return [declared[n].columns(model) for n in names]
+        except (ModelError, TaskError) as err:
+            raise PolicyFileError(f"{where}: observations: {err}") from None
+    return [declared[n].size for n in names]
 
 
 def policy_task(task: Task, policy_file: PolicyFile) -> Task:

@@ -87,16 +87,21 @@ def run_task_code(
         else:
             policy = call(task, "policy", controller.policy, bound.model, params)
             call(task, "timing", controller.timing, bound.model, params)
-            probe = np.random.default_rng(0).normal(
-                size=(
-                    4,
-                    sum(o.size for o in task.observations if o.name in controller.observations),
-                )
-            )
+            # each observation's own number of columns (a `framepos` sensor's 3)
+            widths = bound.widths(controller.observations)
+            probe = np.random.default_rng(0).normal(size=(4, sum(widths)))
             try:
                 check_batch_independence(policy, probe)
             except PolicyError as err:
                 raise TaskError(f"{controller.source or _where(task)}: {err}") from None
+            except Exception as err:  # noqa: BLE001 - the policy's code, on its input's width
+                given = ", ".join(
+                    f"{n} {w}" for n, w in zip(controller.observations, widths, strict=True)
+                )
+                raise TaskError(
+                    f"{controller.source or _where(task)}: policy raised {type(err).__name__} on "
+                    f"a batch of its observations, {sum(widths)} columns ({given}): {err}"
+                ) from None
         try:
             batch = next(
                 iter_batches(bound, nominal_values(task), condition, thresholds=thresholds)

@@ -18,6 +18,7 @@ import rerun as rr
 
 from mjtrial.recording.arrow import strict
 from mjtrial.recording.names import WORLD, body_entity
+from mjtrial.task.address import describe
 
 # Geoms in these groups are drawn: the ones MuJoCo's viewer shows by default. Groups 3-5 hold,
 # by convention, collision duplicates and helpers that the viewer hides.
@@ -166,7 +167,8 @@ def body_geometry(model: mujoco.MjModel, body: int, *, meshes: bool = True) -> l
         if gtype == _G.mjGEOM_MESH or _shape(shapes, gtype, size, pos, quat, _geom_rgba(model, g)):
             continue
         name = mujoco.mjtGeom(gtype).name
-        warnings.warn(f"geom {g} ({name}): no rerun equivalent, not drawn", stacklevel=3)
+        label = describe(model, "geom", g)
+        warnings.warn(f"{label} ({name}): no rerun equivalent, not drawn", stacklevel=3)
     for s in np.flatnonzero(model.site_bodyid == body):
         s = int(s)
         if int(model.site_group[s]) not in VISIBLE_GEOM_GROUPS or model.site_rgba[s][3] <= 0:

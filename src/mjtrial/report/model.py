@@ -11,6 +11,8 @@ from itertools import combinations
 
 import mujoco
 
+from mjtrial.task.address import describe
+
 _OBJ = mujoco.mjtObj
 _TRN = mujoco.mjtTrn
 # what a unit of generalized force is on each joint type
@@ -30,9 +32,9 @@ _JOINT_POSITION_UNIT = {
 
 
 def _label(model: mujoco.MjModel, kind: mujoco.mjtObj, index: int) -> str:
-    """How the report names element `index` of `kind`: its name, else "<kind> <index>". The one
-    place an element is labelled, so a richer description of unnamed elements goes here."""
-    return mujoco.mj_id2name(model, kind, index) or f"{kind.name[6:].lower()} {index}"
+    """How the report names element `index` of `kind`: its name, else what it is attached to
+    ("geom 27 of body robot0:base_link", `mjtrial.task.address.describe`)."""
+    return describe(model, kind, index)
 
 
 def _driven(model: mujoco.MjModel, i: int) -> tuple[str, str, str]:
@@ -167,7 +169,9 @@ def actuator_lines(model: mujoco.MjModel) -> list[str]:
     for i in range(model.nu):
         driven, force_unit, position_unit = _driven(model, i)
         bound = _bound_text(model, i, force_unit, position_unit)
-        lines.append(f"  - `{_label(model, _OBJ.mjOBJ_ACTUATOR, i)}` on {driven}: {bound}")
+        named = mujoco.mj_id2name(model, _OBJ.mjOBJ_ACTUATOR, i)
+        label = f"`{named}`" if named else f"actuator {i}"  # "on ..." follows either way
+        lines.append(f"  - {label} on {driven}: {bound}")
     return lines
 
 

@@ -22,7 +22,7 @@ from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.variants import variant_model
-from mjtrial.task import BoundTask, Measure, Task, load_task
+from mjtrial.task import BoundTask, Measure, Task, address, load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -198,7 +198,7 @@ def recording_spec(bound: BoundTask, n_steps: int, rate_hz: float) -> RecordingS
     return RecordingSpec(
         model=model,
         signals=[
-            Signal(s.name, model.body(s.body).id, s.plot, read)
+            Signal(s.name, address.resolve(model, "body", s.body), s.plot, read)
             for s, read in zip(task.series, bound.series, strict=True)
         ],
         state_names=[p.name for p in task.state_parameters],

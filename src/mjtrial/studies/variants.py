@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 
 from mjtrial.physics import ModelError, compiled_sha256, load_spec
+from mjtrial.task import address
 
 OVERRIDE_KINDS = (
     *("option", "geom", "actuator", "body"),
@@ -51,6 +52,13 @@ DEFAULT_ELEMENTS = {
     "tendon": "tendons",
     "actuator": "actuators",
     "equality": "equalities",
+}
+
+# The spec's list of each kind of element an override may name (in the compiled model's order).
+SPEC_ELEMENTS = {
+    **DEFAULT_ELEMENTS,
+    "body": "bodies",
+    "sensor": "sensors",
 }
 
 # MJCF's keywords for the enumerated <option> attributes, in the order of their mjt enums
@@ -182,6 +190,29 @@ def _apply_default(spec: mujoco.MjSpec, name: str, kinds: Any, where: str) -> No
                     setattr(element, attribute, new)
 
 
+def _spec_element(
+    spec: mujoco.MjSpec, kind: str, ref: str, key: str, compiled: list[mujoco.MjModel]
+) -> Any:
+    """The spec's element that `ref` names: a name, or an address (`#<index>`, `on:<name>`:
+    `mjtrial.task.address`) resolved on the compiled spec, whose element lists are in the
+    compiled model's order (tests/test_address.py checks it for every kind here)."""
+    if not ref.startswith(("#", "on:")):
+        element = getattr(spec, kind)(ref)  # spec.geom(name), spec.joint(name), ...
+        if element is None:
+            _fail(
+                key,
+                f"the model has no {kind} of that name; an unnamed one: '#<index>' or 'on:<name>'",
+            )
+        return element
+    if not compiled:
+        compiled.append(_compiled(spec, source=key)[0])
+    try:
+        index = address.resolve(compiled[0], kind, ref)
+    except address.AddressError as err:
+        _fail(key, str(err))
+    return getattr(spec, SPEC_ELEMENTS[kind])[index]
+
+
 def apply_overrides(
     spec: mujoco.MjSpec, overrides: Mapping[str, Any], *, key_prefix: str = "overrides"
 ) -> None:
@@ -193,6 +224,7 @@ def apply_overrides(
     """
     if not isinstance(overrides, Mapping):
         _fail(key_prefix, f"expected a mapping of {', '.join(OVERRIDE_KINDS)}")
+    compiled: list[mujoco.MjModel] = []  # the spec compiled once, if an address needs it
     for kind, entries in overrides.items():
         where = f"{key_prefix}.{kind}"
         if kind not in OVERRIDE_KINDS:
@@ -207,11 +239,8 @@ def apply_overrides(
             for name, kinds in entries.items():
                 _apply_default(spec, name, kinds, f"{where}.{name}")
             continue
-        find = getattr(spec, kind)  # spec.geom(name), spec.joint(name), spec.sensor(name), ...
         for element_name, attributes in entries.items():
-            element = find(element_name)
-            if element is None:
-                _fail(f"{where}.{element_name}", f"the model has no {kind} of that name")
+            element = _spec_element(spec, kind, element_name, f"{where}.{element_name}", compiled)
             if not isinstance(attributes, Mapping) or not attributes:
                 _fail(f"{where}.{element_name}", "expected a non-empty mapping of attributes")
             for name, value in attributes.items():

@@ -64,6 +64,8 @@ from mjtrial.task.definition import Task, call, expect_rows
 from mjtrial.task.load import ENTRY_POINT_GROUP, load_task, task_files
 from mjtrial.task.observation_model import ObservationModel
 
+from mjtrial.task import address  # isort: skip - after the package's names (declare uses it)
+
 __all__ = [
     "DISTURBANCE",
     "ENGINE_MEASURES",
@@ -103,6 +105,7 @@ __all__ = [
     "Task",
     "TaskError",
     "Threshold",
+    "address",
     "call",
     "expect_rows",
     "load_task",

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,6 +24,7 @@ from mjtrial.task.declare import (
 )
 from mjtrial.task.definition import Task, call
 from mjtrial.task.observation_model import with_errors
+from mjtrial.task.poses import PoseError, PoseProbe
 
 # --------------------------------------------------------------------------------------------
 # Episodes' models and initial states
@@ -85,8 +86,11 @@ class BoundTask:
                     )
                 continue
             try:
-                observe[o.name] = _sensor(model, o) if o.sensor_name else o.read(model)
-            except TaskError as err:
+                if o.pose is not None:
+                    observe[o.name] = o.pose.bind(model)  # read on each episode's model
+                else:
+                    observe[o.name] = _sensor(model, o) if o.sensor_name else o.read(model)
+            except (TaskError, PoseError) as err:
                 raise TaskError(f"{where}: observation {o.name!r}: {err}") from None
         for x in task.series:
             try:
@@ -167,6 +171,7 @@ class BoundTask:
         *,
         params: Mapping[str, float] | None = None,
         n_controls: int | None = None,
+        models: Sequence[mujoco.MjModel] | None = None,
     ) -> Observer:
         """The observations `names`, side by side: what the policy is given at each control
         instant, (n, total size).
@@ -179,14 +184,22 @@ class BoundTask:
           params: the condition's protocol parameters (default: the defaults): the values of
             the observation errors' parameters.
           n_controls: control instants per episode (needed when an observation has errors).
+          models: each row's own model (`episode`), on which a pose observation is computed
+            (`mjtrial.task.poses`); needed for one when a state parameter edits the model.
         """
         declared = {o.name: o for o in self.task.observations}
         params = self.task.parameters(params or {})
         where = self.task.source or self.task.name
 
+        posed = [n for n in dict.fromkeys(names) if declared[n].pose is not None]
+        probe = self._pose_probe(posed, models) if posed else None
+
         def read(name: str) -> Callable[[int, np.ndarray, np.ndarray | None], np.ndarray]:
             o = declared[name]
-            if o.parameter is not None:
+            if o.pose is not None:
+                j = posed.index(name)
+                true = lambda k, states, sensors: probe(k, states)[j]  # noqa: E731
+            elif o.parameter is not None:
                 column = np.asarray((values or {})[o.parameter], dtype=np.float64)[:, None]
                 true = lambda k, states, sensors: column  # noqa: E731
             elif o.sensor_name is not None:
@@ -215,6 +228,29 @@ class BoundTask:
             ),
             sensed=sensed,
         )
+
+    def _pose_probe(
+        self, posed: list[str], models: Sequence[mujoco.MjModel] | None
+    ) -> Callable[[int, np.ndarray], list[np.ndarray]]:
+        """(k, states) -> each pose observation's (n, size) values, on each row's model."""
+        reads = [self.observe[n] for n in posed]
+        if models is not None:
+            return PoseProbe(models, reads).values
+        if any(p.apply.stage == "model" for p in self.task.state_parameters):
+            raise ValueError(f"observation {posed[0]!r} is a pose: give each row's model (models)")
+        probes: dict[int, PoseProbe] = {}  # the nominal model for every row, by batch size
+
+        def values(k: int, states: np.ndarray) -> list[np.ndarray]:
+            n = len(states)
+            probe = probes.setdefault(n, PoseProbe([self.model] * n, reads))
+            return probe.values(k, states)
+
+        return values
+
+    def widths(self, names: Sequence[str]) -> list[int]:
+        """The number of columns of each observation `names` (a sensor's dimension)."""
+        declared = {o.name: o for o in self.task.observations}
+        return [declared[n].columns(self.model) for n in names]
 
 
 def _sensor(model: mujoco.MjModel, o: Observation) -> slice:

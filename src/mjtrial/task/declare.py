@@ -15,7 +15,9 @@ import numpy as np
 
 from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
 from mjtrial.physics import STATE_QPOS
+from mjtrial.task import address
 from mjtrial.task.observation_model import ObservationModel
+from mjtrial.task.poses import Pose
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
 # A policy file's action went NaN or infinite (`mjtrial.policy_file`): control stopped.
@@ -34,12 +36,13 @@ class ModelCheckError(TaskError):
         self.problem = problem
 
 
-def _element(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
-    index = mujoco.mj_name2id(model, kind, name)
-    if index < 0:
-        noun = kind.name.removeprefix("mjOBJ_").lower()
-        raise TaskError(f"expected a {noun} named {name!r} in the model")
-    return index
+def _element(model: mujoco.MjModel, kind: mujoco.mjtObj | str, name: str) -> int:
+    """The index of the element `name` gives: a name, `#<index>` or `on:<name>`
+    (`mjtrial.task.address`); a `TaskError` (one line) when it does not resolve."""
+    try:
+        return address.resolve(model, kind, name)
+    except address.AddressError as err:
+        raise TaskError(str(err)) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -126,7 +129,10 @@ class ModelValue:
     def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
         what = f"{self.kind} {self.name!r}"
         try:
-            element = getattr(model, self.kind)(self.name)
+            accessor = getattr(model, self.kind)
+            # an address (`#0`, `on:<name>`) for the kinds it covers, else MuJoCo's lookup
+            ref = _element(model, self.kind, self.name) if self.kind in address.KINDS else self.name
+            element = accessor(ref)
         except (AttributeError, TypeError):
             raise TaskError(f"expected an MjModel element kind, got {self.kind!r}") from None
         except KeyError:
@@ -137,7 +143,8 @@ class ModelValue:
                 f"{what}: expected a numeric field {self.attribute!r} with an "
                 f"index {self.index} (it has {field_.size} numbers)"
             )
-        kind, name, attribute, index = self.kind, self.name, self.attribute, self.index
+        kind, attribute, index = self.kind, self.attribute, self.index
+        name = element.id  # an index: the element may be unnamed (`#0`, `on:<name>`)
         moves = attribute in ("pos", "quat")
 
         def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
@@ -339,11 +346,12 @@ class Observation:
     """A quantity the controller may read: `read(model)` gives a function from a batch of
     mjSTATE_FULLPHYSICS rows (n, nstate) to (n, size) values, or `parameter` names a state
     parameter whose per-episode value it is (`Observation.episode_value`), or `sensor_name`
-    a sensor of the model (`Observation.sensor`). `source` names the real sensor it stands
-    for (encoder, IMU, camera pose estimate); None marks it privileged: the simulator knows
-    it, a robot would not. `errors`: its noise, bias, quantization and dropped readings, as
-    protocol parameters (`ObservationModel`; the constructors' `noise`, `bias`, `quantum`
-    and `dropout` arguments build it)."""
+    a sensor of the model (`Observation.sensor`), or `pose` a body's or site's pose
+    (`Observation.body_position` and its siblings); `columns(model)` is its width. `source`
+    names the real sensor it stands for (encoder, IMU, camera pose estimate); None marks it
+    privileged: the simulator knows it, a robot would not. `errors`: its noise, bias,
+    quantization and dropped readings, as protocol parameters (`ObservationModel`; the
+    constructors' `noise`, `bias`, `quantum` and `dropout` arguments build it)."""
 
     name: str
     source: str | None
@@ -352,6 +360,102 @@ class Observation:
     parameter: str | None = None  # a state parameter's per-episode value (`episode_value`)
     sensor_name: str | None = None  # a sensor of the model (`sensor`)
     errors: ObservationModel | None = None
+    pose: Pose | None = None  # a body's or site's pose (`body_position`, ...: `task.poses`)
+
+    def columns(self, model: mujoco.MjModel) -> int:
+        """Its number of columns in the policy's input: a sensor's dimension in `model` (a
+        `framepos` has 3), else `size`."""
+        if self.sensor_name is None:
+            return self.size
+        return int(model.sensor_dim[_element(model, mujoco.mjtObj.mjOBJ_SENSOR, self.sensor_name)])
+
+    @classmethod
+    def _pose(
+        cls,
+        quantity: str,
+        name: str,
+        element: str,
+        frame: str | None,
+        source: str | None,
+        errors: dict[str, str | None],
+    ) -> Observation:
+        pose = Pose(quantity, element, frame)
+        return cls(name, source, None, pose.size, errors=_errors(**errors), pose=pose)
+
+    @classmethod
+    def body_position(
+        cls,
+        name: str,
+        body: str,
+        *,
+        source: str | None,
+        frame: str | None = None,
+        **errors: str | None,
+    ) -> Observation:
+        """A body's position (`xpos`, 3 columns), in the world frame or in `frame`'s (a body's,
+        else a site's): computed on each episode's own model at the measured state
+        (`mjtrial.task.poses`; a mocap body, or one that moves with one, is refused for now).
+        `errors`: as for `Observation.sensor`."""
+        return cls._pose("body_position", name, body, frame, source, errors)
+
+    @classmethod
+    def site_position(
+        cls,
+        name: str,
+        site: str,
+        *,
+        source: str | None,
+        frame: str | None = None,
+        **errors: str | None,
+    ) -> Observation:
+        """A site's position (`site_xpos`, 3 columns); as `Observation.body_position`."""
+        return cls._pose("site_position", name, site, frame, source, errors)
+
+    @classmethod
+    def body_orientation(
+        cls,
+        name: str,
+        body: str,
+        *,
+        source: str | None,
+        frame: str | None = None,
+        **errors: str | None,
+    ) -> Observation:
+        """A body's orientation, a unit quaternion w-x-y-z (`xquat`, 4 columns); in `frame`'s:
+        conj(q_frame) * q. As `Observation.body_position`."""
+        return cls._pose("body_orientation", name, body, frame, source, errors)
+
+    @classmethod
+    def site_orientation(
+        cls,
+        name: str,
+        site: str,
+        *,
+        source: str | None,
+        frame: str | None = None,
+        **errors: str | None,
+    ) -> Observation:
+        """A site's orientation, w-x-y-z (from `site_xmat`, 4 columns); as
+        `Observation.body_orientation`."""
+        return cls._pose("site_orientation", name, site, frame, source, errors)
+
+    @classmethod
+    def free_joint(
+        cls, name: str, joint: str, *, source: str | None, **errors: str | None
+    ) -> Observation:
+        """A free joint's position and orientation, 7 columns straight from `qpos` (x, y, z,
+        then the quaternion w-x-y-z): an object's pose in the world. `errors`: as for
+        `Observation.sensor`."""
+
+        def read(model: mujoco.MjModel) -> Callable[[np.ndarray], np.ndarray]:
+            index = _element(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+            if model.jnt_type[index] != mujoco.mjtJoint.mjJNT_FREE:
+                kind = mujoco.mjtJoint(model.jnt_type[index]).name.removeprefix("mjJNT_").lower()
+                raise TaskError(f"joint {joint!r} is a {kind} joint; expected a free joint")
+            column = STATE_QPOS + model.jnt_qposadr[index]
+            return lambda states: states[:, column : column + 7]
+
+        return cls(name, source, read, 7, errors=_errors(**errors))
 
     @classmethod
     def sensor(
