@@ -79,7 +79,9 @@ def test_actuator_and_contact_statements_are_true_of_each_model(name, path):
     pairs = collision_pairs(model)
     assert pairs == _documented_pairs(model)
     text = "\n".join(contact_lines(model, max_pairs=len(pairs) or 1))
-    geom = lambda g: mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}"  # noqa: E731
+    geom = lambda g: mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or (  # noqa: E731
+        f"geom {g} of body {model.body(model.geom_bodyid[g]).name}"  # an unnamed one
+    )
     listed = re.findall(r"`([^`]+)`–`([^`]+)`", text)
     assert listed == [(geom(a), geom(b)) for a, b in pairs]
 
