@@ -1,8 +1,9 @@
 """What the report says of a compiled model: only what is true of any model.
 
-Actuator limits in the units of what they drive, the geom pairs MuJoCo's collision filter lets
-through (none when contacts are disabled), and the joints' damping, armature and frictionloss:
-read from the compiled `MjModel`, never assumed from the built-in tasks.
+Actuator limits in the units of what they drive, the equality constraints (a mocap weld), what
+a policy's output columns drive (mocap targets too), the geom pairs MuJoCo's collision filter
+lets through (none when contacts are disabled), and the joints' damping, armature and
+frictionloss: read from the compiled `MjModel`, never assumed from the built-in tasks.
 """
 
 from __future__ import annotations
@@ -10,7 +11,9 @@ from __future__ import annotations
 from itertools import combinations
 
 import mujoco
+import numpy as np
 
+from mjtrial.actuation import Actuation, ControlColumn
 from mjtrial.task.address import describe
 
 _OBJ = mujoco.mjtObj
@@ -280,3 +283,57 @@ def model_files_text(files: dict[str, str] | None) -> str:
         else f"over its {n} files (the scene and every file it includes or loads: names and "
         "bytes; not the `sha256sum` of the scene)"
     )
+
+
+def equality_lines(model: mujoco.MjModel) -> list[str]:
+    """One line per equality constraint (a mocap weld moves an arm): what it binds, whether it
+    is active at the start, and its solref (how stiff it is)."""
+    if model.neq == 0:
+        return []
+    lines = ["- Equality constraints (from the compiled model):"]
+    for i in range(model.neq):
+        state = "active" if model.eq_active0[i] else "inactive at the start"
+        solref = ", ".join(f"{v:g}" for v in model.eq_solref[i])
+        lines.append(f"  - {_label(model, _OBJ.mjOBJ_EQUALITY, i)}: {state}, solref {solref}")
+    return lines
+
+
+def action_lines(model: mujoco.MjModel, actuation: Actuation | None) -> list[str]:
+    """What each of a closed-loop policy's output columns drives (`mjtrial.actuation`), as bound
+    to the model; none when the outputs are every actuator's ctrl in order."""
+    if actuation is None or actuation.passthrough:
+        return []
+    lines = ["- The policy's output columns, in order:"]
+    for c in sorted([*actuation.controls, *actuation.mocaps], key=lambda c: c.column):
+        if isinstance(c, ControlColumn):
+            names = ", ".join(f"`{_label(model, _OBJ.mjOBJ_ACTUATOR, a)}`" for a in c.actuators)
+            value = f"{c.scale:g} × the value"
+            rule = f"its joint's position + {value}" if c.qpos is not None else value
+            lines.append(f"  - column {c.column}: the ctrl of {names} = {rule}")
+            continue
+        body = int(np.flatnonzero(model.body_mocapid == c.mocap)[0])
+        step = f"{c.scale:g} × the values"
+        if c.max_step is not None:
+            step += f", each axis clipped to ±{c.max_step:g} m per control step"
+        reference = {
+            "absolute": "",
+            "target": "the previous target + ",
+            "body": f"the pose of `{_label(model, _OBJ.mjOBJ_BODY, c.welded)}` as the last "
+            "physics step left it + ",
+        }[c.relative_to]
+        rule = f"{reference}{step}"
+        if c.low is not None:
+            rule += f", then clipped to the box {_vec(c.low)}..{_vec(c.high)} m"
+        if c.orientation is not None:
+            rule += f"; orientation fixed at {_vec(c.orientation)} (w, x, y, z)"
+        elif c.orientation_offset is not None:
+            rule += f"; orientation that body's + {_vec(c.orientation_offset)}, normalized"
+        lines.append(
+            f"  - columns {c.column}-{c.column + 2}: the target position of mocap body "
+            f"`{_label(model, _OBJ.mjOBJ_BODY, body)}` = {rule}"
+        )
+    return lines
+
+
+def _vec(values) -> str:
+    return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"

@@ -19,8 +19,15 @@ from mjtrial import REPO_ROOT, provenance
 from mjtrial.conditions import condition_record
 from mjtrial.physics import load_model
 from mjtrial.report.labels import band_parameter, failure_categories, pct, rate_cell, setting
-from mjtrial.report.model import actuator_lines, contact_lines, joint_lines, model_files_text
-from mjtrial.task import Task, load_task
+from mjtrial.report.model import (
+    action_lines,
+    actuator_lines,
+    contact_lines,
+    equality_lines,
+    joint_lines,
+    model_files_text,
+)
+from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
 
 
 def _interval(low: float, high: float, *, signed: bool = False) -> str:
@@ -223,6 +230,21 @@ def _redrawn_text(redrawn: Mapping[str, int] | None) -> str:
     return f"draws rejected and redrawn: {', '.join(counts)}."
 
 
+def _controller_lines(model: mujoco.MjModel, task: Task) -> list[str]:
+    """What the policy's output columns drive, and how each episode starts when the task's
+    `episode_setup` (a suite's own reset) prepares it."""
+    lines = []
+    if isinstance(task.controller, ClosedLoop) and task.controller.actions:
+        lines += action_lines(model, BoundTask.of(task, model).actuation)
+    if task.episode_setup is not None:
+        doc = (task.episode_setup.__doc__ or "").strip().split("\n\n")[0]
+        what = " ".join(doc.split()) or "(no docstring)"
+        lines.append(
+            f"- Each episode starts from the task's `episode_setup`, run after the reset: {what}"
+        )
+    return lines
+
+
 def _setup(
     summary: Mapping[str, Any],
     config: Mapping[str, Any],
@@ -242,6 +264,8 @@ def _setup(
         f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
         f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
         *actuator_lines(model),
+        *equality_lines(model),
+        *_controller_lines(model, task),
         *joint_lines(model),
         *contact_lines(model),
         "",
@@ -429,7 +453,8 @@ def _failure_analysis(
         "## Failure analysis",
         "",
         "Each failed episode gets exactly one category, the first that applies in the order "
-        f"below (the task's failure categories; thresholds from the config: {thresholds}).",
+        "below (the task's failure categories"
+        + (f"; thresholds from the config: {thresholds})." if thresholds else ")."),
         "",
         *_table(["category", *names], rows),
         "",
