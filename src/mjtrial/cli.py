@@ -223,7 +223,7 @@ def _is_benchmark_file(config_path: Path) -> bool:
     # Imported here (jsonschema, mujoco through the config module): `mjtrial plan` need not
     # pay for them.
     from mjtrial.benchmark.config import is_benchmark
-    from mjtrial.config import read_config_file
+    from mjtrial.config_files import read_config_file
 
     return config_path.is_file() and is_benchmark(read_config_file(config_path))
 
@@ -240,7 +240,7 @@ def _verify_benchmark(
     # Imported here (mujoco, cma, scipy): `mjtrial plan` need not pay for them.
     from mjtrial.benchmark.config import check_benchmark_config
     from mjtrial.benchmark.verify import verify_benchmark
-    from mjtrial.config import read_config_file
+    from mjtrial.config_files import read_config_file
     from mjtrial.layout import BenchmarkLayout
 
     config = read_config_file(config_path)
@@ -265,7 +265,7 @@ def _verify_benchmark(
 def _crate(args: argparse.Namespace) -> int:
     # Imported here: the crate reads stamps (rerun-sdk) and uses the rocrate library, which
     # `mjtrial plan` need not load.
-    from mjtrial.config import ConfigError, read_config_file
+    from mjtrial.config_files import ConfigError, read_config_file
     from mjtrial.crate.archive import (
         ArchiveError,
         check_crate,

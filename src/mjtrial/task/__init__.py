@@ -116,9 +116,9 @@ __all__ = [
 def __getattr__(name: str) -> object:
     """`mjtrial.task.STATE_QPOS`, which tasks imported before it moved: deprecated."""
     if name == "STATE_QPOS":
-        import warnings
+        import warnings  # only a deprecated name's reader needs these
 
-        from mjtrial.physics import STATE_QPOS
+        from mjtrial.physics import STATE_QPOS  # physics is imported already: no cost
 
         warnings.warn(
             "mjtrial.task.STATE_QPOS is deprecated; import mjtrial.physics.STATE_QPOS",

@@ -130,8 +130,8 @@ def resolve(model: mujoco.MjModel, kind: str | mujoco.mjtObj, ref: str) -> int:
         digits = ref[1:]
         if not digits.isdigit() or int(digits) >= n:
             raise AddressError(
-                f"expected '#<index>' with an index 0 to {n - 1} among the model's {n} "
-                f"{noun}s, got {ref!r}"
+                f"expected '#<index>' with an index 0 to {n - 1} among the model's "
+                f"{_count(n, noun)}, got {ref!r}"
             )
         return int(digits)
     if ref.startswith("on:"):
@@ -149,8 +149,8 @@ def resolve(model: mujoco.MjModel, kind: str | mujoco.mjtObj, ref: str) -> int:
             )
         shown = "; ".join(f"#{i}: {describe(model, obj, i)}" for i in found)
         raise AddressError(
-            f"{ref!r} is ambiguous: {len(found)} {noun}s are attached to {target!r} ({shown}); "
-            "expected one, or give its '#<index>'"
+            f"{ref!r} is ambiguous: {_count(len(found), noun)} are attached to {target!r} "
+            f"({shown}); expected one, or give its '#<index>'"
         )
     index = mujoco.mj_name2id(model, obj, ref)
     if index < 0:
@@ -186,3 +186,11 @@ def describe(model: mujoco.MjModel, kind: str | mujoco.mjtObj, index: int) -> st
         o, j = attached[0]
         return f"{noun} {index} on {_noun(o)} {describe(model, o, j)}"
     return f"{noun} {index}"
+
+
+def _count(n: int, noun: str) -> str:
+    """'1 equality', '3 equalities', '2 bodies', '0 actuators'."""
+    if n == 1:
+        return f"1 {noun}"
+    plural = noun[:-1] + "ies" if noun.endswith("y") and noun[-2] not in "aeiou" else noun + "s"
+    return f"{n} {plural}"

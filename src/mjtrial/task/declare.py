@@ -265,8 +265,8 @@ class ReadBySetup:
 
 
 EPISODE_SETUP = ReadBySetup()
-"""A state parameter's `apply` when the task's `episode_setup` reads it (a block placed relative
-to where the suite's reset left the gripper)."""
+"""A state parameter's `apply` when the task's `episode_setup` reads it (an object placed relative
+to where the suite's own reset left the robot)."""
 
 
 @dataclass(frozen=True)
