@@ -72,6 +72,7 @@ else:
     include: "workflow/rules/common.smk"
     include: "workflow/rules/states.smk"
     include: "workflow/rules/rollout.smk"
+    include: "workflow/rules/stopping.smk"
     include: "workflow/rules/failures.smk"
     include: "workflow/rules/analysis.smk"
     include: "workflow/rules/manifest.smk"
@@ -89,7 +90,7 @@ else:
         "report": LAYOUT.report,
         "seal": LAYOUT.seal,
         "crate": LAYOUT.crate,
-        "outputs": LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED),
+        "outputs": sealed_outputs,
         "source": LAYOUT.source,
     }
 

@@ -312,6 +312,13 @@ def check_config(
             )
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
+    if "stopping" in config and falsifier["threshold"] != 0:
+        # the sequential test's null is McNemar's: no paired difference
+        fail(
+            "design.falsifier.threshold",
+            f"expected 0 with a stopping rule (its null is no paired difference), got "
+            f"{falsifier['threshold']}",
+        )
     _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
     policy_tasks = _policy_tasks(config, task, repo_root=Path(repo_root), fail=fail)
     _check_privileged(config, task, policy_tasks=policy_tasks, repo_root=Path(repo_root), fail=fail)

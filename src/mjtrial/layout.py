@@ -79,6 +79,8 @@ STAGES: dict[str, Stage] = {
     for s in (
         Stage("states", "states"),
         Stage("rollout", "rollout"),
+        # a stopping rule's look after each shard (`stopping`; a checkpoint)
+        Stage("look", "look"),
         Stage("gather", "gather"),
         Stage("failures", "failures"),
         Stage("analysis", "analysis"),
@@ -199,6 +201,12 @@ class Layout:
             out += [self.shard_recordings(condition, s, variant) for s in shards]
         return out
 
+    # -- stopping early ----------------------------------------------------------------------
+    def look(self, shard: str) -> Path:
+        """A stopping rule's look after `shard`: the e-value on the pairs run so far, and
+        whether the experiment stops there."""
+        return self.root / "analysis" / "looks" / f"look-{shard}.json"
+
     # -- downstream -----------------------------------------------------------------------
     @property
     def failures(self) -> Path:
@@ -289,12 +297,19 @@ class Layout:
         return self.root / "source"
 
     def sealed_outputs(
-        self, conditions: list[str], shards: list[str], *, recorded: bool
+        self,
+        conditions: list[str],
+        shards: list[str],
+        *,
+        recorded: bool,
+        looks: Sequence[str] = (),
     ) -> list[Path]:
-        """Every output of the built-in experiment, in pipeline order: what the seal covers."""
+        """Every output of the built-in experiment, in pipeline order: what the seal covers
+        (`looks`: the shards a stopping rule looked after)."""
         return [
             self.states,
             *self.rollout_outputs(conditions, shards, recorded=recorded),
+            *(self.look(s) for s in looks),
             *([self.failures, self.failures_table] if recorded else []),
             self.summary,
             self.manifest,

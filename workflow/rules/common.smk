@@ -23,6 +23,7 @@ from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
+from mjtrial.stages.look import stops
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
 
@@ -44,6 +45,65 @@ SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
 PILOT_SHARDS = shard_ids(pilot_states(config), config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
 RECORDED = config["recording"]["episodes"] != "none"
+# A stopping rule (`stopping`): a look after each shard, a checkpoint (stopping.smk).
+STOPPING = "stopping" in config
+
+
+def run_shards():
+    """The evaluation's shards that run: all of them; under a stopping rule, each up to the
+    first look that stops. Each look is a checkpoint read in turn, so the next shard is asked
+    for only once the look before it said go on (mjtrial.stages.look.shards_run reads the
+    same files on disk for verify)."""
+    if not STOPPING:
+        return SHARDS
+    shards = []
+    for shard in SHARDS:
+        shards.append(shard)
+        if stops(checkpoints.look.get(shard=shard).output.look):
+            break
+    return shards
+
+
+def run_looks():
+    """The shards a stopping rule looked after (none without one)."""
+    return run_shards() if STOPPING else []
+
+
+def sealed_outputs(wildcards=None):
+    """Every output of the experiment (`Layout.sealed_outputs`) of the shards that ran."""
+    return LAYOUT.sealed_outputs(
+        CONDITIONS, run_shards(), recorded=RECORDED, looks=run_looks()
+    )
+
+
+def sealed_inputs(wildcards):
+    return as_inputs(sealed_outputs())
+
+
+def sealed_folders(wildcards):
+    return folders_of(sealed_outputs())
+
+
+def run_shard_outputs(wildcards):
+    """The design's conditions' shard tables that ran, and the looks (the manifest's)."""
+    return [
+        *(p for c in CONDITIONS for p in LAYOUT.shard_outputs(c, run_shards(), recorded=False)),
+        *(LAYOUT.look(s) for s in run_looks()),
+    ]
+
+
+def run_shard_recordings(wildcards):
+    """The design's conditions' recordings folders that ran, as inputs (`as_inputs`)."""
+    return as_inputs(shard_recordings(CONDITIONS))
+
+
+def run_shard_folders(wildcards):
+    """The design's conditions' recordings folders that ran, as a param."""
+    return shard_recordings(CONDITIONS)
+
+
+def run_shard_folders_by_condition(wildcards):
+    return shard_folders(CONDITIONS)
 
 
 def qualified(wildcards):
@@ -76,7 +136,7 @@ def shard_bounds(wildcards):
 def shard_tables(wildcards):
     """Every shard table of the job's condition (and variant), in state order."""
     variant = getattr(wildcards, "variant", NOMINAL)
-    return [LAYOUT.shard_table(wildcards.condition, s, variant) for s in SHARDS]
+    return [LAYOUT.shard_table(wildcards.condition, s, variant) for s in run_shards()]
 
 
 def pilot_shard_tables(wildcards):
@@ -119,7 +179,7 @@ def shard_recordings(conditions, variant=NOMINAL):
     """Every shard's recordings folder of these conditions."""
     if not RECORDED:
         return []
-    return [LAYOUT.shard_recordings(c, s, variant) for c in conditions for s in SHARDS]
+    return [LAYOUT.shard_recordings(c, s, variant) for c in conditions for s in run_shards()]
 
 
 def shard_folders(conditions):
@@ -127,7 +187,7 @@ def shard_folders(conditions):
     (stages never glob for shards: a folder left by an earlier shard size is not theirs).
     """
     return {
-        c: [str(LAYOUT.shard_recordings(c, s)) for s in SHARDS] if RECORDED else []
+        c: [str(LAYOUT.shard_recordings(c, s)) for s in run_shards()] if RECORDED else []
         for c in conditions
     }
 
@@ -183,7 +243,7 @@ def variant_outputs():
         path
         for variant in VARIANTS
         for path in LAYOUT.rollout_outputs(
-            CONDITIONS, SHARDS, recorded=RECORDED, variant=variant
+            CONDITIONS, run_shards(), recorded=RECORDED, variant=variant
         )
     ]
 
@@ -196,7 +256,7 @@ def study_sealed(wildcards):
     if study == "sensitivity":
         return own + variant_outputs()
     swept = [c for c in SWEEP.values() if c not in CONDITIONS]
-    return own + LAYOUT.rollout_outputs(swept, SHARDS, recorded=RECORDED)
+    return own + LAYOUT.rollout_outputs(swept, run_shards(), recorded=RECORDED)
 
 
 def study_figure_outputs(study):

@@ -3,7 +3,7 @@ rule failures:
     input:
         # which episodes failed, so that only the chosen ones' recordings are opened
         tables=per_condition(LAYOUT.rollout_table),
-        shards=as_inputs(shard_recordings(CONDITIONS)),
+        shards=run_shard_recordings,
     output:
         failures=LAYOUT.failures,
         table=LAYOUT.failures_table,
@@ -12,7 +12,7 @@ rule failures:
     params:
         slice=config_slice("failures", config),
         conditions=CONDITIONS,
-        shard_folders=shard_folders(CONDITIONS),
+        shard_folders=run_shard_folders_by_condition,
         code=stage_code_hash("failures"),
     # A process of its own: reading the recordings leaves 25-35 MB in the process that ran it
     # (measured alone, at N = 200 and 4,000), which Snakemake's process, running the other

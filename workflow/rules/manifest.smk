@@ -3,11 +3,8 @@ rule manifest:
         states=LAYOUT.states,
         rollouts=per_condition(LAYOUT.rollout_table),
         nominals=per_condition(LAYOUT.nominal_episode),
-        shards=[
-            p
-            for c in CONDITIONS
-            for p in LAYOUT.shard_outputs(c, SHARDS, recorded=False)
-        ],
+        # the shard tables that ran, and a stopping rule's looks
+        shards=run_shard_outputs,
         failures=[LAYOUT.failures, LAYOUT.failures_table] if RECORDED else [],
         summary=LAYOUT.summary,
         model=config["model"],
@@ -20,7 +17,7 @@ rule manifest:
     log:
         LAYOUT.log("manifest"),
     params:
-        folders=shard_recordings(CONDITIONS),
+        folders=run_shard_folders,
         # The manifest records the whole config, so it depends on all of it.
         slice=config_slice("manifest", config),
         task_sha256=task_content,

@@ -3,7 +3,7 @@ rule report:
         summary=LAYOUT.summary,
         manifest=LAYOUT.manifest,
         rollouts=per_condition(LAYOUT.rollout_table),
-        shards=as_inputs(shard_recordings(CONDITIONS)),
+        shards=run_shard_recordings,
         model=config["model"],
     output:
         **figure_outputs(),
@@ -16,7 +16,7 @@ rule report:
         # The report renders the design record, so it depends on all of the config.
         slice=config_slice("report", config),
         task_sha256=task_content,
-        shard_folders=shard_folders(CONDITIONS),
+        shard_folders=run_shard_folders_by_condition,
         model_sha256=model_content,
         code=stage_code_hash("report"),
     run:

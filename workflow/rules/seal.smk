@@ -2,13 +2,13 @@
 # `mjtrial verify` sees an edit to any of them.
 rule seal:
     input:
-        as_inputs(LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED)),
+        sealed_inputs,
     output:
         seal=LAYOUT.seal,
     log:
         LAYOUT.log("seal"),
     params:
-        folders=folders_of(LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED)),
+        folders=sealed_folders,
         code=stage_code_hash("seal"),
     run:
         run_script("seal", input, output, params, wildcards, threads, log, rule)

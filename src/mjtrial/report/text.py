@@ -27,6 +27,7 @@ from mjtrial.report.model import (
     joint_lines,
     model_files_text,
 )
+from mjtrial.report.stopping import stopping_section
 from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
 
 
@@ -593,6 +594,7 @@ def render_report(
         _results(summary, figures, names, task),
         _failure_analysis(summary, config, figures, names, task),
         _falsifier(summary),
+        stopping_section(summary),
         _mistakes(summary, names, task),
         [
             "## What this experiment does not show",

@@ -10,7 +10,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, analysis, provenance
+from mjtrial import REPO_ROOT, analysis, provenance, sequential
 from mjtrial.conditions import condition_record
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.stages.states import check_drawn_as, check_evaluation_table
@@ -82,6 +82,11 @@ def summarize_tables(
     nominal = {
         name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()
     }
+    stopping = analysis_slice.get("stopping")
+    if stopping:  # a stopping rule ran the first n states only (mjtrial.sequential)
+        n = min(len(table["state_id"]) for table in outcomes.values())
+        keep = states["state_id"] < n
+        states = {c: values[keep] for c, values in states.items()}
     summary = analysis.summarize(
         states=states,
         outcomes=outcomes,
@@ -93,4 +98,11 @@ def summarize_tables(
         analysis=analysis_config,
         sample_size=analysis_slice.get("sample_size"),
     )
+    if stopping:
+        falsifier = analysis_slice["falsifier"]
+        summary["stopping"] = sequential.stopping_record(
+            outcomes[falsifier["treatment"]]["success"],
+            outcomes[falsifier["baseline"]]["success"],
+            stopping=stopping,
+        )
     return summary

@@ -134,6 +134,8 @@ def manifest_record(
             },
             "paired_difference": summary["paired_difference"],
             "falsifier": summary["falsifier"],
+            # a stopping rule's looks, the look it stopped at and the N it used
+            **({"stopping": summary["stopping"]} if "stopping" in summary else {}),
         },
         "stamps": stamps,
     }

@@ -81,6 +81,12 @@ def _slice(
             "falsifier": dict(config["design"]["falsifier"]),
             "sample_size": dict(config["design"]["sample_size"]),
             "analysis": dict(config["analysis"]),
+            **({"stopping": stopping_settings(config)} if "stopping" in config else {}),
+        }
+    if stage == "look":  # a stopping rule's look after a shard (mjtrial.stages.look)
+        return {
+            "falsifier": {k: config["design"]["falsifier"][k] for k in ("treatment", "baseline")},
+            "stopping": stopping_settings(config),
         }
     if stage == "pilot_summary":  # the design's conditions' rates on the development states
         return {
@@ -105,6 +111,16 @@ def _slice(
             }
         return design
     raise ValueError(f"stage: expected one of {list(STAGES)}, got {stage!r}")
+
+
+def stopping_settings(config: Mapping[str, Any]) -> dict[str, Any]:
+    """The stopping rule as it runs: the config's `stopping`, its block (`rollout.shard_size`:
+    a look after each shard) and its maximum N (`states.n`)."""
+    return {
+        **config["stopping"],
+        "block": config["rollout"]["shard_size"],
+        "max_n": config["states"]["n"],
+    }
 
 
 def _falsifier_conditions(config: Mapping[str, Any]) -> list[str]:

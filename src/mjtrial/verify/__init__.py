@@ -36,7 +36,8 @@ from mjtrial import provenance
 from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
-from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout, shard_ids
+from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
+from mjtrial.stages.look import shards_run
 from mjtrial.verify.chain import (
     STAMPED_SUFFIXES,
     Current,
@@ -122,7 +123,9 @@ def _why_unreadable(err: BaseException, path: Path) -> str:
 def _rollout_outputs(layout: Layout, config: Mapping[str, Any]) -> set[Path]:
     """Every rollout output the configuration names (the nominal model's conditions, sweep
     included, and each variant's)."""
-    shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+    # the shards that ran: a stopping rule's up to the look that stopped (the others are an
+    # earlier run's)
+    shards = shards_run(layout, config)
     recorded = config["recording"]["episodes"] != "none"
     out = set(layout.rollout_outputs(list(all_conditions(config)), shards, recorded=recorded))
     for variant in variant_names(config):

@@ -43,6 +43,7 @@ from mjtrial.report.traces import record_difference
 from mjtrial.resimulation import in_environment, resimulated_outcome
 from mjtrial.simenv import env_python, lock_path, variant_version, version_recordings
 from mjtrial.stages.analysis import summarize_tables
+from mjtrial.stages.look import look_record, shards_run
 from mjtrial.stages.manifest import manifest_record
 from mjtrial.stages.pilot import summarize_pilot
 from mjtrial.stages.rollout import nominal_episode
@@ -276,8 +277,10 @@ class _Checker:
         a re-simulated sample of each shard (the conditions, recordings and states of the
         config, unless given: the pilot's are the design's conditions on its first `pilot.n`
         development states, recorded nowhere)."""
-        n, size = n or self.config["states"]["n"], self.config["rollout"]["shard_size"]
-        shards = shard_ids(n, size)
+        size = self.config["rollout"]["shard_size"]
+        # the evaluation's shards that ran (a stopping rule's, up to the look that stopped)
+        shards = shard_ids(n, size) if n else shards_run(self.layout, self.config)
+        n = n or self.config["states"]["n"]
         recorded = recorded or self.config["recording"]["episodes"]
         for variant, condition in self.conditions() if conditions is None else conditions:
             qualified = condition if variant == NOMINAL else f"{variant}/{condition}"
@@ -506,14 +509,43 @@ class _Checker:
             ),
         )
 
+    def looks(self) -> None:
+        """A stopping rule's looks, each recomputed from the shard tables up to it: the stop
+        (the summary's record of it is checked with the analysis)."""
+        if "stopping" not in self.config:
+            return
+        falsifier = self.config["design"]["falsifier"]
+        shards = shards_run(self.layout, self.config)
+        for i, shard in enumerate(shards):
+            tables = {
+                role: [self.layout.shard_table(falsifier[role], s) for s in shards[: i + 1]]
+                for role in ("treatment", "baseline")
+            }
+            if not self.is_current(*tables["treatment"], *tables["baseline"]):
+                continue
+            self.check(
+                self.layout.look(shard),
+                lambda s=shard, t=tables: json_difference(
+                    self.layout.look(s),
+                    look_record(
+                        treatment_tables=t["treatment"],
+                        baseline_tables=t["baseline"],
+                        look_slice=config_slice("look", self.config),
+                        shard=s,
+                    ),
+                ),
+            )
+
     def manifest(self) -> None:
         layout, conditions = self.layout, list(self.config["conditions"])
-        shards = shard_ids(self.config["states"]["n"], self.config["rollout"]["shard_size"])
+        shards = shards_run(layout, self.config)
         recorded = self.config["recording"]["episodes"] != "none"
         outputs = [layout.states]
         for c in conditions:
             outputs += [layout.rollout_table(c), layout.nominal_episode(c)]
             outputs += layout.shard_outputs(c, shards, recorded=recorded)
+        if "stopping" in self.config:
+            outputs += [layout.look(s) for s in shards]
         if recorded:
             outputs += [layout.failures, layout.failures_table]
         if not self.is_current(layout.summary, *outputs):
@@ -648,6 +680,7 @@ def recompute(
     checker.states()
     checker.rollouts(resimulate)
     checker.pilot(resimulate)
+    checker.looks()
     checker.analysis()
     checker.manifest()
     checker.report()
