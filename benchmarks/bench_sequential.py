@@ -14,8 +14,8 @@ Three measurements, each printed and drawn:
 3. **Expected sample size against a fixed-N McNemar test of the same power**: for alternatives
    (discordance, P(treatment wins a discordant pair)), the stopping rule's power and mean N used
    (max N = 200) by simulation; then the smallest fixed N whose one-sided exact McNemar test at
-   the same alpha has at least that power (at most 0.99), computed exactly (the sum over the binomial number of
-   discordant pairs of the exact test's conditional power).
+   the same alpha has at least that power (at most 0.99), computed exactly (the sum over the
+   binomial number of discordant pairs of the exact test's conditional power).
 
     python benchmarks/bench_sequential.py --results /path/to/results/research_mode
     python benchmarks/bench_sequential.py --experiments 2000 --out /tmp/sequential

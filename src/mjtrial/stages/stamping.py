@@ -73,6 +73,7 @@ def _slice(
             "conditions": all_conditions(config),
             "bands": dict(list(config["analysis"]["bands"].items())[:1]),
             "analysis": _analysis_settings(config),
+            **({"stopping": stopping_settings(config)} if "stopping" in config else {}),
         }
     if stage == "analysis":
         return {

@@ -205,10 +205,15 @@ def dose_response_summary(
     sweep = study_slice["sweep"]
     (band_parameter, band_edges), *_ = study_slice["bands"].items()
     task = load_task(study_slice["task"], repo_root=repo_root)
+    by_value = {v: _columns(p) for v, p in tables.items()}
+    states = _columns(states_path)
+    if "stopping" in study_slice:  # a stopping rule ran the first n states only
+        n = min(len(t["state_id"]) for t in by_value.values())
+        states = {c: values[states["state_id"] < n] for c, values in states.items()}
     summary = summarize_dose_response(
-        {v: _columns(p) for v, p in tables.items()},
+        by_value,
         parameter=sweep["parameter"],
-        states=_columns(states_path),
+        states=states,
         band_parameter=band_parameter,
         band_edges=band_edges,
         analysis=study_slice["analysis"],
