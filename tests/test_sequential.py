@@ -180,3 +180,20 @@ def test_a_bad_stopping_section_is_one_line(edit, message):
     with pytest.raises(ConfigError) as err:
         check_config(with_stopping(edit), source=SOURCE, repo_root=REPO_ROOT)
     assert str(err.value) == f"{SOURCE}: {message}"
+
+
+def test_the_report_section_says_what_the_stop_licenses():
+    from mjtrial.report.stopping import stopping_section
+
+    paired = {"paired_difference": {"treatment": "slow", "baseline": "fast"}}
+    assert stopping_section(paired) == []
+    a = np.array([1] * 7 + [0] * 3, dtype=bool)
+    rule = sequential.stopping_record(a, np.zeros(10, bool), stopping=stopping(10, 100))
+    text = "\n".join(stopping_section({**paired, "stopping": rule}))
+    assert "| 0 | 10 | 7/7 | 31.9 |" in text
+    assert "Stopped at look 0, after 10 of 100 states" in text
+    assert "not adjusted for it" in text
+    b = np.array([0, 1] * 15, dtype=bool)
+    rule = sequential.stopping_record(~b, b, stopping=stopping(10, 30))
+    text = "\n".join(stopping_section({**paired, "stopping": rule}))
+    assert "never reached 20: all 30 states ran" in text
