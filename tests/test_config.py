@@ -332,7 +332,8 @@ def test_a_wrong_planned_comparison_is_one_line(comparisons, message):
 
 
 @pytest.mark.parametrize(
-    "comparisons", [{"against": "fast"}, [["slow", "fast"], ["medium", "fast"]], [["slow", "medium"]]]
+    "comparisons",
+    [{"against": "fast"}, [["slow", "fast"], ["medium", "fast"]], [["slow", "medium"]]],
 )
 def test_planned_comparisons_pass(comparisons):
     check_config(edited(_with_comparisons(comparisons)), source=SOURCE, repo_root=REPO_ROOT)
