@@ -181,7 +181,9 @@ def test_the_nominal_shortcut_names_every_conditions_outcome():
     )
 
 
-def test_every_planned_comparison_is_in_the_results_with_holm_and_the_exploratory_marked():
+def _three_condition_summary() -> dict:
+    """fast, medium and slow (every state a success) against fast; registered with the
+    falsifier's comparison alone, so medium - fast is exploratory."""
     n = 12
     success = {
         "fast": [True, False] * 6,
@@ -207,7 +209,7 @@ def test_every_planned_comparison_is_in_the_results_with_holm_and_the_explorator
         "comparisons": {"against": "fast"},
     }
     falsifier = {"treatment": "slow", "baseline": "fast", "statistic": "paired_difference"}
-    summary = summarize(
+    return summarize(
         states={"state_id": np.arange(n), **{p: np.zeros(n) for p in TASK.state_columns[1:]}},
         outcomes=outcomes,
         nominal={name: True for name in success},
@@ -216,6 +218,10 @@ def test_every_planned_comparison_is_in_the_results_with_holm_and_the_explorator
         analysis=analysis,
         registered={"config": {"design": {"falsifier": falsifier}, "analysis": {}}},
     )
+
+
+def test_every_planned_comparison_is_in_the_results_with_holm_and_the_exploratory_marked():
+    summary = _three_condition_summary()
     text = _results_text(summary)
     assert "### Planned comparisons" in text
     for record in summary["comparisons"]:
@@ -224,3 +230,19 @@ def test_every_planned_comparison_is_in_the_results_with_holm_and_the_explorator
         assert f"adjusted p = {m['p_holm']:.3g}" in text
     assert "| medium - fast | secondary, **exploratory** |" in text
     assert "| slow - fast | primary (the falsifier's) |" in text
+
+
+def test_the_paired_figure_has_a_panel_per_comparison_with_its_holm_p_and_no_overlap():
+    from test_report import _drawn_texts, _text_problems
+
+    from mjtrial.report.figures import figure_paired_outcomes
+
+    summary = _three_condition_summary()
+    fig = figure_paired_outcomes(summary=summary, task=TASK)
+    texts = [t for t, _ in _drawn_texts(fig)]
+    for record in summary["comparisons"]:
+        p = record["paired_difference"]
+        caption = next(t for t in texts if t.startswith(f"{p['treatment']} - {p['baseline']}:"))
+        assert f"Holm p = {record['mcnemar']['p_holm']:.3g}" in caption
+    assert any("(exploratory)" in t for t in texts)
+    assert _text_problems(fig) == []
