@@ -96,8 +96,12 @@ def metric_lines(summary: Mapping[str, Any]) -> list[str]:
         "replaces it.",
         f"- Discordant pairs: {summary['mcnemar']['method']}.",
         f"- Comparisons planned in the config ({len(records)}): {names}; the first is the "
-        f"falsifier's (primary). p-values adjusted by {family['method']} over the "
-        f"{family['family']} planned"
+        "falsifier's (primary). "
+        + (
+            "A family of one: its p-value is not adjusted"
+            if family["family"] == 1
+            else f"p-values adjusted by {family['method']} over the {family['family']} planned"
+        )
         + (
             f"; {len(exploratory)} exploratory (not in the registration), adjusted over every "
             "comparison tested"
