@@ -296,7 +296,6 @@ def test_a_configfile_naming_an_experiment_replaces_the_default(tmp_path):
     assert config["states"] == {**BASE["states"], "n": 12}
 
 
-
 def _with_comparisons(comparisons, extra_condition=True):
     def edit(config):
         if extra_condition:
@@ -309,18 +308,32 @@ def _with_comparisons(comparisons, extra_condition=True):
 @pytest.mark.parametrize(
     ("comparisons", "message"),
     [
-        ({"against": "fastest"}, "analysis.comparisons.against: expected one of the conditions "
-         "['fast', 'medium', 'slow'], got 'fastest'"),
-        ([["medium", "fats"]], "analysis.comparisons[0]: expected conditions ['fast', 'medium', "
-         "'slow'], got 'fats'"),
-        ([["medium", "medium"]], "analysis.comparisons[0]: expected two different conditions, "
-         "got ['medium', 'medium']"),
-        ([["medium", "fast"], ["fast", "medium"]], "analysis.comparisons[1]: ['fast', 'medium'] "
-         "is listed twice"),
-        ([["fast", "slow"]], "analysis.comparisons[0]: the falsifier's comparison reversed; "
-         "expected ['slow', 'fast'] (it is always tested, listed or not)"),
-        ({"against": "fast", "also": 1}, "analysis.comparisons.also: unknown key; expected one "
-         "of ['against']"),
+        (
+            {"against": "fastest"},
+            "analysis.comparisons.against: expected one of the conditions "
+            "['fast', 'medium', 'slow'], got 'fastest'",
+        ),
+        (
+            [["medium", "fats"]],
+            "analysis.comparisons[0]: expected conditions ['fast', 'medium', 'slow'], got 'fats'",
+        ),
+        (
+            [["medium", "medium"]],
+            "analysis.comparisons[0]: expected two different conditions, got ['medium', 'medium']",
+        ),
+        (
+            [["medium", "fast"], ["fast", "medium"]],
+            "analysis.comparisons[1]: ['fast', 'medium'] is listed twice",
+        ),
+        (
+            [["fast", "slow"]],
+            "analysis.comparisons[0]: the falsifier's comparison reversed; "
+            "expected ['slow', 'fast'] (it is always tested, listed or not)",
+        ),
+        (
+            {"against": "fast", "also": 1},
+            "analysis.comparisons.also: unknown key; expected one of ['against']",
+        ),
         ([["medium"]], "analysis.comparisons[0]: expected at least 2 items, got ['medium']"),
         ("fast", "analysis.comparisons: expected an object or an array, got 'fast'"),
     ],
