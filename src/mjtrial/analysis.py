@@ -188,7 +188,7 @@ def compare(
 def correct_family(records: Sequence[dict[str, Any]], exploratory: Sequence[bool]) -> None:
     """Holm-adjust the comparisons' McNemar p-values in place (`mcnemar.p_holm`): the planned
     ones as one family; an exploratory one (not in the registration) over every comparison
-    tested, so adding tests after the data never lowers a registered comparison's p."""
+    tested, so adding tests after the data never moves a registered comparison's p."""
     raw = [r["mcnemar"]["p_value"] for r in records]
     planned = [i for i, extra in enumerate(exploratory) if not extra]
     everything = stats.holm(raw)
