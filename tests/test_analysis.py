@@ -8,7 +8,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from mjtrial import analysis
+from mjtrial import analysis, stats
 from mjtrial.analysis import band_index, band_labels, format_table, judge_falsifier, summarize
 
 ANALYSIS = {
@@ -252,3 +252,146 @@ def test_halted_episodes_count_as_unhealthy():
         "failure_category": np.array([None, None, None, "simulation unhealthy"], dtype=object),
     }
     assert analysis.unhealthy(table).tolist() == [False, True, True, True]
+
+
+def _three_conditions(n=80, seed=1):
+    """The experiment of `_experiment` with a third condition, `medium`, between the two."""
+    states, outcomes, fast, slow = _experiment(n=n, seed=seed)
+    rng = np.random.default_rng(seed + 100)
+    medium = rng.uniform(size=n) < 0.7
+    outcomes["medium"] = {
+        "state_id": states["state_id"],
+        "success": medium,
+        "nonfinite": np.zeros(n, bool),
+        "failure_category": np.array([None if ok else CATEGORIES[0] for ok in medium], object),
+        "warning": np.array([""] * n, dtype=object),
+    }
+    return states, outcomes, {"fast": fast, "medium": medium, "slow": slow}
+
+
+THREE_PARAMETERS = {
+    "fast": {"lift_time": 0.15},
+    "medium": {"lift_time": 0.5},
+    "slow": {"lift_time": 1.5},
+}
+
+
+def _three_summary(states, outcomes, comparisons=None, **over):
+    analysis = dict(ANALYSIS)
+    if comparisons is not None:
+        analysis["comparisons"] = comparisons
+    return summarize(
+        states=states,
+        outcomes=outcomes,
+        nominal={"fast": True, "medium": True, "slow": False},
+        condition_parameters=THREE_PARAMETERS,
+        falsifier=FALSIFIER,
+        analysis=analysis,
+        categories=TASK_CATEGORIES,
+        **over,
+    )
+
+
+# The falsifier's record of `_three_summary` as the analysis gave it before planned
+# comparisons existed (the code at the branch point, one comparison only).
+BRANCH_POINT_FALSIFIER = {
+    "paired_difference": {
+        "treatment": "slow",
+        "baseline": "fast",
+        "estimate": 0.425,
+        "low": 0.3,
+        "high": 0.55,
+        "method": "percentile bootstrap over pairs",
+        "n_resamples": 2000,
+        "confidence": 0.95,
+        "seed": 5,
+    },
+    "discordant": {"both": 37, "only_slow": 36, "only_fast": 2, "neither": 5},
+    "mcnemar": {"p_value": 5.398760549724102e-09, "method": "exact McNemar (two-sided binomial)"},
+}
+
+
+def test_against_a_baseline_tests_each_condition_mcnemar_and_holm_as_scipy_and_statsmodels():
+    from scipy.stats import binomtest
+    from statsmodels.stats.multitest import multipletests
+
+    states, outcomes, success = _three_conditions()
+    summary = _three_summary(states, outcomes, comparisons={"against": "fast"})
+    comparisons = summary["comparisons"]
+    assert [(c["treatment"], c["baseline"], c["primary"]) for c in comparisons] == [
+        ("slow", "fast", True),
+        ("medium", "fast", False),
+    ]
+    raw = []
+    for c in comparisons:
+        a, b = success[c["treatment"]], success[c["baseline"]]
+        only_a, only_b = int((a & ~b).sum()), int((b & ~a).sum())
+        assert c["table"] == {
+            "both": int((a & b).sum()),
+            f"only_{c['treatment']}": only_a,
+            f"only_{c['baseline']}": only_b,
+            "neither": int((~a & ~b).sum()),
+        }
+        p = binomtest(only_a, only_a + only_b, 0.5).pvalue
+        assert c["mcnemar"]["p_value"] == pytest.approx(p, rel=1e-12)
+        raw.append(c["mcnemar"]["p_value"])
+        assert not c["exploratory"]
+    holm = multipletests(raw, method="holm")[1]
+    assert [c["mcnemar"]["p_holm"] for c in comparisons] == pytest.approx(list(holm), rel=1e-15)
+    assert summary["multiple_comparisons"]["family"] == 2
+    assert "Holm" in summary["multiple_comparisons"]["method"]
+    # every comparison's interval is the bootstrap over the same resamples of states
+    medium = comparisons[1]["paired_difference"]
+    assert (medium["estimate"], medium["low"], medium["high"]) == stats.paired_difference_ci(
+        success["medium"].astype(float),
+        success["fast"].astype(float),
+        n_resamples=2000,
+        seed=5,
+    )
+    table = format_table(summary)
+    assert "Holm" in table and "medium - fast [secondary]" in table
+
+
+@pytest.mark.parametrize("comparisons", [None, {"against": "fast"}, [["slow", "medium"]]])
+def test_the_falsifier_numbers_are_those_of_the_branch_point(comparisons):
+    states, outcomes, _ = _three_conditions()
+    summary = _three_summary(states, outcomes, comparisons=comparisons)
+    for key, record in BRANCH_POINT_FALSIFIER.items():
+        assert summary[key] == record
+    assert summary["falsifier"]["verdict"] == "survives"
+    assert summary["comparisons"][0]["paired_difference"] == summary["paired_difference"]
+
+
+def test_a_comparison_at_its_ceiling_gets_newcombes_interval():
+    states, outcomes, _ = _three_conditions(n=40)
+    for name in ("slow", "medium"):
+        outcomes[name]["success"] = np.ones(40, bool)
+        outcomes[name]["failure_category"] = np.array([None] * 40, object)
+    summary = _three_summary(states, outcomes, comparisons=[["medium", "slow"]])
+    at_ceiling = summary["comparisons"][1]
+    assert at_ceiling["bound"] == "ceiling"
+    paired = at_ceiling["paired_difference"]
+    assert paired["method"] == stats.NEWCOMBE_METHOD
+    assert (paired["estimate"], paired["low"], paired["high"]) == stats.newcombe_paired_interval(
+        40, 0, 0, 0, confidence=0.95
+    )
+    assert paired["low"] < 0 < paired["high"]  # not the bootstrap's [0, 0]
+    assert paired["replaces"]["low"] == paired["replaces"]["high"] == 0.0
+    assert summary["comparisons"][0]["bound"] is None
+    assert "at its ceiling" in format_table(summary)
+
+
+def test_an_unregistered_comparison_is_exploratory_and_leaves_the_planned_family_alone():
+    states, outcomes, _ = _three_conditions()
+    registered = {"config": {"design": {"falsifier": FALSIFIER}, "analysis": {}}}
+    summary = _three_summary(
+        states, outcomes, comparisons={"against": "fast"}, registered=registered
+    )
+    primary, added = summary["comparisons"]
+    assert (primary["exploratory"], added["exploratory"]) == (False, True)
+    # the registered family is the falsifier's alone: its p is not adjusted
+    assert primary["mcnemar"]["p_holm"] == primary["mcnemar"]["p_value"]
+    raw = [primary["mcnemar"]["p_value"], added["mcnemar"]["p_value"]]
+    assert added["mcnemar"]["p_holm"] == stats.holm(raw)[1]
+    assert summary["multiple_comparisons"]["family"] == 1
+    assert "EXPLORATORY" in format_table(summary)

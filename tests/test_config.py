@@ -295,3 +295,58 @@ def test_a_configfile_naming_an_experiment_replaces_the_default(tmp_path):
     assert config["conditions"] == BASE["conditions"]
     assert config["states"] == {**BASE["states"], "n": 12}
 
+
+def _with_comparisons(comparisons, extra_condition=True):
+    def edit(config):
+        if extra_condition:
+            config["conditions"]["medium"] = {"lift_time": 0.5}
+        config["analysis"]["comparisons"] = comparisons
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("comparisons", "message"),
+    [
+        (
+            {"against": "fastest"},
+            "analysis.comparisons.against: expected one of the conditions "
+            "['fast', 'medium', 'slow'], got 'fastest'",
+        ),
+        (
+            [["medium", "fats"]],
+            "analysis.comparisons[0]: expected conditions ['fast', 'medium', 'slow'], got 'fats'",
+        ),
+        (
+            [["medium", "medium"]],
+            "analysis.comparisons[0]: expected two different conditions, got ['medium', 'medium']",
+        ),
+        (
+            [["medium", "fast"], ["fast", "medium"]],
+            "analysis.comparisons[1]: ['fast', 'medium'] is listed twice",
+        ),
+        (
+            [["fast", "slow"]],
+            "analysis.comparisons[0]: the falsifier's comparison reversed; "
+            "expected ['slow', 'fast'] (it is always tested, listed or not)",
+        ),
+        (
+            {"against": "fast", "also": 1},
+            "analysis.comparisons.also: unknown key; expected one of ['against']",
+        ),
+        ([["medium"]], "analysis.comparisons[0]: expected at least 2 items, got ['medium']"),
+        ("fast", "analysis.comparisons: expected an object or an array, got 'fast'"),
+    ],
+)
+def test_a_wrong_planned_comparison_is_one_line(comparisons, message):
+    with pytest.raises(ConfigError) as err:
+        check_config(edited(_with_comparisons(comparisons)), source=SOURCE, repo_root=REPO_ROOT)
+    assert str(err.value) == f"{SOURCE}: {message}"
+
+
+@pytest.mark.parametrize(
+    "comparisons",
+    [{"against": "fast"}, [["slow", "fast"], ["medium", "fast"]], [["slow", "medium"]]],
+)
+def test_planned_comparisons_pass(comparisons):
+    check_config(edited(_with_comparisons(comparisons)), source=SOURCE, repo_root=REPO_ROOT)

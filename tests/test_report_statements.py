@@ -18,6 +18,7 @@ from mjtrial.analysis import summarize
 from mjtrial.physics import load_model
 from mjtrial.report.model import actuator_lines, collision_pairs, contact_lines
 from mjtrial.report.text import _mistakes, _results, _scope_limits
+from mjtrial.stats import newcombe_paired_interval
 from mjtrial.task import load_task
 
 REPO = Path(__file__).resolve().parents[1]
@@ -137,11 +138,15 @@ def _results_text(summary: dict) -> str:
 def test_a_comparison_at_its_ceiling_or_floor_is_said_to_be_one(value, bound):
     summary = _summary({"fast": [value] * 8, "slow": [value] * 8}, {"fast": True, "slow": True})
     paired = summary["paired_difference"]
-    assert paired["low"] == paired["high"] == 0.0  # the degenerate interval
+    assert paired["replaces"]["low"] == paired["replaces"]["high"] == 0.0  # the bootstrap's
+    _, low, high = newcombe_paired_interval(*([8, 0, 0, 0] if value else [0, 0, 0, 8]))
+    assert (paired["low"], paired["high"]) == (low, high)
     text = _results_text(summary)
     assert f"The comparison is at its {bound}" in text
     assert "is degenerate there" in text
     assert ", 95% interval [+0.000, +0.000]" not in text
+    assert f"valid there: **[{low:+.3f}, {high:+.3f}]**" in text
+    assert "Newcombe hybrid score" in text
 
 
 def test_a_comparison_with_discordant_pairs_keeps_its_interval():
@@ -174,3 +179,70 @@ def test_the_nominal_shortcut_names_every_conditions_outcome():
         f"slow succeeded (1/1, interval [{slow['wilson_low']:.3f}, {slow['wilson_high']:.3f}])"
         in line
     )
+
+
+def _three_condition_summary() -> dict:
+    """fast, medium and slow (every state a success) against fast; registered with the
+    falsifier's comparison alone, so medium - fast is exploratory."""
+    n = 12
+    success = {
+        "fast": [True, False] * 6,
+        "medium": [True, True, False] * 4,
+        "slow": [True] * 12,
+    }
+    outcomes = {
+        name: {
+            "state_id": np.arange(n),
+            "success": np.array(s),
+            "nonfinite": np.zeros(n, bool),
+            "warning": np.array([""] * n, dtype=object),
+            "failure_category": np.array(["" if ok else "slipped" for ok in s], dtype=object),
+        }
+        for name, s in success.items()
+    }
+    analysis = {
+        "n_resamples": 200,
+        "confidence": 0.95,
+        "seed": 1,
+        "bands": {},
+        "first_k": 3,
+        "comparisons": {"against": "fast"},
+    }
+    falsifier = {"treatment": "slow", "baseline": "fast", "statistic": "paired_difference"}
+    return summarize(
+        states={"state_id": np.arange(n), **{p: np.zeros(n) for p in TASK.state_columns[1:]}},
+        outcomes=outcomes,
+        nominal={name: True for name in success},
+        condition_parameters={name: {} for name in success},
+        falsifier={**falsifier, "threshold": 0.0},
+        analysis=analysis,
+        registered={"config": {"design": {"falsifier": falsifier}, "analysis": {}}},
+    )
+
+
+def test_every_planned_comparison_is_in_the_results_with_holm_and_the_exploratory_marked():
+    summary = _three_condition_summary()
+    text = _results_text(summary)
+    assert "### Planned comparisons" in text
+    for record in summary["comparisons"]:
+        m = record["mcnemar"]
+        assert f"p = {m['p_value']:.3g}; Holm step-down" in text
+        assert f"adjusted p = {m['p_holm']:.3g}" in text
+    assert "| medium - fast | secondary, **exploratory** |" in text
+    assert "| slow - fast | primary (the falsifier's) |" in text
+
+
+def test_the_paired_figure_has_a_panel_per_comparison_with_its_holm_p_and_no_overlap():
+    from test_report import _drawn_texts, _text_problems
+
+    from mjtrial.report.figures import figure_paired_outcomes
+
+    summary = _three_condition_summary()
+    fig = figure_paired_outcomes(summary=summary, task=TASK)
+    texts = [t for t, _ in _drawn_texts(fig)]
+    for record in summary["comparisons"]:
+        p = record["paired_difference"]
+        caption = next(t for t in texts if t.startswith(f"{p['treatment']} - {p['baseline']}:"))
+        assert f"Holm p = {record['mcnemar']['p_holm']:.3g}" in caption
+    assert any("(exploratory)" in t for t in texts)
+    assert _text_problems(fig) == []

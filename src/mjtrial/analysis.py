@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from mjtrial import stats
+from mjtrial.comparisons import Comparison, exploratory, planned_comparisons
 from mjtrial.conditions import MODEL_EDITS, POLICY
 from mjtrial.task import UNHEALTHY
 
@@ -115,6 +116,90 @@ def unhealthy(table: Mapping[str, np.ndarray]) -> np.ndarray:
     )
 
 
+def bound_of(table: Mapping[str, int]) -> str | None:
+    """ "ceiling" when both conditions succeed in every state, "floor" when both fail in every
+    state (no discordant pair, both rates 1 or both 0), else None; `table` is a comparison's
+    paired table (both, only_<treatment>, only_<baseline>, neither)."""
+    n = sum(table.values())
+    if n and table["both"] == n:
+        return "ceiling"
+    if n and table["neither"] == n:
+        return "floor"
+    return None
+
+
+def compare(
+    a: np.ndarray, b: np.ndarray, *, comparison: Comparison, analysis: Mapping[str, Any]
+) -> dict[str, Any]:
+    """One planned comparison of success `a` (treatment) with `b` (baseline), shape (n,) each:
+    the paired table, the exact McNemar test and the paired difference with its interval.
+
+    The interval is the percentile bootstrap over pairs, every comparison drawing the same
+    resamples of states (the seed `analysis.seed`); where it is degenerate (every pair's
+    difference the same: no discordant pair, or every pair discordant one way) Newcombe's
+    hybrid score interval replaces it, and the bootstrap's is kept beside it (`replaces`).
+    """
+    treatment, baseline = comparison.pair
+    confidence = float(analysis["confidence"])
+    estimate, low, high = stats.paired_difference_ci(
+        a.astype(float),
+        b.astype(float),
+        n_resamples=int(analysis["n_resamples"]),
+        confidence=confidence,
+        seed=int(analysis["seed"]),
+    )
+    paired = {
+        "treatment": treatment,
+        "baseline": baseline,
+        "estimate": estimate,
+        "low": low,
+        "high": high,
+        "method": f"{stats.BOOTSTRAP_METHOD} over pairs",
+        "n_resamples": int(analysis["n_resamples"]),
+        "confidence": confidence,
+        "seed": int(analysis["seed"]),
+    }
+    test = stats.mcnemar(a, b)
+    table = {
+        "both": int((a & b).sum()),
+        f"only_{treatment}": test.only_a,
+        f"only_{baseline}": test.only_b,
+        "neither": int((~a & ~b).sum()),
+    }
+    if low == high:
+        _, new_low, new_high = stats.newcombe_paired_interval(
+            *table.values(), confidence=confidence
+        )
+        replaced = {k: paired[k] for k in ("low", "high", "method", "n_resamples", "seed")}
+        paired |= {"low": new_low, "high": new_high, "method": stats.NEWCOMBE_METHOD}
+        paired["replaces"] = {**replaced, "why": "degenerate: every pair's difference the same"}
+    return {
+        "treatment": treatment,
+        "baseline": baseline,
+        "primary": comparison.primary,
+        "exploratory": False,
+        "table": table,
+        "bound": bound_of(table),
+        "mcnemar": {"p_value": test.p_value, "method": test.method},
+        "paired_difference": paired,
+    }
+
+
+def correct_family(records: Sequence[dict[str, Any]], exploratory: Sequence[bool]) -> None:
+    """Holm-adjust the comparisons' McNemar p-values in place (`mcnemar.p_holm`): the planned
+    ones as one family; an exploratory one (not in the registration) over every comparison
+    tested, so adding tests after the data never moves a registered comparison's p."""
+    raw = [r["mcnemar"]["p_value"] for r in records]
+    planned = [i for i, extra in enumerate(exploratory) if not extra]
+    everything = stats.holm(raw)
+    family = stats.holm([raw[i] for i in planned]) if planned else []
+    for i, record in enumerate(records):
+        record["exploratory"] = bool(exploratory[i])
+        record["mcnemar"]["p_holm"] = everything[i]
+    for i, adjusted in zip(planned, family, strict=True):
+        records[i]["mcnemar"]["p_holm"] = adjusted
+
+
 def judge_falsifier(
     falsifier: Mapping[str, Any],
     paired: Mapping[str, float],
@@ -160,6 +245,7 @@ def summarize(
     sample_size: Mapping[str, Any] | None = None,
     nominal_text: str = "each state parameter at its nominal value",
     categories: Sequence[str] = (),
+    registered: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The experiment's summary.
 
@@ -177,6 +263,8 @@ def summarize(
       analysis: the analysis config slice (n_resamples, confidence, seed, bands, first_k).
       sample_size: the design's sample-size plan (target_halfwidth); the summary says whether
         n met it.
+      registered: the registration's record of the config (`registration.json`), if any: a
+        comparison it did not plan is marked exploratory.
     """
     confidence = float(analysis["confidence"])
     order = np.argsort(states["state_id"])
@@ -198,32 +286,16 @@ def summarize(
         }
 
     treatment, baseline = falsifier["treatment"], falsifier["baseline"]
-    a, b = success[treatment], success[baseline]
-    estimate, low, high = stats.paired_difference_ci(
-        a.astype(float),
-        b.astype(float),
-        n_resamples=int(analysis["n_resamples"]),
-        confidence=confidence,
-        seed=int(analysis["seed"]),
-    )
-    paired = {
-        "treatment": treatment,
-        "baseline": baseline,
-        "estimate": estimate,
-        "low": low,
-        "high": high,
-        "method": f"{stats.BOOTSTRAP_METHOD} over pairs",
-        "n_resamples": int(analysis["n_resamples"]),
-        "confidence": confidence,
-        "seed": int(analysis["seed"]),
-    }
-    test = stats.mcnemar(a, b)
-    discordant = {
-        "both": int((a & b).sum()),
-        f"only_{treatment}": test.only_a,
-        f"only_{baseline}": test.only_b,
-        "neither": int((~a & ~b).sum()),
-    }
+    plan = planned_comparisons(analysis, falsifier, list(condition_parameters))
+    records = [
+        compare(success[c.treatment], success[c.baseline], comparison=c, analysis=analysis)
+        for c in plan
+    ]
+    correct_family(records, exploratory(plan, registered))
+    # the primary comparison also under the keys earlier summaries had (the manifest, `mjtrial
+    # diff` and the studies read them)
+    primary = records[0]
+    paired = dict(primary["paired_difference"])
 
     bands = {
         parameter: band_table(
@@ -266,8 +338,16 @@ def summarize(
         "confidence": confidence,
         "conditions": conditions,
         "paired_difference": paired,
-        "discordant": discordant,
-        "mcnemar": {"p_value": test.p_value, "method": test.method},
+        "discordant": dict(primary["table"]),
+        "mcnemar": {k: primary["mcnemar"][k] for k in ("p_value", "method")},
+        "comparisons": records,
+        "multiple_comparisons": {
+            "method": stats.HOLM_METHOD,
+            "family": sum(not r["exploratory"] for r in records),
+            "what": "McNemar p-values of the planned comparisons, adjusted together; an "
+            "exploratory comparison's adjusted over every comparison tested; intervals are "
+            "each comparison's own, unadjusted",
+        },
         "bands": bands,
         "pooled_over": pooled,
         "failures": failures,
@@ -302,6 +382,24 @@ def _interval(rec: Mapping[str, Any]) -> str:
     )
 
 
+def comparison_lines(record: Mapping[str, Any]) -> list[str]:
+    """One comparison of the summary as console lines: difference, interval, table, tests."""
+    p, m = record["paired_difference"], record["mcnemar"]
+    role = "primary (the falsifier's)" if record["primary"] else "secondary"
+    if record["exploratory"]:
+        role += ", EXPLORATORY (not in the registration)"
+    how = p["method"] + (f", {p['n_resamples']} resamples" if "replaces" not in p else "")
+    lines = [
+        f"  {p['treatment']} - {p['baseline']} [{role}]: {p['estimate']:+.3f} "
+        f"[{p['low']:+.3f}, {p['high']:+.3f}] ({how})"
+    ]
+    if record["bound"]:
+        lines.append(f"    at its {record['bound']}: no discordant pair")
+    lines.append("    Pairs: " + ", ".join(f"{k} {v}" for k, v in record["table"].items()))
+    lines.append(f"    McNemar exact p = {m['p_value']:.3g}, Holm-adjusted p = {m['p_holm']:.3g}")
+    return lines
+
+
 def format_table(summary: Mapping[str, Any]) -> str:
     """The summary as the plain-text table printed to the console and the rule's log."""
     conf = f"{summary['confidence'] * 100:g}%"
@@ -309,14 +407,13 @@ def format_table(summary: Mapping[str, Any]) -> str:
     for name, rec in summary["conditions"].items():
         setting = " ".join(f"{k} {v:g}" for k, v in condition_settings(rec).items())
         lines.append(f"  {name:<12} {setting}  {_interval(rec)}  unhealthy {rec['unhealthy']}")
-    p = summary["paired_difference"]
+    family = summary["multiple_comparisons"]
     lines.append(
-        f"Paired difference {p['treatment']} - {p['baseline']}: {p['estimate']:+.3f} "
-        f"[{p['low']:+.3f}, {p['high']:+.3f}] ({p['method']}, {p['n_resamples']} resamples)"
+        f"Planned comparisons ({len(summary['comparisons'])}; p-values adjusted by "
+        f"{family['method']}, family of {family['family']})"
     )
-    d = summary["discordant"]
-    lines.append("Pairs: " + ", ".join(f"{k} {v}" for k, v in d.items()))
-    lines.append(f"McNemar exact p = {summary['mcnemar']['p_value']:.3g}")
+    for c in summary["comparisons"]:
+        lines += comparison_lines(c)
     for parameter, table in summary["bands"].items():
         lines.append(f"Success by {parameter} band")
         for band in table:

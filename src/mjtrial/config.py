@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, budget
+from mjtrial.comparisons import comparisons_error
 from mjtrial.conditions import all_conditions, model_edits, policy_path, sweep_base
 from mjtrial.config_files import (  # noqa: F401 - read from here by the workflow and the CLI
     MAX_CONFIG_BYTES,
@@ -121,6 +122,10 @@ def _schema_message(error: jsonschema.ValidationError) -> str:
     if keyword == "required":
         missing = next(k for k in value if k not in got)
         return f"{_key(error, missing)}: missing; this key is required"
+    if keyword == "oneOf":  # the forms' types: "an object or an array"
+        types = [str(form.get("type", "value")) for form in value]
+        forms = " or ".join(f"{'an' if t[0] in 'aeiou' else 'a'} {t}" for t in types)
+        return f"{_key(error)}: expected {forms}, got {got!r}"
     template = _EXPECTATIONS.get(keyword)
     expectation = template.format(s=value) if template else error.message
     return f"{_key(error)}: {expectation}, got {got!r}"
@@ -319,6 +324,9 @@ def check_config(
             f"expected 0 with a stopping rule (its null is no paired difference), got "
             f"{falsifier['threshold']}",
         )
+    wrong = comparisons_error(config["analysis"], falsifier, list(conditions))
+    if wrong:
+        fail(*wrong)
     _check_task_states(config, task, repo_root=Path(repo_root), fail=fail)
     policy_tasks = _policy_tasks(config, task, repo_root=Path(repo_root), fail=fail)
     _check_privileged(config, task, policy_tasks=policy_tasks, repo_root=Path(repo_root), fail=fail)

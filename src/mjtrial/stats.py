@@ -26,14 +26,18 @@ import numpy as np
 
 __all__ = [
     "BOOTSTRAP_METHOD",
+    "HOLM_METHOD",
     "MCNEMAR_METHOD",
+    "NEWCOMBE_METHOD",
     "McNemarResult",
     "bootstrap_ci",
     "episodes_for_halfwidth",
+    "holm",
     "iqm",
     "iqm_ci",
     "mcnemar",
     "mcnemar_pairs_needed",
+    "newcombe_paired_interval",
     "paired_difference_ci",
     "wilson_interval",
 ]
@@ -43,6 +47,12 @@ BOOTSTRAP_METHOD = "percentile bootstrap"
 
 MCNEMAR_METHOD = "exact McNemar (two-sided binomial)"
 """Name of the test performed by :func:`mcnemar`."""
+
+NEWCOMBE_METHOD = "Newcombe hybrid score (1998, method 10, with the phi correction)"
+"""Name of the interval computed by :func:`newcombe_paired_interval`."""
+
+HOLM_METHOD = "Holm step-down (family-wise error rate)"
+"""Name of the multiplicity correction performed by :func:`holm`."""
 
 # Upper bound on the number of elements in one block of bootstrap resamples (index array and
 # gathered values each hold this many elements), so memory stays bounded (~16 MB) for large n.
@@ -289,6 +299,55 @@ def paired_difference_ci(
     )
 
 
+def newcombe_paired_interval(
+    both: int, only_a: int, only_b: int, neither: int, *, confidence: float = 0.95
+) -> tuple[float, float, float]:
+    """Newcombe's hybrid score interval for the difference of paired proportions.
+
+    Newcombe (1998), "Improved confidence intervals for the difference between binomial
+    proportions based on paired data", Statistics in Medicine 17:2635-2650, method 10: the
+    Wilson intervals of the two marginal rates combined by square-and-add, with the correlation
+    phi of the paired table (its numerator ``ad - bc`` shrunk by ``n/2`` toward 0 when positive,
+    and phi 0 when a margin is empty). Unlike a bootstrap over pairs it stays a real interval
+    where no pair is discordant (both rates 1, both 0): there it is ``[-(1 - l), 1 - l]``
+    with ``l`` the Wilson lower bound of n/n, as wide as what n states can rule out.
+
+    Args:
+        both: Pairs where both conditions succeed (a).
+        only_a: Pairs where only condition A succeeds (b).
+        only_b: Pairs where only condition B succeeds (c).
+        neither: Pairs where both fail (d); ``a + b + c + d >= 1``.
+        confidence: Two-sided confidence level in (0, 1).
+
+    Returns:
+        ``(estimate, low, high)`` with ``estimate = (b - c) / n``, the difference rate(A) -
+        rate(B); ``-1 <= low <= estimate <= high <= 1``.
+    """
+    a = _check_int("both", both, minimum=0)
+    b = _check_int("only_a", only_a, minimum=0)
+    c = _check_int("only_b", only_b, minimum=0)
+    d = _check_int("neither", neither, minimum=0)
+    n = a + b + c + d
+    if n == 0:
+        raise ValueError("the paired table must hold at least one pair")
+    confidence = _check_open_unit("confidence", confidence)
+    p1, p2 = (a + b) / n, (a + c) / n
+    l1, u1 = wilson_interval(a + b, n, confidence)
+    l2, u2 = wilson_interval(a + c, n, confidence)
+    margins = (a + b) * (c + d) * (a + c) * (b + d)
+    phi = 0.0
+    if margins:
+        cross = a * d - b * c
+        numerator = max(cross - n / 2.0, 0.0) if cross > 0 else float(cross)
+        phi = numerator / math.sqrt(margins)
+    lower_a, upper_b = p1 - l1, u2 - p2
+    upper_a, lower_b = u1 - p1, p2 - l2
+    estimate = p1 - p2
+    delta = math.sqrt(max(0.0, lower_a**2 - 2 * phi * lower_a * upper_b + upper_b**2))
+    epsilon = math.sqrt(max(0.0, upper_a**2 - 2 * phi * upper_a * lower_b + lower_b**2))
+    return estimate, max(-1.0, estimate - delta), min(1.0, estimate + epsilon)
+
+
 @overload
 def iqm(values: Any, axis: None = None) -> float: ...
 
@@ -407,6 +466,31 @@ def mcnemar(a: Any, b: Any) -> McNemarResult:
     k, n = min(only_a, only_b), only_a + only_b
     p_value = min(1.0, 2.0 * float(betainc(n - k, k + 1, 0.5)))
     return McNemarResult(only_a=only_a, only_b=only_b, p_value=p_value)
+
+
+def holm(p_values: Any) -> list[float]:
+    """Holm's step-down adjusted p-values of a family of tests.
+
+    Holm (1979): the i-th smallest of m p-values is multiplied by ``m - i + 1`` (i from 1),
+    capped at 1, and made non-decreasing in that order; a test is rejected at level alpha when
+    its adjusted p-value is at most alpha, which keeps the family-wise error rate at alpha
+    whatever the tests' dependence. Equals statsmodels' ``multipletests(method="holm")[1]``.
+
+    Args:
+        p_values: The family's p-values, shape ``(m,)``, each in [0, 1], ``m >= 1``.
+
+    Returns:
+        The adjusted p-values, in the order given.
+    """
+    p = _as_1d_float("p_values", p_values)
+    if np.any((p < 0.0) | (p > 1.0)):
+        raise ValueError(f"p_values must lie in [0, 1], got {p.tolist()}")
+    m = p.size
+    order = np.argsort(p, kind="stable")
+    scaled = np.minimum(1.0, p[order] * (m - np.arange(m)))
+    adjusted = np.empty(m)
+    adjusted[order] = np.maximum.accumulate(scaled)
+    return [float(x) for x in adjusted]
 
 
 # --------------------------------------------------------------------------------------------

@@ -7,6 +7,9 @@ from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
 conditions = list(snakemake.params.slice["conditions"])
+# the registration, when the rule names it as an input (comparisons it did not plan are
+# exploratory)
+registration = getattr(snakemake.input, "registration", None)
 run_job(
     snakemake,
     run_analysis,
@@ -17,4 +20,5 @@ run_job(
     analysis_slice=snakemake.params.slice,
     output=Path(snakemake.output.summary),
     repo_root=Path.cwd(),
+    registration_path=Path(registration) if registration else None,
 )

@@ -185,12 +185,19 @@ def figure_success_by_band(*, summary: Mapping[str, Any], parameter: str, task: 
     return fig
 
 
-@_styled
-def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
-    """The 2x2 table of paired outcomes: the discordant cells are what the paired test uses."""
-    paired = summary["paired_difference"]
-    treatment, baseline = paired["treatment"], paired["baseline"]
-    counts = summary["discordant"]
+def _paired_panel(
+    fig: Figure,
+    ax: Any,
+    record: Mapping[str, Any],
+    summary: Mapping[str, Any],
+    task: Task,
+    *,
+    columns: int = 1,
+    rows: int = 1,
+) -> int:
+    """One comparison's 2x2 table of paired outcomes on `ax`; returns its number of states."""
+    treatment, baseline = record["treatment"], record["baseline"]
+    counts = record["table"]
     # rows: baseline succeeds / fails; columns: treatment succeeds / fails
     cells = np.array(
         [
@@ -203,8 +210,6 @@ def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
         [f"only {treatment}\nsucceeds", "both fail"],
     ]
     n = int(cells.sum())
-    fig = _figure(SINGLE_COLUMN, 2.9)
-    ax = fig.add_subplot()
     # One hue (Okabe-Ito blue) from white: count is read from lightness alone.
     cmap = LinearSegmentedColormap.from_list("mjtrial_counts", ["#FFFFFF", "#0072B2"])
     ax.imshow(cells, cmap=cmap, vmin=0, vmax=max(n, 1), aspect="auto")
@@ -234,11 +239,11 @@ def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
     ax.set_yticks([0, 1], ["succeeds", "fails"], rotation=90, va="center")
     fit_text(
         ax.set_xlabel(f"{treatment} ({setting(summary['conditions'][treatment], task)})"),
-        width=0.8 * fig.bbox.width,
+        width=0.8 * fig.bbox.width / columns,
     )
     fit_text(
         ax.set_ylabel(f"{baseline} ({setting(summary['conditions'][baseline], task)})"),
-        height=0.7 * fig.bbox.height,
+        height=0.7 * fig.bbox.height / rows,
     )
     ax.xaxis.set_label_position("top")
     ax.xaxis.tick_top()
@@ -249,7 +254,44 @@ def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
     ax.set_yticks([0.5], minor=True)
     ax.grid(which="minor", color="white", linewidth=2)
     ax.tick_params(which="minor", length=0)
-    fig.suptitle(f"Paired outcomes (n = {n} states)", fontsize=9)
+    return n
+
+
+def _comparison_caption(record: Mapping[str, Any]) -> str:
+    """Below a panel: the difference, its interval (Newcombe's named), the Holm p."""
+    p = record["paired_difference"]
+    interval = f"[{p['low']:+.3f}, {p['high']:+.3f}]"
+    newcombe = " (Newcombe)" if "replaces" in p else ""
+    role = "primary" if record["primary"] else "exploratory" if record["exploratory"] else ""
+    return (
+        f"{p['treatment']} - {p['baseline']}: {p['estimate']:+.3f} {interval}{newcombe}\n"
+        f"Holm p = {record['mcnemar']['p_holm']:.3g}" + (f" ({role})" if role else "")
+    )
+
+
+@_styled
+def figure_paired_outcomes(*, summary: Mapping[str, Any], task: Task) -> Figure:
+    """The 2x2 table of paired outcomes of each planned comparison: the discordant cells are
+    what the paired test uses. One comparison (the falsifier's alone) is one panel, as
+    before; several are panels side by side, each with its difference, interval and Holm p."""
+    records = summary["comparisons"]
+    if len(records) == 1:
+        fig = _figure(SINGLE_COLUMN, 2.9)
+        n = _paired_panel(fig, fig.add_subplot(), records[0], summary, task)
+        fig.suptitle(f"Paired outcomes (n = {n} states)", fontsize=9)
+        return fig
+    columns, rows = 2, -(-len(records) // 2)  # two panels a row: a paper's full width
+    fig = _figure(DOUBLE_COLUMN, 3.3 * rows)
+    axes = np.asarray(fig.subplots(rows, columns, squeeze=False)).ravel()
+    for ax, record in zip(axes, records, strict=False):
+        n = _paired_panel(fig, ax, record, summary, task, columns=columns, rows=rows)
+        fit_text(ax.set_title(_comparison_caption(record), fontsize=8), width=0.45 * fig.bbox.width)
+    for ax in axes[len(records) :]:
+        ax.set_visible(False)
+    fig.suptitle(
+        f"Paired outcomes of the {len(records)} planned comparisons (n = {n} states)",
+        fontsize=9,
+    )
     return fig
 
 

@@ -53,3 +53,15 @@ def rate_cell(rec: Mapping[str, Any]) -> str:
         f"{rec['successes']}/{rec['n']} {rec['rate']:.3f} "
         f"[{rec['wilson_low']:.3f}, {rec['wilson_high']:.3f}]"
     )
+
+
+def _cell(value: Any) -> str:
+    # A bare "|" (as in the band name "|dx|") would end the cell.
+    return str(value).replace("|", "\\|")
+
+
+def markdown_table(header: Sequence[Any], rows: Sequence[Sequence[Any]]) -> list[str]:
+    """A Markdown table's lines: the header, the rule, a line per row."""
+    lines = ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + " --- |" * len(header)]
+    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
+    return lines

@@ -18,7 +18,20 @@ import numpy as np
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.conditions import condition_record
 from mjtrial.physics import load_model
-from mjtrial.report.labels import band_parameter, failure_categories, pct, rate_cell, setting
+from mjtrial.report.comparisons import (
+    comparisons_section,
+    metric_lines,
+    paired_text,
+    tests_text,
+)
+from mjtrial.report.labels import (
+    band_parameter,
+    failure_categories,
+    markdown_table,
+    pct,
+    rate_cell,
+    setting,
+)
 from mjtrial.report.model import (
     action_lines,
     actuator_lines,
@@ -82,52 +95,6 @@ def _scope_limits(config: Mapping[str, Any]) -> tuple[str, ...]:
     )
 
 
-def _at_bound(summary: Mapping[str, Any]) -> str | None:
-    """ "ceiling" or "floor" when the compared conditions succeed in every state, or fail in
-    every state (no discordant pair, both rates 1 or both 0), else None."""
-    paired = summary["paired_difference"]
-    recs = [summary["conditions"][paired[k]] for k in ("treatment", "baseline")]
-    d = summary["discordant"]
-    discordant = d[f"only_{paired['treatment']}"] + d[f"only_{paired['baseline']}"]
-    if discordant or not all(r["n"] for r in recs):
-        return None
-    if all(r["successes"] == r["n"] for r in recs):
-        return "ceiling"
-    if all(r["successes"] == 0 for r in recs):
-        return "floor"
-    return None
-
-
-def _paired_text(summary: Mapping[str, Any]) -> str:
-    """The paired difference with its interval, or, where the bootstrap interval is degenerate
-    (every pair's difference the same), the reason it measures nothing."""
-    paired = summary["paired_difference"]
-    treatment, baseline = paired["treatment"], paired["baseline"]
-    head = f"Paired difference {treatment} - {baseline}: **{paired['estimate']:+.3f}**"
-    how = f"({paired['method']}, {paired['n_resamples']} resamples, seed {paired['seed']})"
-    bound = _at_bound(summary)
-    if bound is not None:
-        every = "succeed" if bound == "ceiling" else "fail"
-        return (
-            f"{head}. The comparison is at its {bound}: both conditions {every} in every state "
-            "(no discordant pair), so these states cannot show a difference either way; the "
-            f"{pct(paired['confidence'])} bootstrap interval {how} is degenerate there "
-            f"({_interval(paired['low'], paired['high'], signed=True)}: resampling identical "
-            "pairs cannot vary the mean) and is no measure of uncertainty."
-        )
-    if paired["low"] == paired["high"]:
-        return (
-            f"{head}. Every state's difference is the same, so the {pct(paired['confidence'])} "
-            f"bootstrap interval {how} is degenerate "
-            f"({_interval(paired['low'], paired['high'], signed=True)}) and is no measure of "
-            "uncertainty."
-        )
-    return (
-        f"{head}, {pct(paired['confidence'])} interval "
-        f"{_interval(paired['low'], paired['high'], signed=True)} {how}."
-    )
-
-
 def _development_use(config: Mapping[str, Any]) -> str:
     """What the design says the development states were for, in its own words, never assumed."""
     said = " ".join(str(config.get("design", {}).get("development_split") or "").split())
@@ -172,17 +139,6 @@ def _code_state(manifest: Mapping[str, Any]) -> str:
     if len(available) < len(gits):
         text += "; some outputs were produced outside a git repository"
     return text
-
-
-def _cell(value: Any) -> str:
-    # A bare "|" (as in the band name "|dx|") would end the cell.
-    return str(value).replace("|", "\\|")
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
-    lines = ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + " --- |" * len(header)]
-    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
-    return lines
 
 
 def _figure_lines(
@@ -272,7 +228,7 @@ def _setup(
         "",
         "Conditions (each evaluation state runs under every condition: a paired design):",
         "",
-        *_table(
+        *markdown_table(
             ["condition", "setting"],
             [
                 [name, setting(condition_record(task, c), task)]
@@ -284,7 +240,7 @@ def _setup(
         f"({bitgen}), one uniform draw of n values per parameter in the order "
         f"{', '.join(task.state_columns[1:])}:",
         "",
-        *_table(
+        *markdown_table(
             ["parameter", "low", "high", "unit"],
             [
                 [p, f"{states['ranges'][p][0]:g}", f"{states['ranges'][p][1]:g}", task.unit_of(p)]
@@ -323,7 +279,6 @@ def _setup(
 
 def _metric(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str]:
     success = manifest["success_definition"]
-    paired = summary["paired_difference"]
     conf = pct(summary["confidence"])
     return [
         "## Metric",
@@ -333,10 +288,7 @@ def _metric(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str
         f"over its n = {summary['n_states']} evaluation states (the per-task mean; this "
         "experiment has one task).",
         f"- Success rates carry {conf} Wilson score intervals.",
-        f"- Paired difference: the mean over states of success({paired['treatment']}) - "
-        f"success({paired['baseline']}), with a {pct(paired['confidence'])} interval by "
-        f"{paired['method']} ({paired['n_resamples']} resamples, seed {paired['seed']}).",
-        f"- Discordant pairs: {summary['mcnemar']['method']}.",
+        *metric_lines(summary),
     ]
 
 
@@ -356,7 +308,7 @@ def _band_section(
     return [
         f"Success by {label} band (k/n, rate, {pct(summary['confidence'])} Wilson interval):",
         "",
-        *_table([head, "n", *names], rows),
+        *markdown_table([head, "n", *names], rows),
         "",
     ]
 
@@ -366,13 +318,13 @@ def _results(
 ) -> list[str]:
     conf = pct(summary["confidence"])
     conditions = summary["conditions"]
-    paired = summary["paired_difference"]
-    treatment, baseline = paired["treatment"], paired["baseline"]
-    d = summary["discordant"]
+    primary = summary["comparisons"][0]
+    treatment, baseline = primary["treatment"], primary["baseline"]
+    d = primary["table"]
     lines = [
         "## Results",
         "",
-        *_table(
+        *markdown_table(
             [
                 "condition",
                 "setting",
@@ -394,11 +346,11 @@ def _results(
             ],
         ),
         "",
-        _paired_text(summary),
+        paired_text(primary),
         "",
         "Paired outcomes (number of initial states):",
         "",
-        *_table(
+        *markdown_table(
             ["", f"{treatment} succeeds", f"{treatment} fails"],
             [
                 [f"**{baseline} succeeds**", d["both"], d[f"only_{baseline}"]],
@@ -406,10 +358,9 @@ def _results(
             ],
         ),
         "",
-        f"Discordant pairs: {d[f'only_{treatment}']} states succeed only under {treatment}, "
-        f"{d[f'only_{baseline}']} only under {baseline}; {summary['mcnemar']['method']} "
-        f"p = {summary['mcnemar']['p_value']:.3g}.",
+        tests_text(primary, summary["multiple_comparisons"]),
         "",
+        *comparisons_section(summary),
     ]
     for parameter in summary["bands"]:
         lines += _band_section(summary, parameter, names, task)
@@ -457,7 +408,7 @@ def _failure_analysis(
         "below (the task's failure categories"
         + (f"; thresholds from the config: {thresholds})." if thresholds else ")."),
         "",
-        *_table(["category", *names], rows),
+        *markdown_table(["category", *names], rows),
         "",
         *(
             f"- {c.name}: {c.description}"
@@ -500,7 +451,7 @@ def _mistakes(summary: Mapping[str, Any], names: Sequence[str], task: Task) -> l
     ]
     for mistake in summary["mistakes"].values():
         rows.append([mistake["what"], *(rate_cell(mistake["conditions"][n]) for n in names)])
-    lines += [*_table(["evaluated on", *names], rows), ""]
+    lines += [*markdown_table(["evaluated on", *names], rows), ""]
 
     def width(rec: Mapping[str, Any]) -> float:
         return rec["wilson_high"] - rec["wilson_low"]
@@ -555,7 +506,7 @@ def _reproduction(manifest: Mapping[str, Any], manifest_path: str | None) -> lis
     lines += [
         f"- Seeds: {seeds}.",
         "",
-        *_table(["package", "version"], [[k, v] for k, v in manifest["versions"].items()]),
+        *markdown_table(["package", "version"], [[k, v] for k, v in manifest["versions"].items()]),
     ]
     return lines
 

@@ -27,11 +27,14 @@ def run_analysis(
     analysis_slice: Mapping[str, Any],
     output: Path,
     repo_root: Path = REPO_ROOT,
+    registration_path: Path | None = None,
 ) -> dict[str, Any]:
     """Compute the summary, write `summary.json`, and log the table.
 
     Only the evaluation's states and tables are read: development states or a pilot's table
-    (`snakemake -c2 pilot`) are refused, whatever their path."""
+    (`snakemake -c2 pilot`) are refused, whatever their path. A registration
+    (`registration_path`, when the file exists) is an input: a comparison it did not plan is
+    marked exploratory."""
     check_drawn_as(Path(states_path), development=False, reader="the analysis")
     for path in rollout_tables.values():
         check_evaluation_table(Path(path), reader="the analysis")
@@ -41,6 +44,7 @@ def run_analysis(
         nominal_files=nominal_files,
         analysis_slice=analysis_slice,
         repo_root=repo_root,
+        registration_path=registration_path,
     )
     inputs = {
         "states": states_path,
@@ -48,6 +52,8 @@ def run_analysis(
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
     }
     inputs |= {f"nominal:{k}": v for k, v in nominal_files.items()}
+    if registration_path is not None and Path(registration_path).is_file():
+        inputs[REGISTRATION_INPUT] = registration_path
     stamp = make_stage_stamp(
         "analysis",
         dict(analysis_slice),
@@ -67,6 +73,7 @@ def summarize_tables(
     nominal_files: Mapping[str, Path],
     analysis_slice: Mapping[str, Any],
     repo_root: Path = REPO_ROOT,
+    registration_path: Path | None = None,
 ) -> dict[str, Any]:
     """The summary the analysis stage writes, from its input files (`mjtrial verify` checks
     `summary.json` against it)."""
@@ -97,6 +104,7 @@ def summarize_tables(
         falsifier=analysis_slice["falsifier"],
         analysis=analysis_config,
         sample_size=analysis_slice.get("sample_size"),
+        registered=read_registration(registration_path),
     )
     if stopping:
         falsifier = analysis_slice["falsifier"]
@@ -106,3 +114,18 @@ def summarize_tables(
             stopping=stopping,
         )
     return summary
+
+
+# The stamp's name for the registration among the analysis' inputs (verify passes it back).
+REGISTRATION_INPUT = "registration"
+
+
+def read_registration(path: Path | None) -> Mapping[str, Any] | None:
+    """The registration's record (`registration.json`, whose `config` holds the registered
+    config's sections), or None when there is none: then no comparison is exploratory."""
+    if path is None or not Path(path).is_file():
+        return None
+    record = json.loads(Path(path).read_text(encoding="utf-8"))
+    if not isinstance(record, Mapping):
+        raise ValueError(f"{path}: expected a JSON object (the registration's record)")
+    return record

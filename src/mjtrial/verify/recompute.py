@@ -42,7 +42,7 @@ from mjtrial.report import report_text
 from mjtrial.report.traces import record_difference
 from mjtrial.resimulation import in_environment, resimulated_outcome
 from mjtrial.simenv import env_python, lock_path, variant_version, version_recordings
-from mjtrial.stages.analysis import summarize_tables
+from mjtrial.stages.analysis import REGISTRATION_INPUT, summarize_tables
 from mjtrial.stages.look import look_record, shards_run
 from mjtrial.stages.manifest import manifest_record
 from mjtrial.stages.pilot import summarize_pilot
@@ -505,6 +505,7 @@ class _Checker:
                     nominal_files={c: layout.nominal_episode(c) for c in conditions},
                     analysis_slice=config_slice("analysis", self.config),
                     repo_root=self.repo_root,
+                    registration_path=self._registration_read_by(layout.summary),
                 ),
             ),
         )
@@ -535,6 +536,16 @@ class _Checker:
                     ),
                 ),
             )
+
+    def _registration_read_by(self, path: Path) -> Path | None:
+        """The registration an output's stamp records as its input, if any (the analysis
+        marks comparisons it did not plan exploratory)."""
+        recorded = provenance.read_stamp(path).get("inputs", {}).get(REGISTRATION_INPUT)
+        if not isinstance(recorded, Mapping) or "path" not in recorded:
+            return None
+        in_repo = Path(self.repo_root) / recorded["path"]
+        # a copied results folder holds it under its own root
+        return in_repo if in_repo.is_file() else self.layout.root / Path(recorded["path"]).name
 
     def manifest(self) -> None:
         layout, conditions = self.layout, list(self.config["conditions"])
