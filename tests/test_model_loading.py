@@ -215,7 +215,9 @@ def test_a_vendor_layout_with_a_meshdir_runs_through_the_pipeline(tmp_path, monk
         rule="rollout:firm#00000",
         repo_root=tmp_path,
     ).to_pylist()
-    assert len(list(table.with_suffix("").glob("*.rrd"))) == 3
+    # one recording per episode, and the model's mesh drawn once for the folder (`meshes.rrd`)
+    assert len(list(table.with_suffix("").glob("firm-state-*.rrd"))) == 3
+    assert (table.with_suffix("") / "meshes.rrd").is_file()
     model = mujoco.MjModel.from_xml_path(str(task / "scene.xml"))
     assert model.nmesh == 1
     for state, row in zip(pq.read_table(states).to_pylist(), rows, strict=True):
