@@ -38,18 +38,38 @@ def _changed_conditions(diff: Mapping[str, Any]) -> list[str]:
     return out
 
 
+# What a run holds that is not what it sealed (`found.not_as_sealed`), in words.
+_NOT_AS_SEALED = (
+    ("altered", "outputs no longer match their seal"),
+    ("missing", "sealed outputs missing"),
+    ("rows", "tables whose rows are not the ones their stamp records"),
+)
+
+
+def _not_as_sealed(outputs: Mapping[str, list[str]]) -> list[str]:
+    return [
+        f"{what} in {side}: {_names(outputs[f'{kind}_{side}'])}"
+        for side in "ab"
+        for kind, what in _NOT_AS_SEALED
+        if outputs.get(f"{kind}_{side}")
+    ]
+
+
 def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
     """One line per reason the gate `fail_on` (`FAIL_ON`) fails; none: it passes.
 
-    `any`: an output is in one run only, or its content differs beyond its stamp; `changed`:
+    Every gate fails on a run whose files are not what it sealed (an output edited or gone,
+    a table whose rows are not its stamp's): what it found is not what is compared.
+    `any`: also an output is in one run only, or its content differs beyond its stamp; `changed`:
     a condition's success on the shared states differs beyond noise (McNemar's exact p below
     the diff's `level`); `verdict`: a verdict differs (the falsifier's, the experiment's or a
     variant's of the sensitivity study; a benchmark's comparison of two methods)."""
     if fail_on not in FAIL_ON:
         raise ValueError(f"fail_on: expected one of {list(FAIL_ON)}, got {fail_on!r}")
+    outputs = diff.get("outputs") or {}
+    broken = _not_as_sealed(outputs)
     if fail_on == "any":
-        outputs = diff["outputs"]
-        lines = [
+        lines = broken + [
             f"{what}: {_names(outputs[key])}"
             for key, what in (
                 ("differ", "outputs differ"),
@@ -65,8 +85,8 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
         ]
         return lines
     if fail_on == "changed":
-        return _changed_conditions(diff)
-    return [
+        return broken + _changed_conditions(diff)
+    return broken + [
         f"{name}: verdict changed: {rec['a'] and rec['a']['verdict']} -> "
         f"{rec['b'] and rec['b']['verdict']}"
         for name, rec in diff["effects"].items()
@@ -116,13 +136,18 @@ def render(diff: Mapping[str, Any]) -> str:
     lines = [f"a: {runs['a']}", f"b: {runs['b']}", "", "How they were made"]
     lines += _made_lines(diff["made"])
     lines += ["", "What they found"]
-    total = sum(len(v) for v in outputs.values())
+    total = len({rel for rels in outputs.values() for rel in rels})
+    broken = _not_as_sealed(outputs)
+    n_broken = len(
+        {rel for kind, _ in _NOT_AS_SEALED for s in "ab" for rel in outputs[f"{kind}_{s}"]}
+    )
     lines.append(
         f"  outputs: {total} sealed; {len(outputs['same'])} the same, "
         f"{len(outputs['same_content'])} the same but for their stamps, "
         f"{len(outputs['recordings'])} recordings (compared through outcomes and trajectories), "
-        f"{len(outputs['differ'])} differ"
+        f"{len(outputs['differ'])} differ" + (f", {n_broken} NOT AS SEALED" if n_broken else "")
     )
+    lines += [f"    {line}" for line in broken]
     for key, what in (("differ", "differ"), ("only_a", "only in a"), ("only_b", "only in b")):
         if outputs[key]:
             lines.append(f"    {what}: {_names(outputs[key])}")
