@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mjtrial.provenance.formats import read_stamp
@@ -56,11 +55,10 @@ def _recorded(stamp: Any) -> str | None:
     return value if isinstance(value, str) else None
 
 
-def _mismatch(path: Path) -> str:
-    return (
-        f"{path}: its rows are not the ones its stamp records ({ROWS_KEY}): it was edited "
-        "after its job wrote it; delete it and rerun `snakemake -c2` to rebuild it"
-    )
+_MISMATCH = (
+    f"its rows are not the ones its stamp records ({ROWS_KEY}): it was edited after its job "
+    "wrote it; delete it and rerun `snakemake -c2` to rebuild it"
+)
 
 
 def read_checked_table(path: str | os.PathLike[str]) -> pyarrow.Table:
@@ -71,7 +69,7 @@ def read_checked_table(path: str | os.PathLike[str]) -> pyarrow.Table:
     table = pq.read_table(path)
     recorded = _recorded(read_stamp(path))
     if recorded is not None and rows_sha256(table.replace_schema_metadata(None)) != recorded:
-        raise RowsMismatchError(_mismatch(Path(path)))
+        raise RowsMismatchError(f"{path}: {_MISMATCH}")
     return table
 
 
@@ -80,8 +78,8 @@ def rows_problem(path: str | os.PathLike[str]) -> str | None:
     are, or its stamp records none: a table no rollout wrote)."""
     try:
         read_checked_table(path)
-    except RowsMismatchError as err:
-        return str(err)
+    except RowsMismatchError:
+        return _MISMATCH
     except (OSError, ValueError):
         return None  # unreadable or unstamped: what reads it says so
     return None
