@@ -575,8 +575,8 @@ def main(argv: list[str] | None = None) -> int:
         "--max-episodes",
         type=_count,
         metavar="K",
-        help="flipped episodes traced and copied into the recording (default: "
-        "mjtrial.diff.DEFAULT_MAX_EPISODES)",
+        help="flipped episodes traced and copied into the recording (default: as many as fit "
+        "mjtrial.diff.flips.DEFAULT_RECORDING_BYTES of recordings)",
     )
     p.add_argument(
         "--out",

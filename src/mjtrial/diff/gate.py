@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
+from mjtrial.diff.flips import SHOWN_FLIPS
 from mjtrial.recording.divergence import describe_divergence
 
 # A condition's result changed beyond noise when McNemar's exact test on the shared states
@@ -129,6 +131,26 @@ def _outcome(success: bool, category: str | None) -> str:
     return "success" if success else f"failed ({category or '-'})"
 
 
+def _flip_summary(flips: list[tuple[str, Mapping[str, Any]]]) -> list[str]:
+    """The flipped episodes by condition and pair of outcomes: how many, where they part (the
+    earliest and latest time), and how many were not compared, by why."""
+    pairs: dict[tuple[str, str, str], list[Mapping[str, Any]]] = {}
+    for group, f in flips:
+        a, b = (_outcome(s, c) for s, c in zip(f["success"], f["failure_category"], strict=True))
+        pairs.setdefault((group, a, b), []).append(f.get("divergence") or {})
+    lines = []
+    for (group, a, b), found in pairs.items():
+        times = sorted(d["time"] for d in found if d.get("time") is not None)
+        parts = []
+        if times:
+            span = f"{times[0]:.4g} s" + (f" to {times[-1]:.4g} s" if times[-1] > times[0] else "")
+            parts.append(f"{len(times)} part first at t = {span}")
+        reasons = Counter(d.get("reason", "-") for d in found if d.get("time") is None)
+        parts += [f"{n} {why}" for why, n in reasons.most_common()]
+        lines.append(f"  {group}: {a} -> {b}: {len(found)}; {'; '.join(parts)}")
+    return lines
+
+
 def render(diff: Mapping[str, Any]) -> str:
     """The diff as text for a person: what differs in how the runs were made, in what they
     found, and each flipped episode."""
@@ -139,7 +161,7 @@ def render(diff: Mapping[str, Any]) -> str:
     total = len({rel for rels in outputs.values() for rel in rels})
     broken = _not_as_sealed(outputs)
     n_broken = len(
-        {rel for kind, _ in _NOT_AS_SEALED for s in "ab" for rel in outputs[f"{kind}_{s}"]}
+        {rel for kind, _ in _NOT_AS_SEALED for s in "ab" for rel in outputs.get(f"{kind}_{s}", [])}
     )
     lines.append(
         f"  outputs: {total} sealed; {len(outputs['same'])} the same, "
@@ -173,10 +195,13 @@ def render(diff: Mapping[str, Any]) -> str:
         f"Flipped episodes: {len(flips)} (where they part: the first time both recordings "
         f"logged at which a value differs by more than {diff['tolerance']:g})",
     ]
-    for group, f in flips:
+    lines += _flip_summary(flips)
+    for group, f in flips[:SHOWN_FLIPS]:
         a, b = (_outcome(s, c) for s, c in zip(f["success"], f["failure_category"], strict=True))
         parts = describe_divergence(f.get("divergence"))
         lines.append(f"  {group} state {f['state_id']}: {a} -> {b}; {parts}")
+    if len(flips) > SHOWN_FLIPS:
+        lines.append(f"  ... and {len(flips) - SHOWN_FLIPS} more (all in --json)")
     if diff["recording"]:
         lines.append(f"both runs' recordings of them: rerun {diff['recording']}")
     return "\n".join(lines)
