@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -142,3 +143,18 @@ def test_diff_names_a_shard_whose_rows_are_not_its_stamp_s(unrecorded, tmp_path,
     err = capsys.readouterr().err
     assert code == 1, err
     assert f"rows are not the ones their stamp records in b: {rel.as_posix()}" in err, err
+
+
+def test_every_episode_when_the_estimate_fits_the_budget_else_a_sample_said_so():
+    from mjtrial.verify.coverage import DEFAULT_RESIMULATE, RESIMULATE_ALL, coverage
+
+    def busy(ids):  # 10 ms of CPU per episode
+        start = time.process_time()
+        while time.process_time() - start < 0.01 * len(ids):
+            pass
+
+    found = coverage(1000, range(1000), busy, budget_s=100.0)
+    assert found.per_shard == RESIMULATE_ALL and found.why.startswith("every episode, about ")
+    found = coverage(1000, range(1000), busy, budget_s=2.0)
+    assert found.per_shard == DEFAULT_RESIMULATE
+    assert "over the 2 s budget; --resimulate all re-simulates them all" in found.why

@@ -338,13 +338,17 @@ class _Checker:
         qualified = pairs[0][1]  # the design's first condition: on the nominal model
         slice_ = config_slice("rollout", self.config, condition=qualified)
         timed = range(min(n, 4)) if self.layout.states.is_file() else []
-        found = coverage(
-            episodes,
-            timed,
-            lambda ids: resimulated_outcome(
-                slice_, self.model_file, self.layout.states, ids, repo_root=self.repo_root
-            ),
-        )
+        try:
+            found = coverage(
+                episodes,
+                timed,
+                lambda ids: resimulated_outcome(
+                    slice_, self.model_file, self.layout.states, ids, repo_root=self.repo_root
+                ),
+            )
+        except Exception:  # noqa: BLE001 - each re-simulated shard names what fails
+            self.found.coverage = f"{DEFAULT_RESIMULATE} per shard: no episode could be timed"
+            return DEFAULT_RESIMULATE
         self.found.coverage = found.why
         return found.per_shard
 
