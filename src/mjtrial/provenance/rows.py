@@ -30,6 +30,7 @@ def rows_sha256(table: pyarrow.Table) -> str:
     """sha256 of a table's rows: each column's name, type, nulls and values, whatever the
     chunks and encodings that hold them (the table a job holds and the one read back from its
     Parquet file hash alike; NaNs as one NaN). Hashes the arrays in memory: no file is read."""
+    # slow imports (pyarrow ~0.2 s): only what hashes a table pays them, as `write_parquet`
     import numpy as np
     import pyarrow as pa
     import pyarrow.compute as pc
@@ -64,7 +65,7 @@ _MISMATCH = (
 def read_checked_table(path: str | os.PathLike[str]) -> pyarrow.Table:
     """The Parquet table at `path` (its stamp in its schema metadata), refused in one line
     (`RowsMismatchError`) when its stamp records the sha256 of its rows and they differ."""
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # slow import, see rows_sha256
 
     table = pq.read_table(path)
     recorded = _recorded(read_stamp(path))

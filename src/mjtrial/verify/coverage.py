@@ -2,7 +2,7 @@
 sample per shard, and the words that say which.
 
 A sample of 20 per shard misses a forged row more often than not at N = 200, and the N = 200
-experiments re-simulate whole in seconds (gantry and cart-pole: 0.02-0.03 s of CPU per
+experiments re-simulate whole in seconds (the two built-in ones: 0.02-0.03 s of CPU per
 episode, alone). So verify times a few episodes of the first condition and re-simulates
 every one when the estimate for all is within `RESIMULATE_BUDGET_S`; a larger run gets
 `DEFAULT_RESIMULATE` per shard, and the check line says how many of how many it covered.
