@@ -23,7 +23,7 @@ DEFAULT_RESIMULATE = 20
 RESIMULATE_BUDGET_S = 60.0
 # `--resimulate all`: more than any shard holds.
 RESIMULATE_ALL = 2**62
-_TIMED = 4  # episodes timed for the estimate
+_TIMED = 5  # episodes timed for the estimate
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,12 @@ class Coverage:
     why: str
 
 
+def _cpu_seconds(resimulate: Callable[[Sequence[int]], object], ids: Sequence[int]) -> float:
+    start = time.process_time()
+    resimulate(ids)
+    return time.process_time() - start
+
+
 def coverage(
     episodes: int,
     timed_ids: Sequence[int],
@@ -42,14 +48,18 @@ def coverage(
     budget_s: float = RESIMULATE_BUDGET_S,
 ) -> Coverage:
     """Every episode (`RESIMULATE_ALL`) when `episodes` of them are estimated to take at most
-    `budget_s` of CPU, else `DEFAULT_RESIMULATE` per shard. The estimate times `resimulate`
-    on up to 4 of `timed_ids` (its model load included: an overestimate)."""
+    `budget_s` of CPU, else `DEFAULT_RESIMULATE` per shard. The estimate times `resimulate` on
+    one of `timed_ids` and on up to 5: the difference is the episodes' cost without the model
+    and task loaded at each call (which verify pays once per shard)."""
     ids = list(timed_ids)[:_TIMED]
     if not ids or episodes <= 0:
         return Coverage(RESIMULATE_ALL, "every episode")
-    start = time.process_time()
-    resimulate(ids)
-    estimate = (time.process_time() - start) / len(ids) * episodes
+    one = _cpu_seconds(resimulate, ids[:1])
+    if len(ids) > 1:
+        per_episode = max(_cpu_seconds(resimulate, ids) - one, 0.0) / (len(ids) - 1)
+    else:
+        per_episode = one
+    estimate = per_episode * episodes
     if estimate <= budget_s:
         return Coverage(RESIMULATE_ALL, f"every episode, about {estimate:.0f} s")
     return Coverage(

@@ -337,7 +337,7 @@ class _Checker:
         episodes = n * (len(pairs) + pilot.is_file() * len(self.config["conditions"]))
         qualified = pairs[0][1]  # the design's first condition: on the nominal model
         slice_ = config_slice("rollout", self.config, condition=qualified)
-        timed = range(min(n, 4)) if self.layout.states.is_file() else []
+        timed = range(min(n, 5)) if self.layout.states.is_file() else []
         try:
             found = coverage(
                 episodes,
