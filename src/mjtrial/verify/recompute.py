@@ -332,9 +332,17 @@ class _Checker:
     def coverage(self) -> int:
         """Episodes to re-simulate per shard: every one if that fits the time budget
         (`verify.coverage`, timed on the first condition), and the check line says which."""
-        n, pairs = self.config["states"]["n"], list(self.conditions())
-        pilot = self.layout.development.rollout_table(next(iter(self.config["conditions"])))
-        episodes = n * (len(pairs) + pilot.is_file() * len(self.config["conditions"]))
+        n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
+        pairs = list(self.conditions())
+        design = [(NOMINAL, c) for c in self.config["conditions"]]
+        episodes = sum(  # of the shards there (a study not run has none)
+            stop - first
+            for layout, rollouts in ((self.layout, pairs), (self.layout.development, design))
+            for variant, condition in rollouts
+            for shard in shard_ids(n, size)
+            for first, stop in [shard_range(shard, size, n)]
+            if layout.shard_table(condition, shard, variant).is_file()
+        )
         qualified = pairs[0][1]  # the design's first condition: on the nominal model
         slice_ = config_slice("rollout", self.config, condition=qualified)
         timed = range(min(n, 5)) if self.layout.states.is_file() else []
