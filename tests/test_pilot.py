@@ -188,10 +188,15 @@ def verify(workdir: Path):
     )
 
 
-def test_a_stale_pilot_is_a_warning_and_a_current_one_is_checked(piloted, tmp_path):
+def test_a_stale_pilot_is_a_note_and_a_current_one_is_checked(piloted, tmp_path):
+    """A stale pilot is read by no reported number: a note with its remedy, which does not fail
+    `verify --strict` (issue 34 case 11: it did, as a warning)."""
     report = verify(piloted)
     assert report.ok, report.format()
-    stale = [w for w in report.warnings if w.startswith("development output stale")]
+    assert not [w for w in report.warnings if w.startswith("development output")], report.format()
+    stale = [n for n in report.notes if n.startswith("development output stale")]
+    assert all("`snakemake -c2 pilot` or `dev` rebuilds it" in n for n in stale)
+    assert "note     development output stale" in report.format()
     # fast's shards, table, nominal episode and the rates
     assert len(stale) == 3 + 2 + 1, report.format()
     assert report.status_of(f"{DEVELOPMENT.rollout_table('slow').as_posix()}") is Status.OK

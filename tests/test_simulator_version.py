@@ -192,7 +192,7 @@ def test_verify_resimulates_the_variant_in_its_environment(versioned):
     report = verified(versioned, resimulate=5, seed=1)
     assert report.ok, report.format()
     [line] = report.checks
-    assert "and re-simulated 48 episodes (sample seed 1" in line  # 2 x 12 in each variant
+    assert "and re-simulated 48 of 48 episodes (sample seed 1" in line  # 2 x 12 in each variant
     assert line.endswith(f"0 differ; re-simulated mujoco_4/fast, mujoco_4/slow in {LOCK.parent}")
 
 

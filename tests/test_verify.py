@@ -203,7 +203,8 @@ def test_shard_table_changed_under_its_old_stamp_is_tampered(work):
     report = verify(work)
     assert report.with_status(Status.TAMPERED) == [shard]
     why = reasons(report, shard)
-    assert why.startswith("sha256 recorded by rollouts/fast.nominal.json, rollouts/fast.parquet")
+    assert why.startswith("its rows are not the ones its stamp records (rows_sha256)")
+    assert "sha256 recorded by rollouts/fast.nominal.json, rollouts/fast.parquet" in why
     assert "does not match the file" in why
     for gathered in (f"{RESULTS}/rollouts/fast.parquet", f"{RESULTS}/rollouts/fast.nominal.json"):
         assert reasons(report, gathered) == "input tampered: rollouts/fast/shard-00001.parquet"

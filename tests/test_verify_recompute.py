@@ -61,7 +61,7 @@ def test_a_fresh_build_recomputes_equal(built):
     # the crate and its copy of the sources; 12 states' episodes under 2 conditions recorded
     assert line == (
         "recomputed 16 outputs from their inputs, compared 24 recorded episodes with their rows "
-        "and re-simulated 24 episodes (sample seed 7: --seed 7 draws it again): 0 differ"
+        "and re-simulated 24 of 24 episodes (sample seed 7: --seed 7 draws it again): 0 differ"
     )
 
 
@@ -74,7 +74,7 @@ def test_the_command_prints_its_sample_seed_and_seed_draws_that_sample(built, mo
     seed = line.split("(sample seed ")[1].split(":")[0]
     assert f"--seed {seed} draws it again" in line
     assert cli.main(["verify", "--resimulate", "1", "--seed", "12"]) == 0
-    assert "re-simulated 6 episodes (sample seed 12: --seed 12 draws it again)" in (
+    assert "re-simulated 6 of 24 episodes (sample seed 12: --seed 12 draws it again)" in (
         capsys.readouterr().out
     )
 
@@ -134,6 +134,8 @@ def _flip_to_success(path: Path, state_id: int) -> None:
         values[row] = value
         i = table.column_names.index(name)
         table = table.set_column(i, name, pa.array(values, type=table.schema.field(i).type))
+    if provenance.ROWS_KEY in stamp["extra"]:  # a shard: its stamp records its rows too
+        stamp["extra"] = {**stamp["extra"], provenance.ROWS_KEY: provenance.rows_sha256(table)}
     provenance.write_parquet(table, path, stamp)
 
 
@@ -208,6 +210,7 @@ def nudge_final_x(shard: Path, *, row: int) -> None:
     final_x = table.column("final_x").to_numpy().copy()
     final_x[row] += 1e-6
     table = table.set_column(table.column_names.index("final_x"), "final_x", pa.array(final_x))
+    stamp["extra"][provenance.ROWS_KEY] = provenance.rows_sha256(table)  # the forger restamps
     provenance.write_parquet(table, shard, stamp)
 
 

@@ -136,6 +136,13 @@ def _count(text: str) -> int:
     return value
 
 
+def _resimulate_count(text: str) -> int:
+    """`--resimulate`: a count, or `all` (every episode of every shard)."""
+    from mjtrial.verify.coverage import RESIMULATE_ALL  # no MuJoCo: a constant
+
+    return RESIMULATE_ALL if text == "all" else _count(text)
+
+
 def _recorded_config_file(results_dir: Path, default: str | None = CONFIG_FILE) -> str | None:
     """The run's config file as its manifest records it (`default` if it does not)."""
     try:
@@ -177,7 +184,7 @@ def _verify(args: argparse.Namespace) -> int:
     if foreign:
         print(f"mjtrial verify: {foreign}", file=sys.stderr)
         return 2
-    resimulate = DEFAULT_RESIMULATE if args.resimulate is None else args.resimulate
+    resimulate = args.resimulate  # None: every episode if that fits verify's time budget
     try:
         if results_dir is not None:
             origin = copied_from(results_dir, repo_root=repo_root)
@@ -193,7 +200,10 @@ def _verify(args: argparse.Namespace) -> int:
                 )
                 return 2
         if _is_benchmark_file(config_path):
-            return _verify_benchmark(config_path, repo_root, results_dir, resimulate, args.seed)
+            benchmark_sample = DEFAULT_RESIMULATE if resimulate is None else resimulate
+            return _verify_benchmark(
+                config_path, repo_root, results_dir, benchmark_sample, args.seed
+            )
         if results_dir is None:
             config = load_checked_config(config_path, repo_root=repo_root)
             results_dir = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR).root
@@ -479,10 +489,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument(
         "--resimulate",
-        type=_count,
+        type=_resimulate_count,
         metavar="K",
-        help="episodes re-simulated per shard and compared with its table (default: "
-        "mjtrial.verify.DEFAULT_RESIMULATE; 0: none)",
+        help="episodes re-simulated per shard and compared with its table, or `all` (default: "
+        "every one when that fits mjtrial.verify.coverage.RESIMULATE_BUDGET_S of CPU, else "
+        "mjtrial.verify.DEFAULT_RESIMULATE per shard, a benchmark's always; 0: none)",
     )
     p.add_argument(
         "--seed",
@@ -568,8 +579,8 @@ def main(argv: list[str] | None = None) -> int:
         "--max-episodes",
         type=_count,
         metavar="K",
-        help="flipped episodes traced and copied into the recording (default: "
-        "mjtrial.diff.DEFAULT_MAX_EPISODES)",
+        help="flipped episodes traced and copied into the recording (default: as many as fit "
+        "mjtrial.diff.flips.DEFAULT_RECORDING_BYTES of recordings)",
     )
     p.add_argument(
         "--out",

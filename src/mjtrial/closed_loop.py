@@ -58,13 +58,6 @@ from mjtrial.physics import FULLPHYSICS
 CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL.value | mujoco.mjtState.mjSTATE_XFRC_APPLIED.value
 
 
-# Control instants replayed from the reset (`check_replayed`): on the built-in closed-loop
-# experiment (300 instants an episode) the first 20 cost under 1 % of its rollout stage's time
-# and all 300 about 12 %; a difference that shows only later is still caught on verify's
-# re-simulated sample, whose every episode runs alone.
-REPLAYED_INSTANTS = 20
-
-
 class BatchPolicy(Protocol):
     """A controller over a batch of episodes. Row i of every array is episode i."""
 
@@ -246,9 +239,9 @@ def run_batch(
       runner: a `mujoco.rollout.Rollout` (its thread pool is reused across batches).
       datas: one MjData per runner thread (at least one).
       pushes: a wrench pulse per episode, or None.
-      check: replay the first `REPLAYED_INSTANTS` instants' observations through the policy in
-        other batches (`check_replayed`) and raise `PolicyError` if a row's controls differ;
-        off only to measure its cost.
+      check: replay every instant's observations through the policy, each row alone
+        (`check_replayed`), and raise `PolicyError` if a row's controls differ; off only to
+        measure its cost.
       actuation: what the policy's output columns drive (default: every actuator's ctrl); one
         that moves mocap bodies has their targets sent to `mujoco.rollout` as controls, from
         each episode's start pose (its model's, `actuation.initial_targets`).
@@ -275,7 +268,7 @@ def run_batch(
     controls = np.zeros((n, s + extra, nu + nbody * 6 + (model.nmocap * 7 if moves else 0)))
     state = np.ascontiguousarray(initial, dtype=np.float64)
     initial_sensors = sensors_at(models, state, mujoco.MjData(model)) if observer.sensed else None
-    replayed = min(timing.n_controls, REPLAYED_INSTANTS) if check else 0
+    replayed = timing.n_controls if check else 0  # every instant: `check_replayed`
     observed: np.ndarray | None = None  # (n, replayed, n_observations), for check_replayed
     answered = np.empty((n, replayed, actuation.n_outputs))  # what the policy gave them
     policy.reset(n)
@@ -446,20 +439,23 @@ def check_batch_independence(policy: BatchPolicy, observations: np.ndarray) -> N
 
 
 def replay_splits(n: int) -> list[np.ndarray]:
-    """Other batches of a batch's rows 0..n-1: its rows in reverse order, in two halves of
-    different sizes (so every row sits at another position, in a batch of another size), and
-    its first row alone (the reference's batch of one). None for a batch of one row."""
+    """The batches a batch's rows 0..n-1 are replayed in: each row alone, the batch of one that
+    the reference runs and verify re-simulates. A row's controls alone are what they must be in
+    any batch; a replay in other batches of several rows (halves of it), or of the first 20
+    instants, let through a policy that changes only after instant 25 in batches of more than 8
+    rows. The cost, on the built-in closed-loop experiment (250 instants, 200 episodes a shard,
+    its LQR policy): about 0.8 s of CPU per shard, where its episodes take about 0.9 s. None for
+    a batch of one row."""
     if n < 2:
         return []
-    backwards = np.arange(n)[::-1]
-    return [backwards[: n // 2], backwards[n // 2 :], np.array([0])]
+    return [np.array([i]) for i in range(n)]
 
 
 def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.ndarray) -> None:
     """Raise `PolicyError` unless the policy, given the same observations from its reset on but
-    in other batches (`replay_splits`), gives every row the controls it gave in the batch, bit
-    for bit: an episode's controls, and so its result, must not depend on its batch (the
-    shard's size, the episodes beside it).
+    each row alone (`replay_splits`), gives every row the controls it gave in the batch, bit for
+    bit, at every instant: an episode's controls, and so its result, must not depend on its
+    batch (the shard's size, the episodes beside it).
 
     Args:
       policy: the batch's policy (reset here; its memory is per episode from a reset on).
@@ -469,16 +465,23 @@ def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.n
     n, n_controls, nu = controls.shape
     for rows in replay_splits(n):
         policy.reset(len(rows))
-        for k in range(n_controls):
-            again = _checked_controls(policy(observations[rows, k].copy()), len(rows), nu)
-            given = controls[rows, k]
-            if np.array_equal(again, given):  # both finite (`_checked_controls`)
-                continue
-            bad = int(np.flatnonzero((again != given).any(axis=1))[0])
-            diff = float(np.max(np.abs(again[bad] - given[bad])))
-            raise PolicyError(
-                f"policy: episode row {rows[bad]} of a batch of {n} gets other controls at "
-                f"control instant {k} when its observations are replayed in a batch of "
-                f"{len(rows)} (largest difference {diff:.3g}): its results would depend on the "
-                "batch (rollout.shard_size); compute each row from that row's observations alone"
-            )
+        again = np.empty((n_controls, len(rows), nu))
+        for k in range(n_controls):  # compared once the episode is replayed: cheaper per call
+            ctrl = np.asarray(policy(observations[rows, k].copy()), dtype=np.float64)
+            if ctrl.shape != (len(rows), nu):
+                raise PolicyError(
+                    f"policy: expected controls of shape ({len(rows)}, {nu}), got {ctrl.shape}"
+                )
+            again[k] = ctrl
+        given = controls[rows].swapaxes(0, 1)  # (k, rows, nu), finite (`_checked_controls`)
+        if np.array_equal(again, given):
+            continue
+        k, bad = (int(x[0]) for x in np.nonzero((again != given).any(axis=2)))
+        diff = float(np.max(np.abs(again[k, bad] - given[k, bad])))
+        alone = "it runs alone" if len(rows) == 1 else f"replayed in a batch of {len(rows)}"
+        raise PolicyError(
+            f"policy: batch dependence: episode row {rows[bad]} of a batch of {n} gets other "
+            f"controls at control instant {k} when {alone} (largest difference {diff:.3g}): "
+            "its results would depend on the batch (rollout.shard_size); compute each row "
+            "from that row's observations alone"
+        )

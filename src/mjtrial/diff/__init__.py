@@ -45,7 +45,7 @@ def diff_runs(
     *,
     recording: Path | None = None,
     tolerance: float = DEFAULT_TOLERANCE,
-    max_episodes: int = DEFAULT_MAX_EPISODES,
+    max_episodes: int | None = DEFAULT_MAX_EPISODES,
     level: float = DEFAULT_LEVEL,
 ) -> dict[str, Any]:
     """The diff of runs `a` and `b`, a JSON-able dict: `runs`, `made` (`made.how_made`),

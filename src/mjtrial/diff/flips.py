@@ -16,8 +16,13 @@ from mjtrial.recording.divergence import DEFAULT_TOLERANCE, UNREADABLE, episode_
 from mjtrial.recording.failures import write_episode_copies_rrd
 from mjtrial.recording.names import episode_file_name
 
-# Flipped episodes whose trajectories are compared and copied into the diff's recording.
-DEFAULT_MAX_EPISODES = 50
+# Flipped episodes whose trajectories are compared and copied into the diff's recording: by
+# default (None) as many as fit `DEFAULT_RECORDING_BYTES` of recordings, so that a change that
+# flips hundreds of episodes leaves a file a viewer opens (50 Fetch episodes made 67 MB).
+DEFAULT_MAX_EPISODES: int | None = None
+DEFAULT_RECORDING_BYTES = 10_000_000
+# Flipped episodes a diff prints one by one, after their summary; the rest are in --json.
+SHOWN_FLIPS = 10
 # The runs' labels in the diff's recording.
 SIDES = ("a", "b")
 
@@ -60,23 +65,36 @@ def trace_flips(
     conditions: Mapping[str, Mapping[str, Any]],
     *,
     tolerance: float = DEFAULT_TOLERANCE,
-    max_episodes: int = DEFAULT_MAX_EPISODES,
+    max_episodes: int | None = DEFAULT_MAX_EPISODES,
 ) -> list[tuple[str, int, Path, Path]]:
     """Add to each flipped episode of `conditions` (`found.compare_conditions`) its
     `divergence` where both runs recorded it: `first_divergence`, or why there is none. The
-    first `max_episodes` so compared are returned as (group, state, file in a, file in b)."""
+    first `max_episodes` so compared (None: until their recordings reach
+    `DEFAULT_RECORDING_BYTES`) are returned as (group, state, file in a, file in b); the
+    others say why they were not compared."""
     traced: list[tuple[str, int, Path, Path]] = []
+    size = 0  # bytes of the traced episodes' recordings
+    if max_episodes is None:
+        past = (
+            f"not compared (past the diff recording's {DEFAULT_RECORDING_BYTES / 1e6:.0f} MB; "
+            "--max-episodes K compares K)"
+        )
+    else:
+        past = f"not compared (past --max-episodes {max_episodes})"
     for group, record in conditions.items():
         for flip in record.get("flipped", []):
             sid = flip["state_id"]
-            if len(traced) >= max_episodes:
-                flip["divergence"] = {
-                    "reason": f"not compared (past --max-episodes {max_episodes})"
-                }
+            if (
+                len(traced) >= max_episodes
+                if max_episodes is not None
+                else size >= DEFAULT_RECORDING_BYTES
+            ):
+                flip["divergence"] = {"reason": past}
                 continue
             flip["divergence"], files = _trace(a, b, group, sid, tolerance=tolerance)
             if files is not None:
                 traced.append((group, sid, *files))
+                size += sum(f.stat().st_size for f in files)
     return traced
 
 

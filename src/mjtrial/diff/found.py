@@ -44,18 +44,43 @@ def _content(run: Run, rel: str) -> bytes | None:
     return content
 
 
+def not_as_sealed(run: Run) -> dict[str, list[str]]:
+    """The run's sealed outputs that are not what it sealed: `missing` (gone from the folder),
+    `altered` (its bytes are not the sha256 its seal records) and `rows` (a table whose rows
+    are not the ones its own stamp records, `provenance.rows_problem`: edited, then sealed
+    again). A diff compares what is on disk; the seals say what the run was."""
+    out: dict[str, list[str]] = {"missing": [], "altered": [], "rows": []}
+    for rel, sealed in run.outputs.items():
+        now = run.disk_sha256(rel)
+        if now is None:
+            out["missing"].append(rel)
+        elif now != sealed:
+            out["altered"].append(rel)
+        elif rel.endswith(".parquet") and provenance.rows_problem(run.root / rel):
+            out["rows"].append(rel)
+    return out
+
+
 def compare_outputs(a: Run, b: Run) -> dict[str, list[str]]:
     """Every sealed output, relative to its results folder, by what the comparison found:
-    `only_a`, `only_b`; `same` (the same sha256 in both seals); `same_content` (bytes differ
-    in the stamp alone: another build of the same result); `differ`; `recordings` (Rerun
-    recordings and their folders: bytes hold stamps, so they are compared through the rollout
-    tables' outcomes and measures, and by trajectory where an outcome flipped)."""
+    `only_a`, `only_b`; `same` (the same sha256 in both seals and on both disks);
+    `same_content` (bytes differ in the stamp alone: another build of the same result);
+    `differ`; `recordings` (Rerun recordings and their folders: bytes hold stamps, so they are
+    compared through the rollout tables' outcomes and measures, and by trajectory where an
+    outcome flipped); and per run (`_a`, `_b`) what is not as it sealed (`not_as_sealed`):
+    `missing_*`, `altered_*`, `rows_*`. An output not as sealed in either run is in no other
+    list but `only_*`: what it was is not there to compare."""
     out: dict[str, list[str]] = {
         k: [] for k in ("only_a", "only_b", "same", "same_content", "differ", "recordings")
     }
+    broken: set[str] = set()
+    for run, side in ((a, "a"), (b, "b")):
+        for kind, rels in not_as_sealed(run).items():
+            out[f"{kind}_{side}"] = rels
+            broken.update(rels)
     out["only_a"] = sorted(set(a.outputs) - set(b.outputs))
     out["only_b"] = sorted(set(b.outputs) - set(a.outputs))
-    for rel in sorted(set(a.outputs) & set(b.outputs)):
+    for rel in sorted(set(a.outputs) & set(b.outputs) - broken):
         if a.outputs[rel] == b.outputs[rel]:
             out["same"].append(rel)
         elif _RECORDING.fullmatch(rel):

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
+from mjtrial.diff.flips import SHOWN_FLIPS
 from mjtrial.recording.divergence import describe_divergence
 
 # A condition's result changed beyond noise when McNemar's exact test on the shared states
@@ -38,18 +40,38 @@ def _changed_conditions(diff: Mapping[str, Any]) -> list[str]:
     return out
 
 
+# What a run holds that is not what it sealed (`found.not_as_sealed`), in words.
+_NOT_AS_SEALED = (
+    ("altered", "outputs no longer match their seal"),
+    ("missing", "sealed outputs missing"),
+    ("rows", "tables whose rows are not the ones their stamp records"),
+)
+
+
+def _not_as_sealed(outputs: Mapping[str, list[str]]) -> list[str]:
+    return [
+        f"{what} in {side}: {_names(outputs[f'{kind}_{side}'])}"
+        for side in "ab"
+        for kind, what in _NOT_AS_SEALED
+        if outputs.get(f"{kind}_{side}")
+    ]
+
+
 def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
     """One line per reason the gate `fail_on` (`FAIL_ON`) fails; none: it passes.
 
-    `any`: an output is in one run only, or its content differs beyond its stamp; `changed`:
+    Every gate fails on a run whose files are not what it sealed (an output edited or gone,
+    a table whose rows are not its stamp's): what it found is not what is compared.
+    `any`: also an output is in one run only, or its content differs beyond its stamp; `changed`:
     a condition's success on the shared states differs beyond noise (McNemar's exact p below
     the diff's `level`); `verdict`: a verdict differs (the falsifier's, the experiment's or a
     variant's of the sensitivity study; a benchmark's comparison of two methods)."""
     if fail_on not in FAIL_ON:
         raise ValueError(f"fail_on: expected one of {list(FAIL_ON)}, got {fail_on!r}")
+    outputs = diff.get("outputs") or {}
+    broken = _not_as_sealed(outputs)
     if fail_on == "any":
-        outputs = diff["outputs"]
-        lines = [
+        lines = broken + [
             f"{what}: {_names(outputs[key])}"
             for key, what in (
                 ("differ", "outputs differ"),
@@ -65,8 +87,8 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
         ]
         return lines
     if fail_on == "changed":
-        return _changed_conditions(diff)
-    return [
+        return broken + _changed_conditions(diff)
+    return broken + [
         f"{name}: verdict changed: {rec['a'] and rec['a']['verdict']} -> "
         f"{rec['b'] and rec['b']['verdict']}"
         for name, rec in diff["effects"].items()
@@ -109,6 +131,26 @@ def _outcome(success: bool, category: str | None) -> str:
     return "success" if success else f"failed ({category or '-'})"
 
 
+def _flip_summary(flips: list[tuple[str, Mapping[str, Any]]]) -> list[str]:
+    """The flipped episodes by condition and pair of outcomes: how many, where they part (the
+    earliest and latest time), and how many were not compared, by why."""
+    pairs: dict[tuple[str, str, str], list[Mapping[str, Any]]] = {}
+    for group, f in flips:
+        a, b = (_outcome(s, c) for s, c in zip(f["success"], f["failure_category"], strict=True))
+        pairs.setdefault((group, a, b), []).append(f.get("divergence") or {})
+    lines = []
+    for (group, a, b), found in pairs.items():
+        times = sorted(d["time"] for d in found if d.get("time") is not None)
+        parts = []
+        if times:
+            span = f"{times[0]:.4g} s" + (f" to {times[-1]:.4g} s" if times[-1] > times[0] else "")
+            parts.append(f"{len(times)} part first at t = {span}")
+        reasons = Counter(d.get("reason", "-") for d in found if d.get("time") is None)
+        parts += [f"{n} {why}" for why, n in reasons.most_common()]
+        lines.append(f"  {group}: {a} -> {b}: {len(found)}; {'; '.join(parts)}")
+    return lines
+
+
 def render(diff: Mapping[str, Any]) -> str:
     """The diff as text for a person: what differs in how the runs were made, in what they
     found, and each flipped episode."""
@@ -116,13 +158,18 @@ def render(diff: Mapping[str, Any]) -> str:
     lines = [f"a: {runs['a']}", f"b: {runs['b']}", "", "How they were made"]
     lines += _made_lines(diff["made"])
     lines += ["", "What they found"]
-    total = sum(len(v) for v in outputs.values())
+    total = len({rel for rels in outputs.values() for rel in rels})
+    broken = _not_as_sealed(outputs)
+    n_broken = len(
+        {rel for kind, _ in _NOT_AS_SEALED for s in "ab" for rel in outputs.get(f"{kind}_{s}", [])}
+    )
     lines.append(
         f"  outputs: {total} sealed; {len(outputs['same'])} the same, "
         f"{len(outputs['same_content'])} the same but for their stamps, "
         f"{len(outputs['recordings'])} recordings (compared through outcomes and trajectories), "
-        f"{len(outputs['differ'])} differ"
+        f"{len(outputs['differ'])} differ" + (f", {n_broken} NOT AS SEALED" if n_broken else "")
     )
+    lines += [f"    {line}" for line in broken]
     for key, what in (("differ", "differ"), ("only_a", "only in a"), ("only_b", "only in b")):
         if outputs[key]:
             lines.append(f"    {what}: {_names(outputs[key])}")
@@ -148,10 +195,13 @@ def render(diff: Mapping[str, Any]) -> str:
         f"Flipped episodes: {len(flips)} (where they part: the first time both recordings "
         f"logged at which a value differs by more than {diff['tolerance']:g})",
     ]
-    for group, f in flips:
+    lines += _flip_summary(flips)
+    for group, f in flips[:SHOWN_FLIPS]:
         a, b = (_outcome(s, c) for s, c in zip(f["success"], f["failure_category"], strict=True))
         parts = describe_divergence(f.get("divergence"))
         lines.append(f"  {group} state {f['state_id']}: {a} -> {b}; {parts}")
+    if len(flips) > SHOWN_FLIPS:
+        lines.append(f"  ... and {len(flips) - SHOWN_FLIPS} more (all in --json)")
     if diff["recording"]:
         lines.append(f"both runs' recordings of them: rerun {diff['recording']}")
     return "\n".join(lines)

@@ -8,6 +8,7 @@ recordings, which are unpacked one episode at a time when the diff asks for one.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -16,7 +17,7 @@ import tempfile
 import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from mjtrial import provenance
@@ -61,6 +62,39 @@ class Run:
                 return path
             self.archive.extract(member, self._scratch)
         return path
+
+    def disk_sha256(self, rel: str) -> str | None:
+        """The sha256 of the output `rel` as it is now (`provenance.file_sha256`: a folder's
+        from its files' names and bytes), None when it is gone: what the seal records of it
+        is what the run was, not what the folder holds. An archive's outputs are hashed from
+        its members (its recordings are not unpacked)."""
+        path = self.root / rel
+        if self.archive is None:
+            return provenance.file_sha256(path) if path.exists() else None
+        member = self.prefix + rel
+        names = set(self.archive.namelist())
+        if member in names:
+            return self._member_sha256(member)
+        inside = sorted(
+            PurePosixPath(n[len(member) + 1 :])
+            for n in names
+            if n.startswith(member + "/") and not n.endswith("/")
+        )
+        inside = [q for q in inside if not any(part.startswith(".") for part in q.parts)]
+        if not inside:
+            return None
+        digest = hashlib.sha256()
+        for q in inside:
+            digest.update(f"{q.as_posix()}\0{self._member_sha256(f'{member}/{q}')}\n".encode())
+        return digest.hexdigest()
+
+    def _member_sha256(self, member: str) -> str:
+        assert self.archive is not None
+        h = hashlib.sha256()
+        with self.archive.open(member) as fh:
+            while block := fh.read(1 << 20):
+                h.update(block)
+        return h.hexdigest()
 
     def json(self, rel: str) -> dict[str, Any] | None:
         """A JSON output, or None when the run has none there."""

@@ -1,7 +1,9 @@
 """Provenance stamps: what produced an output file, carried inside the file itself.
 
 :mod:`~mjtrial.provenance.stamp` builds a stamp (git state, library versions, platform,
-hashes of the config slice and the inputs); :mod:`~mjtrial.provenance.formats` writes it into
+hashes of the config slice and the inputs); :mod:`~mjtrial.provenance.rows` hashes a table's
+rows for its stamp and refuses a table that no longer has them;
+:mod:`~mjtrial.provenance.formats` writes it into
 each output format and reads it back, with a registry of readers by file suffix that other
 modules add to (``.rrd`` from :mod:`mjtrial.recording`).
 """
@@ -23,6 +25,13 @@ from mjtrial.provenance.formats import (
     write_markdown,
     write_parquet,
     write_svg,
+)
+from mjtrial.provenance.rows import (
+    ROWS_KEY,
+    RowsMismatchError,
+    read_checked_table,
+    rows_problem,
+    rows_sha256,
 )
 from mjtrial.provenance.stamp import (
     RECORDING_FOLDER_BLUEPRINT,
@@ -47,6 +56,8 @@ from mjtrial.provenance.stamp import (
 __all__ = [
     "RECORDING_FOLDER_BLUEPRINT",
     "RECORDING_FOLDER_STAMP",
+    "ROWS_KEY",
+    "RowsMismatchError",
     "STAMP_KEY",
     "STAMP_VERSION",
     "MissingStampError",
@@ -64,7 +75,10 @@ __all__ = [
     "library_versions",
     "make_stamp",
     "markdown_with_stamp",
+    "read_checked_table",
     "read_output_text",
+    "rows_problem",
+    "rows_sha256",
     "model_files",
     "model_sha256",
     "path_in_repo",

@@ -111,7 +111,7 @@ def gather_evaluation(
 ) -> pa.Table:
     """The evaluation's table from its shards' (in state order): every evaluation state once.
     Its stamp names the states and the parameter file, as each shard's does."""
-    tables = [pq.read_table(p).replace_schema_metadata(None) for p in shards]
+    tables = [provenance.read_checked_table(p).replace_schema_metadata(None) for p in shards]
     table = pa.concat_tables(tables)
     ids = table.column("state_id").to_numpy()
     n = pq.read_metadata(states).num_rows

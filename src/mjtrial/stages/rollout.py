@@ -278,7 +278,8 @@ def run_shard(
 ) -> pa.Table:
     """Roll out the states with ids in [first, stop) under one condition: one shard.
 
-    Writes the shard's rows of the rollout table and (given `output_recording`, a folder) the
+    Writes the shard's rows of the rollout table (its stamp with the sha256 of its rows,
+    `provenance.ROWS_KEY` under `extra`) and (given `output_recording`, a folder) the
     trajectory of every episode that `recording.episodes` asks for (`all` or `failed`) as a
     Rerun recording, one .rrd per episode, written while the next batch runs. Memory is bounded
     by the batch and the shard, never by the number of states. `unrecorded` is the shard's
@@ -341,7 +342,10 @@ def run_shard(
             stamp=stamp,
         )
     table = outcome_table(task, columns)
-    provenance.write_parquet(table, output_table, stamp)
+    # The table's stamp also records the hash of its rows (the arrays in hand, no re-read):
+    # every reader refuses the shard once a row is edited (`provenance.read_checked_table`).
+    rows = {provenance.ROWS_KEY: provenance.rows_sha256(table)}
+    provenance.write_parquet(table, output_table, {**stamp, "extra": {**stamp["extra"], **rows}})
     if unrecorded is not None:
         atomic.remove_folder(unrecorded)
     log.info(
@@ -365,10 +369,12 @@ def gather_condition(
     repo_root: Path = REPO_ROOT,
     extra_inputs: Mapping[str, Any] | None = None,
 ) -> pa.Table:
-    """The condition's rollout table from its shards' (in state order), and the nominal state's
-    episode (each state parameter at its nominal value) for the "nominal state alone" mistake."""
+    """The condition's rollout table from its shards' (in state order; a shard whose rows are
+    not the ones its stamp records is refused, `provenance.read_checked_table`), and the
+    nominal state's episode (each state parameter at its nominal value) for the "nominal state
+    alone" mistake."""
     bound = condition_task(condition_slice, model_file, repo_root=repo_root)
-    tables = [pq.read_table(p).replace_schema_metadata(None) for p in shard_tables]
+    tables = [provenance.read_checked_table(p).replace_schema_metadata(None) for p in shard_tables]
     table = pa.concat_tables(tables) if tables else rollout_schema(bound.task).empty_table()
     ids = table.column("state_id").to_numpy()
     if not np.array_equal(ids, np.arange(len(ids))):

@@ -39,6 +39,7 @@ from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
 from mjtrial.stages.look import shards_run
 from mjtrial.verify.chain import (
+    PLATFORM_WARNINGS,
     STAMPED_SUFFIXES,
     Current,
     OutputResult,
@@ -229,13 +230,14 @@ def verify_results(
     *,
     config_path: Path,
     repo_root: Path,
-    resimulate: int = DEFAULT_RESIMULATE,
+    resimulate: int | None = None,
     seed: int | None = None,
 ) -> VerifyReport:
     """Read every stamp under ``results_dir`` and check the chain (see :func:`check_stamps`),
     then recompute what the stamps judge current and re-simulate ``resimulate`` episodes per
-    shard (:mod:`mjtrial.verify.recompute`), drawn with ``seed`` (None: a fresh one, which the
-    report's check line prints): an output that differs is tampered.
+    shard (:mod:`mjtrial.verify.recompute`; None: every one when that fits the time budget of
+    :mod:`mjtrial.verify.coverage`, else a sample), drawn with ``seed`` (None: a fresh one,
+    which the report's check line prints): an output that differs is tampered.
 
     ``repo_root`` is the folder Snakemake ran in: stamps record paths relative to it, and the
     model path in the config is resolved in it.  ``results_dir`` must lie inside it.  Raises
@@ -348,10 +350,16 @@ def verify_results(
     )
     if found.differs:
         report = check(found.differs)
+    # Another CPU is a doubt until re-simulation here settles it: when every episode verify
+    # re-simulated agrees bit for bit, it is a note.
+    settled = found.resimulated > 0 and not found.differs
+    platform = [w for w in report.warnings if w.startswith(PLATFORM_WARNINGS)] if settled else []
+    agree = f"; the {found.resimulated} episodes re-simulated here all agree bit for bit"
     return dataclasses.replace(
         report,
         skipped=(*report.skipped, *leftovers),
-        warnings=(*config_warnings, *report.warnings),
+        warnings=(*config_warnings, *(w for w in report.warnings if w not in platform)),
+        notes=(*report.notes, *(w + agree for w in platform)),
         checks=(found.line(),),
         unchecked=tuple(
             f"{', '.join(conditions)} not re-simulated ({why})"

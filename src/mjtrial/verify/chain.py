@@ -89,6 +89,9 @@ class VerifyReport:
     skipped: tuple[Skipped, ...] = ()
     checks: tuple[str, ...] = ()  # what was checked beyond the stamps (recomputation)
     unchecked: tuple[str, ...] = ()  # checks that could not run (the check line says why)
+    # what is worth knowing but puts nothing in doubt (`--strict` passes): a stale pilot, which
+    # no reported number reads; a platform whose re-simulations here all agree
+    notes: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -139,6 +142,7 @@ class VerifyReport:
             *(o.line() for o in self.outputs),
             *(s.line() for s in self.skipped),
             *(f"warning  {w}" for w in self.warnings),
+            *(f"note     {n}" for n in self.notes),
             *(f"checked  {c}" for c in self.checks),
             self.summary(),
         ]
@@ -314,6 +318,11 @@ def _variant_mujoco(stamp: Mapping[str, Any]) -> dict[str, str]:
     return {VERSION_KEY: version} if isinstance(version, str) else {}
 
 
+# The one command that makes every stamp of a run agree: each output rebuilt here, now.
+REBUILD_ALL = "`snakemake -c2 --forceall`"
+PLATFORM_WARNINGS = ("platform differs from this machine", "stamps were made on ")
+
+
 def _consistency_warnings(
     stamps: Mapping[str, Mapping[str, Any]], current: Current, prefix: str
 ) -> list[str]:
@@ -326,7 +335,10 @@ def _consistency_warnings(
     for path, stamp in stamps.items():
         git[_git_key(stamp)].append(path)
     if len(git) > 1:
-        warnings.append(f"stamps disagree on the git state: {_grouped(git, prefix)}")
+        warnings.append(
+            f"stamps disagree on the git state: {_grouped(git, prefix)}; {REBUILD_ALL} rebuilds "
+            "every output at this checkout's commit"
+        )
 
     keys = set()
     for stamp in stamps.values():
@@ -340,7 +352,10 @@ def _consistency_warnings(
             if key not in _variant_mujoco(stamp):  # a variant's own MuJoCo differs by design
                 values[str(value)].append(path)
         if len(values) > 1:
-            warnings.append(f"stamps disagree on {key}: {_grouped(values, prefix)}")
+            warnings.append(
+                f"stamps disagree on {key}: {_grouped(values, prefix)}; {REBUILD_ALL} rebuilds "
+                "every output with this environment's"
+            )
 
     platforms: dict[tuple[str, tuple[str, ...]], list[str]] = defaultdict(list)
     for path, stamp in stamps.items():
@@ -348,7 +363,8 @@ def _consistency_warnings(
     if len(platforms) > 1:
         warnings.append(
             f"stamps were made on {len(platforms)} different platforms (cpu_model, "
-            "cpu_flags_fp): results may not be bit-for-bit consistent with each other"
+            f"cpu_flags_fp): results may not be bit-for-bit consistent with each other; "
+            f"{REBUILD_ALL} on one machine rebuilds them all there"
         )
     here_model, here_flags = _platform_key(current.platform)
     for (model, flags), paths in sorted(platforms.items()):
@@ -365,7 +381,8 @@ def _consistency_warnings(
         warnings.append(
             f"platform differs from this machine: {'; '.join(what)} in "
             f"{len(paths)} stamps ({_names(sorted(paths), prefix)}): a rebuild here may not "
-            "reproduce them bit for bit"
+            f"reproduce them bit for bit; verify's re-simulations say whether they do (a note "
+            f"when all agree), {REBUILD_ALL} rebuilds them here"
         )
     return warnings
 
@@ -425,7 +442,7 @@ def check_stamps(
     ``outdated`` maps outputs that miss something built after them (a crate that does not
     cover a study sealed since) to why: stale. Outputs under ``development_prefix`` (the
     development states and the pilot) are read by no reported number: one that is stale or
-    missing (a pilot of an earlier configuration) is a warning, not a failure, and an output
+    missing (a pilot of an earlier configuration) is a note, not a failure, and an output
     outside it that records an input under it is tampered.
     """
     unreadable = dict(unreadable or {})
@@ -631,6 +648,7 @@ def check_stamps(
     return VerifyReport(
         results_dir=prefix.rstrip("/"),
         outputs=tuple(results),
-        warnings=(*sorted(advisory), *_consistency_warnings(pipeline_stamps, current, prefix)),
+        warnings=tuple(_consistency_warnings(pipeline_stamps, current, prefix)),
         skipped=tuple(skipped),
+        notes=tuple(sorted(advisory)),
     )

@@ -51,12 +51,9 @@ from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
 from mjtrial.verify.chain import dict_diff
+from mjtrial.verify.coverage import DEFAULT_RESIMULATE, coverage
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
-
-# Episodes re-simulated per shard by default: at the built-in N = 200 (one shard per
-# condition) verify takes a few seconds more; at 100,000 states (200 shards) about a minute.
-DEFAULT_RESIMULATE = 20
 
 # How many differing keys, lines or rows a reason names.
 _SHOWN = 3
@@ -69,6 +66,8 @@ class Recomputation:
     differs: dict[str, str] = field(default_factory=dict)
     recomputed: int = 0
     resimulated: int = 0
+    episodes: int = 0  # in the shards the stamps judged current
+    coverage: str = ""  # why that many were re-simulated (`verify.coverage`)
     recorded: int = 0  # recorded episodes compared with their rows
     seed: int = 0  # the re-simulated sample's
     # variants on another MuJoCo version: re-simulated in its environment (folder ->
@@ -87,8 +86,9 @@ class Recomputation:
         return (
             f"recomputed {self.recomputed} outputs from their inputs, compared "
             f"{self.recorded} recorded episodes with their rows and re-simulated "
-            f"{self.resimulated} episodes (sample seed {self.seed}: --seed {self.seed} draws "
-            f"it again): {len(self.differs)} differ{other}"
+            f"{self.resimulated} of {self.episodes} episodes (sample seed {self.seed}: --seed "
+            f"{self.seed} draws it again{'; ' + self.coverage if self.coverage else ''}): "
+            f"{len(self.differs)} differ{other}"
         )
 
 
@@ -307,11 +307,14 @@ class _Checker:
             nominal = self.layout.nominal_episode(condition, variant)
             samples = {}
             for shard, table in zip(shards, tables, strict=True):
+                if table.is_file() and (why := provenance.rows_problem(table)):
+                    self.add(table, why)
                 folder = self.layout.shard_recordings(condition, shard, variant)
                 if recorded != "none" and self.is_current(table, folder):
                     self.recordings(table, folder, condition, only_failed=recorded == "failed")
+                first, stop = shard_range(shard, size, n)
+                self.found.episodes += (stop - first) * self.is_current(table)
                 if resimulate > 0:
-                    first, stop = shard_range(shard, size, n)
                     samples[table] = sample_ids(
                         first, stop, resimulate, seed=self.found.seed, key=self.rel(table)
                     )
@@ -331,6 +334,37 @@ class _Checker:
                         t, i, lambda: f(t), v
                     ),
                 )
+
+    def coverage(self) -> int:
+        """Episodes to re-simulate per shard: every one if that fits the time budget
+        (`verify.coverage`, timed on the first condition), and the check line says which."""
+        n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
+        pairs = list(self.conditions())
+        design = [(NOMINAL, c) for c in self.config["conditions"]]
+        episodes = sum(  # of the shards there (a study not run has none)
+            stop - first
+            for layout, rollouts in ((self.layout, pairs), (self.layout.development, design))
+            for variant, condition in rollouts
+            for shard in shard_ids(n, size)
+            for first, stop in [shard_range(shard, size, n)]
+            if layout.shard_table(condition, shard, variant).is_file()
+        )
+        qualified = pairs[0][1]  # the design's first condition: on the nominal model
+        slice_ = config_slice("rollout", self.config, condition=qualified)
+        timed = range(min(n, 5)) if self.layout.states.is_file() else []
+        try:
+            found = coverage(
+                episodes,
+                timed,
+                lambda ids: resimulated_outcome(
+                    slice_, self.model_file, self.layout.states, ids, repo_root=self.repo_root
+                ),
+            )
+        except Exception:  # noqa: BLE001 - each re-simulated shard names what fails
+            self.found.coverage = f"{DEFAULT_RESIMULATE} per shard: no episode could be timed"
+            return DEFAULT_RESIMULATE
+        self.found.coverage = found.why
+        return found.per_shard
 
     def here(
         self, slice_: Mapping[str, Any], nominal: Path, samples: Mapping[Path, list[int]]
@@ -668,7 +702,7 @@ def recompute(
     *,
     repo_root: Path,
     current: Iterable[str],
-    resimulate: int = DEFAULT_RESIMULATE,
+    resimulate: int | None = None,
     seed: int | None = None,
     command_line: Mapping[str, Any] | None = None,
     command: str = "snakemake -c2",
@@ -676,8 +710,9 @@ def recompute(
     stamps: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> Recomputation:
     """Recompute every light output of `layout` that the stamps judged current (`current`,
-    repository-relative paths) and re-simulate `resimulate` episodes per shard, drawn with
-    `seed` (None: a fresh one, `fresh_seed`).
+    repository-relative paths) and re-simulate `resimulate` episodes per shard (None: every
+    one when that fits the time budget, else a sample, `verify.coverage`), drawn with `seed`
+    (None: a fresh one, `fresh_seed`).
 
     `command_line` and `command` are what the manifest records of the run's command line
     (`mjtrial.stages.manifest`): the config values it was given, and the command itself;
@@ -688,6 +723,8 @@ def recompute(
     checker.config_file = config_file
     checker.stamps = stamps or {}
     checker.found.seed = fresh_seed() if seed is None else seed
+    if resimulate is None:
+        resimulate = checker.coverage()
     checker.states()
     checker.rollouts(resimulate)
     checker.pilot(resimulate)
