@@ -243,8 +243,10 @@ def _comparison_verdict(c: Mapping[str, Any]) -> str:
 def _benchmark_effects(summary: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
     """Each of a benchmark's comparisons (`{task}: {a} vs {b}`): the difference in success
     and its verdict."""
-    out = {}
-    for c in (summary or {}).get("comparisons") or []:
+    out: dict[str, dict[str, Any]] = {}
+    if summary is None or "paired_difference" in summary:  # an experiment's planned comparisons
+        return out
+    for c in summary.get("comparisons") or []:
         verdict = _comparison_verdict(c)
         estimate = {"estimate": c.get("difference"), "low": None, "high": None}
         out[f"{c['task']}: {c['a']} vs {c['b']}"] = {**estimate, "verdict": verdict}
