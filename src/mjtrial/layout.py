@@ -215,6 +215,12 @@ class Layout:
         return self.root / "analysis" / "summary.json"
 
     @property
+    def registration(self) -> Path:
+        """The registered design (`mjtrial.registration`): no rule's output, so Snakemake never
+        deletes or rebuilds it."""
+        return self.root / "registration.json"
+
+    @property
     def manifest(self) -> Path:
         return self.root / "manifest.json"
 

@@ -20,6 +20,7 @@ from mjtrial.layout import (
 )
 from mjtrial.policy_file import contract_path
 from mjtrial.provenance import file_sha256, model_sha256
+from mjtrial.registration import RegistrationError, ensure_registered, note_deviation
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
@@ -44,6 +45,39 @@ SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
 PILOT_SHARDS = shard_ids(pilot_states(config), config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
 RECORDED = config["recording"]["episodes"] != "none"
+# What only develops the design (its states, its pilot) registers nothing: the pilot's
+# discordance is what the registered power plan reads.
+DEVELOPMENT_TARGETS = {"dev", "pilot"}
+
+
+def register_design():
+    """The design is registered when the workflow is first loaded to build anything, before
+    any job (mjtrial.registration): not a rule's output, so no rerun, `--forceall` or config
+    edit ever rewrites it."""
+    targets = set(getattr(workflow.dag_settings, "targets", None) or ())
+    if not workflow.is_main_process or (targets and targets <= DEVELOPMENT_TARGETS):
+        return
+    try:
+        ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd())
+    except RegistrationError as err:
+        sys.exit(f"mjtrial: {err}")
+
+
+def note_design_deviation():
+    """At the run's start, before any job removes a result: a design that differs from the
+    registration is recorded with the results on disk now."""
+    if not LAYOUT.registration.exists():
+        return
+    try:
+        entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
+    except RegistrationError as err:
+        sys.exit(f"mjtrial: {err}")
+    if entry is not None:
+        keys = ", ".join(c["key"] for c in entry["changes"])
+        print(f"mjtrial: the design deviates from its registration: {keys}", file=sys.stderr)
+
+
+register_design()
 
 
 def qualified(wildcards):

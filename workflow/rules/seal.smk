@@ -3,6 +3,7 @@
 rule seal:
     input:
         as_inputs(LAYOUT.sealed_outputs(CONDITIONS, SHARDS, recorded=RECORDED)),
+        registration=LAYOUT.registration,
     output:
         seal=LAYOUT.seal,
     log:

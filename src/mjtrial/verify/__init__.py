@@ -49,6 +49,7 @@ from mjtrial.verify.chain import (
     parse_rule,
 )
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
+from mjtrial.verify.registration import check_registration
 
 __all__ = [
     "STAMPED_SUFFIXES",
@@ -281,6 +282,8 @@ def verify_results(
                 Skipped(rel, "left by an earlier configuration; not one of its outputs")
             )
             continue
+        if file == layout.registration:
+            continue  # no job's output: checked on its own (check_registration)
         if _is_old_figure(layout, file):
             leftovers.append(Skipped(rel, "a figure no current report draws (an earlier layout)"))
             continue
@@ -326,6 +329,7 @@ def verify_results(
             recomputed_differs=differs,
             outdated=_crate_outdated(layout, stamps, repo_root),
             development_prefix=_relative(layout.development.root, repo_root),
+            sources=[_relative(layout.registration, repo_root)],
         )
 
     report = check()
@@ -345,8 +349,12 @@ def verify_results(
     )
     if found.differs:
         report = check(found.differs)
+    registered = check_registration(
+        layout, config, path=_relative(layout.registration, repo_root), repo_root=repo_root
+    )
     return dataclasses.replace(
         report,
+        outputs=(*report.outputs, *([registered] if registered else [])),
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *report.warnings),
         checks=(found.line(),),
