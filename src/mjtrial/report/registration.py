@@ -48,20 +48,19 @@ def registration_lines(manifest: Mapping[str, Any], summary: Mapping[str, Any]) 
         return []
     lines = ["## Registration", ""]
     when = _date(record["registered_utc"])
-    if record["before_any_rollout"]:
-        lines.append(
-            f"The design was registered on {when}, before any rollout "
-            f"(`{record['path']}`, design sha256 `{record['design_sha256'][:12]}`)."
-        )
-    else:
-        first = record["first_rollout_utc"]
+    where = f"(`{record['path']}`, design sha256 `{record['design_sha256'][:12]}`)"
+    first = record["first_rollout_utc"]
+    if record["deviations"]:  # true of the registration, not of this run's design
+        lines.append(f"The design was registered on {when} {where}; this run changed it.")
+    elif record["before_any_rollout"]:
+        lines.append(f"The design was registered on {when}, before any rollout {where}.")
+    elif first:
         lines.append(
             f"The design was registered on {when}, after the first rollout of these results "
-            f"({_date(first)})"
-            if first
-            else f"The design was registered on {when}"
+            f"({_date(first)}) {where}."
         )
-        lines[-1] += f" (`{record['path']}`, design sha256 `{record['design_sha256'][:12]}`)."
+    else:
+        lines.append(f"The design was registered on {when} {where}.")
     if record.get("reason"):
         lines[-1] += f" Reason given: {record['reason']}."
     for earlier in record.get("earlier", []):

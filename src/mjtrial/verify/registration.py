@@ -11,7 +11,7 @@ from typing import Any
 
 from mjtrial import provenance
 from mjtrial.layout import Layout
-from mjtrial.registration import RegistrationError, deviations, design_record, problems, read
+from mjtrial.registration import RegistrationError, design_record, deviations, problems, read
 from mjtrial.verify.chain import OutputResult, Status
 
 RULE = "register"
