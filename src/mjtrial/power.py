@@ -7,8 +7,8 @@ baseline success rate). The test rejects when its two-sided exact p (`stats.mcne
 most alpha, so the power is the sum over D of P(D) times the rejection probability given D.
 The minimum detectable difference is the smallest delta whose power reaches the target (found
 by bisection: the power grows with delta at fixed psi); the pairs for a target difference are
-the smallest N whose power reaches it (the exact power saw-tooths in N, so no N past it
-falls below the target by more than that saw-tooth; the table says it is the smallest).
+the smallest N whose power reaches it, found by bisection and a look a few N below (the exact
+power saw-tooths in N).
 """
 
 from __future__ import annotations
@@ -44,40 +44,70 @@ class PowerPlan:
 
 
 _LOWS: dict[float, list[int]] = {}
+# How far below a crossing found by bisection an earlier one is looked for.
+_SAWTOOTH = 16
+# Rows of the binomial tables computed at once (bounds the memory at any N).
+_CHUNK = 256
+
+
+def _log_factorials(n: int) -> np.ndarray:
+    """log(k!) for k in 0..n (numpy, not scipy: the Snakefile plans at registration, and
+    scipy.stats alone takes longer to import than the whole plan takes to compute)."""
+    return np.concatenate([[0.0], np.cumsum(np.log(np.arange(1, n + 1)))])
+
+
+def _binomial_rows(first: int, stop: int, p: float, logf: np.ndarray) -> np.ndarray:
+    """P(K = k) for K ~ Binomial(d, p), d in [first, stop) as rows, k in 0..stop-1 as columns
+    (0 past d)."""
+    d = np.arange(first, stop)[:, None]
+    k = np.arange(stop)[None, :]
+    inside = k <= d
+    dk = np.where(inside, d - k, 0)
+    log = logf[d] - logf[k] - logf[dk]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log = log + np.where(k > 0, k * np.log(p) if p > 0 else -np.inf, 0.0)
+        log = log + np.where(dk > 0, dk * np.log1p(-p) if p < 1 else -np.inf, 0.0)
+    return np.where(inside, np.exp(log), 0.0)
 
 
 def _lower_critical(max_discordant: int, alpha: float) -> np.ndarray:
     """For each discordant count d in 0..max_discordant, the largest count k <= d / 2 at which
     the exact test rejects (it rejects at k and at d - k and beyond), -1 when it never does.
     Depends on d and alpha only, so it is kept across plans."""
-    from scipy.stats import binom  # scipy: paid by planning only
-
-    lows = _LOWS.setdefault(alpha, [])
-    for d in range(len(lows), max_discordant + 1):
-        k = np.arange(d // 2 + 1)
-        p = np.minimum(1.0, 2.0 * binom.cdf(k, d, 0.5)) if d else np.ones(1)
-        reject = np.flatnonzero(p <= alpha * (1 + 1e-12))
-        lows.append(int(reject.max()) if reject.size else -1)
+    lows = _LOWS.setdefault(alpha, [-1])
+    logf = _log_factorials(max_discordant + 1)
+    for first in range(len(lows), max_discordant + 1, _CHUNK):
+        stop = min(first + _CHUNK, max_discordant + 1)
+        cdf = np.cumsum(_binomial_rows(first, stop, 0.5, logf), axis=1)
+        for row, d in enumerate(range(first, stop)):
+            p = np.minimum(1.0, 2.0 * cdf[row, : d // 2 + 1])
+            reject = np.flatnonzero(p <= alpha * (1 + 1e-12))
+            lows.append(int(reject.max()) if reject.size else -1)
     return np.asarray(lows[: max_discordant + 1])
 
 
 def mcnemar_power(pairs: int, *, delta: float, discordant: float, alpha: float) -> float:
     """The exact power of the two-sided McNemar exact test at level `alpha` for `pairs` pairs,
     a paired difference `delta` and a discordant share `discordant` (|delta| <= discordant)."""
-    from scipy.stats import binom
-
     if not 0 < discordant <= 1 or not abs(delta) <= discordant:
         raise ValueError(
             f"need 0 < discordant <= 1 and |difference| <= discordant, got {discordant:g}, "
             f"{delta:g}"
         )
     share = (discordant + delta) / (2 * discordant)
-    d = np.arange(pairs + 1)
     low = _lower_critical(pairs, alpha)
-    rejects = low >= 0
-    d, low = d[rejects], low[rejects]
-    given = binom.cdf(low, d, share) + binom.sf(d - low - 1, d, share)
-    return float(min(1.0, np.sum(binom.pmf(d, pairs, discordant) * given)))
+    logf = _log_factorials(pairs + 1)
+    weights = _binomial_rows(pairs, pairs + 1, discordant, logf)[0]
+    total = 0.0
+    for first in range(0, pairs + 1, _CHUNK):
+        stop = min(first + _CHUNK, pairs + 1)
+        rows = _binomial_rows(first, stop, share, logf)
+        k = np.arange(stop)[None, :]
+        d = np.arange(first, stop)[:, None]
+        lo = low[first:stop, None]
+        rejected = (lo >= 0) & ((k <= lo) | ((k >= d - lo) & (k <= d)))
+        total += float(np.sum(weights[first:stop] * np.sum(rows * rejected, axis=1)))
+    return float(min(1.0, total))
 
 
 def detectable_difference(
@@ -101,15 +131,22 @@ def pairs_needed(delta: float, *, discordant: float, alpha: float, power: float 
     """The smallest number of pairs whose exact power for `delta` reaches `power`."""
     if not 0 < abs(delta) <= discordant <= 1:
         raise ValueError(f"need 0 < |difference| <= discordant <= 1, got {delta}, {discordant}")
-    n = 1
-    while mcnemar_power(n, delta=delta, discordant=discordant, alpha=alpha) < power:
-        n = n * 2
-        if n > MAX_PAIRS:
+    def reaches(n: int) -> bool:
+        return mcnemar_power(n, delta=delta, discordant=discordant, alpha=alpha) >= power
+
+    high = 1
+    while not reaches(high):
+        high *= 2
+        if high > MAX_PAIRS:
             raise ValueError(f"difference {delta:g} needs more than {MAX_PAIRS} pairs")
-    low, high = n // 2, n  # power(high) >= target; the smallest such n at or below high
-    for m in range(max(1, low), high + 1):
-        if mcnemar_power(m, delta=delta, discordant=discordant, alpha=alpha) >= power:
-            return m
+    low = high // 2  # not reaching (or 0); bisect to a crossing between the two
+    while high - low > 1:
+        mid = (low + high) // 2
+        low, high = (low, mid) if reaches(mid) else (mid, high)
+    # The exact power saw-tooths in n: an earlier crossing can lie just below this one.
+    for n in range(max(1, high - _SAWTOOTH), high):
+        if reaches(n):
+            return n
     return high
 
 

@@ -65,7 +65,8 @@ def sha256_of(obj: Any) -> str:
 def design_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:
     """The design as registered: its config sections verbatim, and the code and model it runs
     (the success test is the task's code: its files' sha256)."""
-    from mjtrial.task import task_files  # the task package: loaded by the caller already
+    # In here (mujoco): `mjtrial plan` reads registrations without loading a task.
+    from mjtrial.task import task_files
 
     repo_root = Path(repo_root)
     sections = {k: copy.deepcopy(config[k]) for k in REGISTERED_SECTIONS if k in config}
@@ -214,6 +215,7 @@ def ensure_registered(
 def results_on_disk(layout: Layout, registered_config: Mapping[str, Any]) -> dict[str, Any]:
     """What results exist now: whether a summary is there, whether the registered design built
     it (its stamp's analysis slice is the registered config's) and its verdict."""
+    # In here (the crate and simulator packages): `mjtrial plan` need not load them.
     from mjtrial.stages.stamping import config_slice
 
     try:
@@ -286,6 +288,7 @@ def registered_plan(
     """The power plan of the design: from the pilot's tables when there is a pilot (their
     share of discordant pairs between the falsifier's conditions), else from `discordant`,
     else from ASSUMED_DISCORDANT, each said in the plan's `source`."""
+    # In here: the Snakefile registers once, and need not load the planning otherwise.
     from mjtrial.power import power_plan
 
     falsifier = config["design"]["falsifier"]
@@ -313,13 +316,13 @@ def pilot_discordance(
     """The pilot's share of discordant pairs between the falsifier's treatment and baseline
     (`development/rollouts/<condition>.parquet`), with where it comes from; (None, None)
     without a pilot of both, or with no discordant pair in it."""
-    import pyarrow.parquet as pq  # the pilot's tables: read when planning only
-
-    from mjtrial.power import discordant_share
-
     tables = [layout.development.rollout_table(falsifier[k]) for k in ("treatment", "baseline")]
     if not all(t.exists() for t in tables):
         return None, None
+    import pyarrow.parquet as pq  # the pilot's tables: read when planning only
+
+    from mjtrial.power import discordant_share  # as pyarrow, for planning only
+
     treatment, baseline = (
         pq.read_table(t, columns=["success"]).column(0).to_pylist() for t in tables
     )
