@@ -62,10 +62,18 @@ def test_deviations_name_added_and_removed_keys(config):
     now["stopping"] = {"rule": "e-process"}
     del now["failure_taxonomy"]["max_tilt"]
     found = registration.changes(config, now)
-    assert {"key": "failure_taxonomy.max_tilt", "registered": 1.0, "now": None,
-            "absent": "now"} in found
-    assert {"key": "stopping", "registered": None, "now": {"rule": "e-process"},
-            "absent": "registered"} in found
+    assert {
+        "key": "failure_taxonomy.max_tilt",
+        "registered": 1.0,
+        "now": None,
+        "absent": "now",
+    } in found
+    assert {
+        "key": "stopping",
+        "registered": None,
+        "now": {"rule": "e-process"},
+        "absent": "registered",
+    } in found
 
 
 def _manifest(**record):
@@ -73,14 +81,19 @@ def _manifest(**record):
         "path": f"{RESULTS}/registration.json",
         "registered_utc": "2026-01-01T10:00:00Z",
         "design_sha256": "ab" * 32,
-        "first_rollout_utc": "2026-01-01T10:00:05Z",
         "before_any_rollout": True,
         "deviations": [],
         "deviation_noted": None,
         "earlier": [],
         "plan": None,
     }
-    return {"registration": {**base, **record}}
+    stamps = {
+        f"{RESULTS}/rollouts/fast/shard-00000.parquet": {
+            "rule": "rollout:fast#00000",
+            "created_utc": "2026-01-01T10:00:05Z",
+        }
+    }
+    return {"registration": {**base, **record}, "stamps": stamps}
 
 
 def test_the_report_says_before_any_rollout_only_when_true():
@@ -89,8 +102,12 @@ def test_the_report_says_before_any_rollout_only_when_true():
     late = _manifest(before_any_rollout=False)
     assert "after rollouts existed (the first on 2026-01-01 10:00:05 UTC)" in falsifier_clause(late)
     change = {"key": "design.falsifier.threshold", "registered": 0.0, "now": 0.05}
-    noted = {"first_run_utc": "2026-01-02T09:00:00Z", "results_existed": True,
-             "of_registered_design": True, "verdict": "refuted"}
+    noted = {
+        "first_run_utc": "2026-01-02T09:00:00Z",
+        "results_existed": True,
+        "of_registered_design": True,
+        "verdict": "refuted",
+    }
     deviated = _manifest(deviations=[change], deviation_noted=noted)
     assert "before any rollout" not in falsifier_clause(deviated)
     text = "\n".join(registration_lines(deviated, summary))
@@ -163,9 +180,7 @@ def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, 
     monkeypatch.chdir(work)
     assert cli.main(["register", "--again", "--reason", "threshold from the pilot"]) == 0
     data = json.loads((results / "registration.json").read_text())
-    assert data["earlier"][0]["design_sha256"] == json.loads(registered)["current"][
-        "design_sha256"
-    ]
+    assert data["earlier"][0]["design_sha256"] == json.loads(registered)["current"]["design_sha256"]
     run_snakemake(work)
     manifest = json.loads((results / "manifest.json").read_text())["registration"]
     assert manifest["deviations"] == [] and not manifest["before_any_rollout"]

@@ -335,6 +335,16 @@ def pilot_discordance(
     return share, f"the pilot: {len(treatment)} pairs of {rel}"
 
 
+def first_rollout(stamps: Mapping[str, Any]) -> str | None:
+    """When the first rollout of the results was stamped (the manifest's `stamps`)."""
+    times = [
+        s["created_utc"]
+        for s in stamps.values()
+        if isinstance(s, Mapping) and str(s.get("rule", "")).split(":")[0] == "rollout"
+    ]
+    return min(times) if times else None
+
+
 def manifest_section(
     config: Mapping[str, Any],
     data: Mapping[str, Any],
@@ -346,11 +356,7 @@ def manifest_section(
     time against the rollout stamps'), the run's deviations recomputed from the config (with
     when they were first seen and what results existed then) and the registered power plan."""
     current = data["current"]
-    rollouts = sorted(
-        s["created_utc"]
-        for s in stamps.values()
-        if isinstance(s, Mapping) and str(s.get("rule", "")).split(":")[0] == "rollout"
-    )
+    first = first_rollout(stamps)
     record = design_record(config, repo_root=repo_root)
     design_sha = sha256_of(record)
     noted = next(
@@ -371,8 +377,7 @@ def manifest_section(
             {k: e.get(k) for k in ("registered_utc", "superseded_utc", "design_sha256", "reason")}
             for e in data.get("earlier", [])
         ],
-        "first_rollout_utc": rollouts[0] if rollouts else None,
-        "before_any_rollout": bool(rollouts) and current["registered_utc"] <= rollouts[0],
+        "before_any_rollout": first is not None and current["registered_utc"] <= first,
         "deviations": deviations(data, record),
         "deviation_noted": noted,
         "plan": current.get("plan"),

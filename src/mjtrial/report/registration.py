@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from mjtrial.power import plan_lines
+from mjtrial.registration import first_rollout
 
 
 def _date(utc: str) -> str:
@@ -28,10 +29,10 @@ def falsifier_clause(manifest: Mapping[str, Any]) -> str:
         )
     if record["before_any_rollout"]:
         return f"Registered on {when}, before any rollout: "
+    first = first_rollout(manifest.get("stamps") or {})
     return (
-        f"Registered on {when}, after rollouts existed (the first on "
-        f"{_date(record['first_rollout_utc'])}): "
-        if record["first_rollout_utc"]
+        f"Registered on {when}, after rollouts existed (the first on {_date(first)}): "
+        if first
         else f"Registered on {when}: "
     )
 
@@ -49,7 +50,7 @@ def registration_lines(manifest: Mapping[str, Any], summary: Mapping[str, Any]) 
     lines = ["## Registration", ""]
     when = _date(record["registered_utc"])
     where = f"(`{record['path']}`, design sha256 `{record['design_sha256'][:12]}`)"
-    first = record["first_rollout_utc"]
+    first = first_rollout(manifest.get("stamps") or {})
     if record["deviations"]:  # true of the registration, not of this run's design
         lines.append(f"The design was registered on {when} {where}; this run changed it.")
     elif record["before_any_rollout"]:
