@@ -149,8 +149,12 @@ def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, 
     edit_config(work, deviate)
     proc = run_snakemake(work, "--forceall")
     assert "the design deviates from its registration" in proc.stderr
-    data = json.loads((results / "registration.json").read_text())
-    assert data["current"] == json.loads(registered)["current"]  # never rewritten
+    assert (results / "registration.json").read_bytes() == registered  # never rewritten
+    noted = json.loads((results / "deviations.json").read_text())["deviations_seen"]
+    assert [c["key"] for c in noted[0]["changes"]] == [
+        "design.falsifier.threshold",
+        "conditions.slow.lift_time",
+    ]
     manifest = json.loads((results / "manifest.json").read_text())["registration"]
     assert [c["key"] for c in manifest["deviations"]] == [
         "design.falsifier.threshold",

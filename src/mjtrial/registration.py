@@ -3,9 +3,9 @@
 `results/<experiment>/registration.json` holds the design record (the config's sections that
 make the design, verbatim, and the hashes of the task's files and of the model's closure), its
 sha256 and the UTC time it was registered, the power plan of that design, every earlier
-registration (`mjtrial register --again` moves the current one there, never drops it), and
-`deviations_seen`: each design that differed from the registration, first seen when a run
-started, with what changed and whether results existed then.
+registration (`mjtrial register --again` moves the current one there, never drops it).
+`deviations.json` beside it holds each design that differed from the registration, first seen
+when a run started, with what changed and whether results existed then.
 
 The file is not an output of any rule, so Snakemake never deletes, rebuilds or `--forceall`s
 it: the Snakefile writes it when the workflow is loaded and nothing is registered (before any
@@ -194,12 +194,10 @@ def register(
     data: dict[str, Any] = {
         "current": _entry(config, repo_root=repo_root, now=now, reason=reason, layout=layout),
         "earlier": [],
-        "deviations_seen": [],
     }
     if existing is not None:
         superseded = {**existing["current"], "superseded_utc": now}
         data["earlier"] = [superseded, *existing.get("earlier", [])]
-        data["deviations_seen"] = list(existing.get("deviations_seen", []))
     _write(data, path, repo_root=repo_root)
     return data
 
@@ -248,8 +246,9 @@ def note_deviation(
     config: Mapping[str, Any], *, layout: Layout, repo_root: Path = REPO_ROOT
 ) -> dict[str, Any] | None:
     """At a run's start (before any job removes a result): when the design differs from the
-    registration and this design was not seen before, add it to `deviations_seen` with the
-    time and the results on disk. Returns the entry (None: no deviation)."""
+    registration and this design was not seen before, add it to `layout.deviations` with the
+    time and the results on disk. Returns the entry (None: no deviation). A file of its own:
+    the registration's bytes, which the manifest and the seal record, never change by it."""
     data = read(layout.registration)
     if data is None:
         return None
@@ -259,7 +258,8 @@ def note_deviation(
         return None
     design_sha = sha256_of(record)
     registered_sha = data["current"]["design_sha256"]
-    for entry in data.get("deviations_seen", []):
+    seen = deviations_seen(layout)
+    for entry in seen:
         if entry["design_sha256"] == design_sha and entry["registered_sha256"] == registered_sha:
             return entry
     entry = {
@@ -269,13 +269,22 @@ def note_deviation(
         "changes": found,
         **results_on_disk(layout, registered_config(config, data)),
     }
-    data = {**data, "deviations_seen": [*data.get("deviations_seen", []), entry]}
-    _write(
-        {k: v for k, v in data.items() if k not in ("sha256", "provenance")},
-        layout.registration,
-        repo_root=repo_root,
+    stamp = provenance.make_stamp(
+        rule=RULE, config_slice={"design_sha256": design_sha}, inputs={}, repo_dir=repo_root
     )
+    provenance.write_json({"deviations_seen": [*seen, entry]}, layout.deviations, stamp)
     return entry
+
+
+def deviations_seen(layout: Layout) -> list[dict[str, Any]]:
+    """The deviations noted so far (`layout.deviations`), oldest first."""
+    try:
+        seen = json.loads(provenance.read_output_text(layout.deviations))["deviations_seen"]
+    except FileNotFoundError:
+        return []
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise RegistrationError(f"{layout.deviations}: not a readable record ({err})") from err
+    return list(seen)
 
 
 def registered_plan(
@@ -350,6 +359,7 @@ def manifest_section(
     data: Mapping[str, Any],
     *,
     stamps: Mapping[str, Mapping[str, Any]],
+    seen: list[Mapping[str, Any]],
     repo_root: Path = REPO_ROOT,
 ) -> dict[str, Any]:
     """What the manifest says of the registration: when, whether before every rollout (its
@@ -362,7 +372,7 @@ def manifest_section(
     noted = next(
         (
             {k: v for k, v in e.items() if k != "changes"}
-            for e in data.get("deviations_seen", [])
+            for e in seen
             if e["design_sha256"] == design_sha
             and e["registered_sha256"] == current["design_sha256"]
         ),

@@ -66,8 +66,9 @@ def register_design():
 def note_design_deviation():
     """At the run's start, before any job removes a result: a design that differs from the
     registration is recorded with the results on disk now."""
-    if not LAYOUT.registration.exists():
-        return
+    targets = set(getattr(workflow.dag_settings, "targets", None) or ())
+    if not LAYOUT.registration.exists() or (targets and targets <= DEVELOPMENT_TARGETS):
+        return  # a pilot develops the design: what it tries is no deviation
     try:
         entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
     except RegistrationError as err:

@@ -76,6 +76,8 @@ def _run_files(layout: Layout, *, repo_root: Path) -> tuple[set[str], set[str]]:
             sealed = json.loads((repo_root / seal).read_text(encoding="utf-8"))
             listed = sealed["outputs"]
             registered = [sealed["registration"]["path"]] if "registration" in sealed else []
+            if registered and layout.deviations.exists():  # noted beside it, by no job
+                registered.append(prefix + layout.deviations.name)
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise ArchiveError(f"{repo_root / seal}: not a readable seal ({err})") from err
         for path in [seal, *listed, *registered]:

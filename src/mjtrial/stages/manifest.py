@@ -14,9 +14,9 @@ import mujoco
 # recording: the reader of the .rrd stamps this stage reads is part of its code (its hash)
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401
 from mjtrial.conditions import model_edits
-from mjtrial.layout import CONFIG_FILE
+from mjtrial.layout import CONFIG_FILE, Layout
 from mjtrial.physics import compiled_sha256, load_model
-from mjtrial.registration import manifest_section
+from mjtrial.registration import deviations_seen, manifest_section
 from mjtrial.registration import read as read_registration
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import EVALUATION_RULE, REDRAWN
@@ -152,7 +152,13 @@ def manifest_record(
     if registered is not None:
         manifest["registration"] = {
             "path": rel(registration),
-            **manifest_section(config, registered, stamps=stamps, repo_root=repo_root),
+            **manifest_section(
+                config,
+                registered,
+                stamps=stamps,
+                seen=deviations_seen(Layout(registration.parent)),
+                repo_root=repo_root,
+            ),
         }
         inputs[rel(registration)] = registration
     return manifest, inputs

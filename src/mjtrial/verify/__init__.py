@@ -282,8 +282,8 @@ def verify_results(
                 Skipped(rel, "left by an earlier configuration; not one of its outputs")
             )
             continue
-        if file == layout.registration:
-            continue  # no job's output: checked on its own (check_registration)
+        if file in (layout.registration, layout.deviations):
+            continue  # no job's outputs: checked on their own (check_registration)
         if _is_old_figure(layout, file):
             leftovers.append(Skipped(rel, "a figure no current report draws (an earlier layout)"))
             continue

@@ -1,6 +1,7 @@
 """`mjtrial verify` on the registered design: the file is what it says (each registration's
-design hash, the history's hash), the seal's sha256 of it is its own, and the manifest's
-deviations are those recomputed from the config against the registration."""
+design hash, the history's hash), the seal's sha256 of it is its own, the deviations noted
+beside it can be read, and the manifest's deviations are those recomputed from the config
+against the registration (the manifest's recomputation checks when they were noted)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,14 @@ from typing import Any
 
 from mjtrial import provenance
 from mjtrial.layout import Layout
-from mjtrial.registration import RegistrationError, design_record, deviations, problems, read
+from mjtrial.registration import (
+    RegistrationError,
+    design_record,
+    deviations,
+    deviations_seen,
+    problems,
+    read,
+)
 from mjtrial.verify.chain import OutputResult, Status
 
 RULE = "register"
@@ -53,13 +61,13 @@ def check_registration(
     sealed = (seal.get("registration") or {}).get("sha256")
     now_sha = provenance.file_sha256(layout.registration)
     found = deviations(data, design_record(config, repo_root=repo_root))
-    stale: list[str] = []
     if sealed is not None and sealed != now_sha:
-        if found:  # a later run noted its deviation here before the seal was rebuilt
-            stale.append("changed since the seal (a deviation noted by a later run)")
-        else:
-            reasons.append("its sha256 is not the one the seal recorded")
-    if isinstance(recorded, Mapping) and not stale:
+        reasons.append("its sha256 is not the one the seal recorded")
+    try:
+        deviations_seen(layout)
+    except RegistrationError as err:
+        reasons.append(str(err).removeprefix(f"{layout.root}/"))
+    if isinstance(recorded, Mapping):
         if recorded.get("sha256") != data.get("sha256"):
             reasons.append("the manifest records another registration")
         elif recorded.get("deviations") != json.loads(json.dumps(found, default=str)):
@@ -69,6 +77,4 @@ def check_registration(
             )
     if reasons:
         return OutputResult(path, Status.TAMPERED, tuple(reasons), RULE)
-    if stale:
-        return OutputResult(path, Status.STALE, tuple(stale), RULE)
     return OutputResult(path, Status.OK, (), RULE)
