@@ -131,6 +131,7 @@ def pairs_needed(delta: float, *, discordant: float, alpha: float, power: float 
     """The smallest number of pairs whose exact power for `delta` reaches `power`."""
     if not 0 < abs(delta) <= discordant <= 1:
         raise ValueError(f"need 0 < |difference| <= discordant <= 1, got {delta}, {discordant}")
+
     def reaches(n: int) -> bool:
         return mcnemar_power(n, delta=delta, discordant=discordant, alpha=alpha) >= power
 
