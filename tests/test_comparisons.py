@@ -53,20 +53,18 @@ def test_a_comparison_the_registration_did_not_plan_is_exploratory():
     plan = planned_comparisons(
         {"comparisons": [["medium", "fast"], ["slow", "medium"]]}, FALSIFIER, CONDITIONS
     )
-    registered = {  # registration.json's record: the config's sections verbatim
-        "config": {
-            "design": {"falsifier": dict(FALSIFIER)},
-            "conditions": {"fast": {}, "medium": {}, "slow": {}},
-            "analysis": {"comparisons": {"against": "fast"}},
-        }
+    registered = {  # the config's sections as registration.json holds them
+        "design": {"falsifier": dict(FALSIFIER)},
+        "conditions": {"fast": {}, "medium": {}, "slow": {}},
+        "analysis": {"comparisons": {"against": "fast"}},
     }
     assert exploratory(plan, registered) == [False, False, True]
     # registered with no comparisons: the falsifier's alone
-    registered["config"]["analysis"] = {}
+    registered["analysis"] = {}
     assert exploratory(plan, registered) == [False, True, True]
 
 
 def test_a_reversed_registered_pair_is_the_same_comparison():
     plan = [Comparison("medium", "fast")]
-    registered = {"config": {"analysis": {"comparisons": [["fast", "medium"]]}}}
+    registered = {"analysis": {"comparisons": [["fast", "medium"]]}}
     assert exploratory(plan, registered) == [False]

@@ -15,6 +15,7 @@ from scipy.stats import binomtest
 from statsmodels.stats.multitest import multipletests
 
 from mjtrial.layout import Layout
+from mjtrial.registration import register
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.stamping import config_slice
 from mjtrial.verify import verify_results
@@ -75,9 +76,11 @@ def test_a_comparison_the_registration_did_not_plan_is_exploratory_and_verified(
     workdir = tmp_path / "registered"
     shutil.copytree(three, workdir, symlinks=True)
     config = yaml.safe_load((workdir / "config" / "config.yaml").read_text())
-    registration = workdir / LAYOUT.root / "registration.json"
-    registered = {k: config[k] for k in ("design", "conditions")}
-    registration.write_text(json.dumps({"config": {**registered, "analysis": {}}}))
+    layout = Layout(workdir / LAYOUT.root)
+    registration = layout.registration
+    # registered anew, as if the design had planned no comparison beyond the falsifier's
+    unplanned = {**config, "analysis": {**config["analysis"], "comparisons": []}}
+    register(unplanned, layout=layout, repo_root=workdir, again=True, reason="a test")
     conditions = list(config["conditions"])
     run_analysis(
         states_path=workdir / LAYOUT.states,
@@ -91,8 +94,7 @@ def test_a_comparison_the_registration_did_not_plan_is_exploratory_and_verified(
     summary = json.loads((workdir / LAYOUT.summary).read_text())
     assert [c["exploratory"] for c in summary["comparisons"]] == [False, True]
     assert "registration" in summary["provenance"]["inputs"]
-    # verify recomputes the summary with the registration its stamp records (the registration
-    # itself is the registering stage's output, stamped there; here it is written by hand)
+    # verify recomputes the summary with the registration its stamp records
     found = recompute(
         Layout(workdir / LAYOUT.root),
         config,

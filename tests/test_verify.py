@@ -102,7 +102,7 @@ def test_fresh_build_verifies(built, monkeypatch, capsys):
     )
     assert sorted(o.path for o in report.outputs) == stamped
     assert {STATES, SUMMARY, MANIFEST, FAILURES, FAILURES_TABLE, REPORT, *ROLLOUTS} <= set(stamped)
-    assert len(stamped) == 35  # with the crate and its copy of the sources
+    assert len(stamped) == 36  # with the crate, its copy of the sources and the registration
     assert report.ok and report.exit_code == 0, report.format()
     assert report.warnings == () and report.skipped == ()
 

@@ -25,7 +25,68 @@ def _provenance(args: argparse.Namespace) -> int:
     return 0
 
 
+def _registered_plan(args: argparse.Namespace) -> int:
+    """`mjtrial plan RESULTS_DIR`: the registered design's power, from its pilot now."""
+    from mjtrial import registration  # the registered design (no MuJoCo): planning only
+    from mjtrial.power import plan_lines
+
+    layout = Layout(Path(args.results_dir))
+    try:
+        data = registration.read(layout.registration)
+        if data is None:
+            print(
+                f"mjtrial plan: {layout.registration}: nothing registered (the first run, or "
+                "`mjtrial register`, registers the design)",
+                file=sys.stderr,
+            )
+            return 2
+        design = data["current"]["design"]["sections"]
+        plan = registration.registered_plan(
+            design, layout=layout, discordant=args.discordant, target=args.effect
+        )
+    except ValueError as err:
+        print(f"mjtrial plan: {err}", file=sys.stderr)
+        return 2
+    print(f"power of the design registered on {data['current']['registered_utc']}:")
+    print("\n".join(plan_lines(plan)))
+    if plan != data["current"]["plan"]:
+        print(
+            f"(the registration's own plan used: {data['current']['plan']['source']}; "
+            "`mjtrial register --again` records this one)"
+        )
+    return 0
+
+
+def _register(args: argparse.Namespace) -> int:
+    # Imported here (mujoco, jsonschema through the config check): `mjtrial plan` need not.
+    from mjtrial import registration
+    from mjtrial.config import ConfigError
+    from mjtrial.verify import load_checked_config
+
+    repo_root = Path.cwd()
+    config_path = Path(args.config) if args.config else repo_root / CONFIG_FILE
+    try:
+        config = load_checked_config(config_path, repo_root=repo_root)
+        layout = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR)
+        if args.again and not args.reason:
+            raise ValueError("--again needs --reason TEXT: the record says why it changed")
+        data = registration.register(
+            config, layout=layout, repo_root=repo_root, again=args.again, reason=args.reason
+        )
+    except (ConfigError, OSError, ValueError) as err:
+        print(f"mjtrial register: {err}", file=sys.stderr)
+        return 2
+    current = data["current"]
+    print(
+        f"registered {layout.registration} on {current['registered_utc']} (design sha256 "
+        f"{current['design_sha256'][:12]}; {len(data['earlier'])} earlier kept)"
+    )
+    return 0
+
+
 def _plan(args: argparse.Namespace) -> int:
+    if args.results_dir is not None:
+        return _registered_plan(args)
     if args.halfwidth is None and args.effect is None:
         print("mjtrial plan: give --halfwidth, or --effect with --discordant", file=sys.stderr)
         return 2
@@ -419,7 +480,18 @@ def main(argv: list[str] | None = None) -> int:
         "folder of recordings, the crate), a log, or a file inside a folder output",
     )
     p.set_defaults(run=_provenance)
-    p = sub.add_parser("plan", help="episodes needed for an interval width or a paired effect")
+    p = sub.add_parser(
+        "plan",
+        help="episodes needed for an interval width or a paired effect; with a results "
+        "folder, the registered design's power (exact McNemar, from its pilot)",
+    )
+    p.add_argument(
+        "results_dir",
+        nargs="?",
+        help="a results folder with a registration: its minimum detectable paired difference "
+        "at 80%% power (--effect: the pairs for that difference; --discordant: instead of the "
+        "pilot's)",
+    )
     p.add_argument("--halfwidth", type=float, help="half-width of a success rate's interval")
     p.add_argument("--p", type=float, help="expected success rate (default: worst case 0.5)")
     p.add_argument("--effect", type=float, help="paired difference to detect")
@@ -427,6 +499,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--power", type=float, default=0.8)
     p.add_argument("--confidence", type=float, default=0.95)
     p.set_defaults(run=_plan)
+    p = sub.add_parser(
+        "register",
+        help="freeze the design record in results/<experiment>/registration.json (the first "
+        "run does it too); --again registers anew, keeping the earlier one in the record",
+    )
+    p.add_argument("--config", help="config file (default: config/config.yaml)")
+    p.add_argument("--again", action="store_true", help="replace the current registration")
+    p.add_argument("--reason", help="why the design is registered again (with --again)")
+    p.set_defaults(run=_register)
     p = sub.add_parser(
         "replay",
         help="re-simulate one episode, write its .rrd at full rate, check it matches the record",

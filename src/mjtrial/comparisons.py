@@ -109,12 +109,12 @@ def comparisons_error(
 
 
 def registered_plan(registered: Mapping[str, Any] | None) -> set[frozenset[str]] | None:
-    """The pairs of conditions a registration planned, read defensively from its record of
-    the config (`registration.json`'s `config`: its `analysis`, `design.falsifier` and
-    `conditions` sections); None when nothing is registered."""
+    """The pairs of conditions a registration planned, read defensively from the config
+    sections it registered (`registration.json`'s current design: its `analysis`,
+    `design.falsifier` and `conditions`); None when nothing is registered."""
     if registered is None:
         return None
-    config = registered.get("config", registered)
+    config = registered
     analysis = config.get("analysis") or {}
     falsifier = (config.get("design") or {}).get("falsifier") or {}
     conditions = list(config.get("conditions") or {})

@@ -223,6 +223,18 @@ class Layout:
         return self.root / "analysis" / "summary.json"
 
     @property
+    def registration(self) -> Path:
+        """The registered design (`mjtrial.registration`): no rule's output, so Snakemake never
+        deletes or rebuilds it."""
+        return self.root / "registration.json"
+
+    @property
+    def deviations(self) -> Path:
+        """Each design that differed from the registration, noted when a run first started
+        with it (`mjtrial.registration.note_deviation`): no rule's output, no rule's input."""
+        return self.root / "deviations.json"
+
+    @property
     def manifest(self) -> Path:
         return self.root / "manifest.json"
 

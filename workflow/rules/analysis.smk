@@ -3,6 +3,7 @@ rule analysis:
         states=LAYOUT.states,
         rollouts=per_condition(LAYOUT.rollout_table),
         nominals=per_condition(LAYOUT.nominal_episode),
+        registration=registered_design,
     output:
         summary=report(
             LAYOUT.summary,

@@ -20,6 +20,7 @@ from mjtrial.layout import (
 )
 from mjtrial.policy_file import contract_path
 from mjtrial.provenance import file_sha256, model_sha256
+from mjtrial.registration import RegistrationError, ensure_registered, note_deviation
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
@@ -87,7 +88,11 @@ def sealed_folders(wildcards):
 def run_shard_outputs(wildcards):
     """The design's conditions' shard tables that ran, and the looks (the manifest's)."""
     return [
-        *(p for c in CONDITIONS for p in LAYOUT.shard_outputs(c, run_shards(), recorded=False)),
+        *(
+            p
+            for c in CONDITIONS
+            for p in LAYOUT.shard_outputs(c, run_shards(), recorded=False)
+        ),
         *(LAYOUT.look(s) for s in run_looks()),
     ]
 
@@ -104,6 +109,45 @@ def run_shard_folders(wildcards):
 
 def run_shard_folders_by_condition(wildcards):
     return shard_folders(CONDITIONS)
+
+
+# What only develops the design (its states, its pilot) registers nothing: the pilot's
+# discordance is what the registered power plan reads.
+DEVELOPMENT_TARGETS = {"dev", "pilot"}
+
+
+def register_design():
+    """The design is registered when the workflow is first loaded to build anything, before
+    any job (mjtrial.registration): not a rule's output, so no rerun, `--forceall` or config
+    edit ever rewrites it."""
+    targets = set(getattr(workflow.dag_settings, "targets", None) or ())
+    if not workflow.is_main_process or (targets and targets <= DEVELOPMENT_TARGETS):
+        return
+    try:
+        ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd())
+    except RegistrationError as err:
+        sys.exit(f"mjtrial: {err}")
+
+
+def note_design_deviation():
+    """At the run's start, before any job removes a result: a design that differs from the
+    registration is recorded with the results on disk now."""
+    targets = set(getattr(workflow.dag_settings, "targets", None) or ())
+    if not LAYOUT.registration.exists() or (targets and targets <= DEVELOPMENT_TARGETS):
+        return  # a pilot develops the design: what it tries is no deviation
+    try:
+        entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
+    except RegistrationError as err:
+        sys.exit(f"mjtrial: {err}")
+    if entry is not None:
+        keys = ", ".join(c["key"] for c in entry["changes"])
+        print(
+            f"mjtrial: the design deviates from its registration: {keys}",
+            file=sys.stderr,
+        )
+
+
+register_design()
 
 
 def qualified(wildcards):
@@ -141,7 +185,9 @@ def shard_tables(wildcards):
 
 def pilot_shard_tables(wildcards):
     """Every pilot shard table of the job's condition, in state order."""
-    return [LAYOUT.development.shard_table(wildcards.condition, s) for s in PILOT_SHARDS]
+    return [
+        LAYOUT.development.shard_table(wildcards.condition, s) for s in PILOT_SHARDS
+    ]
 
 
 def pilot_shard_bounds(wildcards):
@@ -179,7 +225,9 @@ def shard_recordings(conditions, variant=NOMINAL):
     """Every shard's recordings folder of these conditions."""
     if not RECORDED:
         return []
-    return [LAYOUT.shard_recordings(c, s, variant) for c in conditions for s in run_shards()]
+    return [
+        LAYOUT.shard_recordings(c, s, variant) for c in conditions for s in run_shards()
+    ]
 
 
 def shard_folders(conditions):
@@ -187,7 +235,11 @@ def shard_folders(conditions):
     (stages never glob for shards: a folder left by an earlier shard size is not theirs).
     """
     return {
-        c: [str(LAYOUT.shard_recordings(c, s)) for s in run_shards()] if RECORDED else []
+        c: (
+            [str(LAYOUT.shard_recordings(c, s)) for s in run_shards()]
+            if RECORDED
+            else []
+        )
         for c in conditions
     }
 
@@ -315,3 +367,9 @@ def figure_outputs():
         )
         outputs[f"{name}_svg"] = LAYOUT.figure(name, "svg")
     return outputs
+
+
+def registered_design(wildcards):
+    """The registration, when there is one (the analysis marks what it did not plan
+    exploratory): written when the workflow loads, before any job."""
+    return [LAYOUT.registration] if LAYOUT.registration.exists() else []

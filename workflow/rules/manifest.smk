@@ -8,6 +8,8 @@ rule manifest:
         failures=[LAYOUT.failures, LAYOUT.failures_table] if RECORDED else [],
         summary=LAYOUT.summary,
         model=config["model"],
+        # the registered design (not a rule's output: written when the workflow loads)
+        registration=LAYOUT.registration,
     output:
         manifest=report(
             LAYOUT.manifest,

@@ -64,6 +64,8 @@ def on_start():
     """Clear what killed jobs left and take the snapshot before any job removes an output;
     load the later stages' libraries while the rollouts run."""
     import_in_background()
+    if "note_design_deviation" in globals():  # an experiment's run (common.smk)
+        note_design_deviation()
     for path in remove_stale_temporaries(LAYOUT.root):
         print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
     try:

@@ -3,6 +3,7 @@
 rule seal:
     input:
         sealed_inputs,
+        registration=LAYOUT.registration,
     output:
         seal=LAYOUT.seal,
     log:

@@ -26,4 +26,5 @@ run_job(
     model_file=Path(snakemake.input.model),
     output=Path(snakemake.output.manifest),
     repo_root=Path.cwd(),
+    registration=Path(snakemake.input.registration),
 )

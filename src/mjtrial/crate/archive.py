@@ -73,10 +73,14 @@ def _run_files(layout: Layout, *, repo_root: Path) -> tuple[set[str], set[str]]:
     files, folders = {CRATE_FILE}, {layout.source.name}
     for seal in covered_seals(stamp):
         try:
-            listed = json.loads((repo_root / seal).read_text(encoding="utf-8"))["outputs"]
+            sealed = json.loads((repo_root / seal).read_text(encoding="utf-8"))
+            listed = sealed["outputs"]
+            registered = [sealed["registration"]["path"]] if "registration" in sealed else []
+            if registered and layout.deviations.exists():  # noted beside it, by no job
+                registered.append(prefix + layout.deviations.name)
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise ArchiveError(f"{repo_root / seal}: not a readable seal ({err})") from err
-        for path in [seal, *listed]:
+        for path in [seal, *listed, *registered]:
             rel = path.removeprefix(prefix)
             (folders if (layout.root / rel).is_dir() else files).add(rel)
     return files, folders
@@ -175,6 +179,8 @@ def write_archive(results_dir: Path, output: Path, *, repo_root: Path) -> Archiv
     # What each packed file must be: a sealed output as its seal records it, a seal as the
     # crate's stamp does, a source as the crate lists it.
     expected = {p.removeprefix(prefix): o.sha256 for p, o in record.outputs.items()}
+    if record.registration is not None:
+        expected[record.registration.path.removeprefix(prefix)] = record.registration.sha256
     sources = {rel: sha for rel, (sha, _) in listed_sources(entities).items()}
     expected |= {f"{layout.source.name}/{rel}": sha for rel, sha in sources.items()}
     Path(output).parent.mkdir(parents=True, exist_ok=True)

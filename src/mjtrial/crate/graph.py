@@ -270,6 +270,22 @@ class _Builder:
                 "sha256": rec.source_sha256,
             },
         )
+        if rec.registration is not None:
+            self.add_data_entity(
+                ids.output(rec.registration.path),
+                folder=False,
+                properties={
+                    "name": rec.registration.path.rsplit("/", 1)[-1],
+                    "description": (
+                        "The registered design (mjtrial.registration): the design record "
+                        "frozen before the run, its earlier registrations and the deviations "
+                        "seen; no job's output, read by the manifest and the seal."
+                    ),
+                    "sha256": rec.registration.sha256,
+                    "contentSize": str(rec.registration.size),
+                    "encodingFormat": "application/json",
+                },
+            )
         for rel, (sha, size) in rec.sources.items():
             if rel == "Snakefile":
                 continue  # the workflow, added with its own types
@@ -292,6 +308,8 @@ class _Builder:
             return self.data_ref(self.ids.output(path, folder=rec.outputs[path].folder))
         if path in rec.sources:
             return self.data_ref(self.ids.of_source(path))
+        if rec.registration is not None and path == rec.registration.path:
+            return self.data_ref(self.ids.output(path))
         return None
 
     # -- the workflow, its tools and steps ----------------------------------------------------

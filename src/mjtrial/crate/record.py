@@ -54,6 +54,8 @@ class RunRecord:
     crate_stamp: dict[str, Any]
     times: dict[str, Times] = field(default_factory=dict)  # job (its stamp's rule) -> times
     manifest: dict[str, Any] = field(default_factory=dict)
+    # the registered design (`mjtrial.registration`), as the experiment's seal records it
+    registration: Output | None = None
 
     def jobs(self) -> dict[str, list[str]]:
         """Each job, by its stamp's rule -> its outputs, in pipeline order of the seals."""
@@ -126,6 +128,7 @@ def read_record(
     known = dict(stamps or {})
     seal_stamps: dict[str, dict[str, Any]] = {}
     outputs: dict[str, Output] = {}
+    registration: Output | None = None
     output_stamps: dict[str, dict[str, Any]] = {}
     for seal in seals:
         rel = _repo_path(seal, repo_root)
@@ -133,6 +136,12 @@ def read_record(
             sealed = json.loads(provenance.read_output_text(repo_root / rel))
             seal_stamps[rel] = dict(known.get(rel) or provenance.read_stamp(repo_root / rel))
             listed = sealed["outputs"]
+            registered = sealed.get("registration")
+            if registered is not None:  # no job's output: a file of the run all the same
+                file = repo_root / registered["path"]
+                registration = Output(
+                    registered["path"], registered["sha256"], False, file.stat().st_size
+                )
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise ValueError(f"{rel}: not a readable seal ({err})") from err
         for path, sha in listed.items():
@@ -170,6 +179,7 @@ def read_record(
         crate_stamp=dict(crate_stamp),
         times=dict(times or {}),
         manifest=manifest,
+        registration=registration,
     )
 
 

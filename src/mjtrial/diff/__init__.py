@@ -21,6 +21,7 @@ from mjtrial.diff.flips import (
 from mjtrial.diff.found import compare_conditions, compare_effects, compare_outputs
 from mjtrial.diff.gate import DEFAULT_LEVEL, FAIL_ON, failures, render
 from mjtrial.diff.made import how_made
+from mjtrial.diff.registration import compare_registrations
 from mjtrial.diff.source import RunError, open_run
 
 __all__ = [
@@ -48,7 +49,8 @@ def diff_runs(
     max_episodes: int | None = DEFAULT_MAX_EPISODES,
     level: float = DEFAULT_LEVEL,
 ) -> dict[str, Any]:
-    """The diff of runs `a` and `b`, a JSON-able dict: `runs`, `made` (`made.how_made`),
+    """The diff of runs `a` and `b`, a JSON-able dict: `runs`, `registration`
+    (`registration.compare_registrations`), `made` (`made.how_made`),
     `outputs` (`found.compare_outputs`), `conditions` (`found.compare_conditions`, each
     flipped episode with its `divergence`), `effects` (`found.compare_effects`), the
     `tolerance`, the McNemar `level`, and `recording`: the file `recording` names, written
@@ -78,6 +80,7 @@ def diff_runs(
             written = str(recording)
         return {
             "runs": {"a": runs[0].label, "b": runs[1].label},
+            "registration": compare_registrations(*runs),
             "made": how_made(*runs),
             "outputs": compare_outputs(*runs),
             "conditions": conditions,

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from mjtrial.diff.flips import SHOWN_FLIPS
+from mjtrial.diff.registration import registration_lines
 from mjtrial.recording.divergence import describe_divergence
 
 # A condition's result changed beyond noise when McNemar's exact test on the shared states
@@ -155,7 +156,10 @@ def render(diff: Mapping[str, Any]) -> str:
     """The diff as text for a person: what differs in how the runs were made, in what they
     found, and each flipped episode."""
     runs, outputs = diff["runs"], diff["outputs"]
-    lines = [f"a: {runs['a']}", f"b: {runs['b']}", "", "How they were made"]
+    lines = [f"a: {runs['a']}", f"b: {runs['b']}", ""]
+    if "registration" in diff:  # first: it changes what every number below means
+        lines += [*registration_lines(diff["registration"]), ""]
+    lines.append("How they were made")
     lines += _made_lines(diff["made"])
     lines += ["", "What they found"]
     total = len({rel for rels in outputs.values() for rel in rels})

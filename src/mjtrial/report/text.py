@@ -40,6 +40,7 @@ from mjtrial.report.model import (
     joint_lines,
     model_files_text,
 )
+from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.stopping import stopping_section
 from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
 
@@ -420,13 +421,13 @@ def _failure_analysis(
     return lines + _figure_lines(_FAILURE_FIGURES, figures, _captions(summary, task))
 
 
-def _falsifier(summary: Mapping[str, Any]) -> list[str]:
+def _falsifier(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str]:
     f = summary["falsifier"]
     conf = pct(summary["paired_difference"]["confidence"])
     return [
         "## Falsifier",
         "",
-        f"Written before the data: the hypothesis is refuted when the lower bound of the {conf} "
+        f"{falsifier_clause(manifest)}the hypothesis is refuted when the lower bound of the {conf} "
         f"interval of {f['statistic']} ({f['treatment']} - {f['baseline']}) is at or below "
         f"{f['threshold']:g}.",
         "",
@@ -544,8 +545,9 @@ def render_report(
         _metric(summary, manifest),
         _results(summary, figures, names, task),
         _failure_analysis(summary, config, figures, names, task),
-        _falsifier(summary),
+        _falsifier(summary, manifest),
         stopping_section(summary),
+        registration_lines(manifest, summary),
         _mistakes(summary, names, task),
         [
             "## What this experiment does not show",

@@ -10,7 +10,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, analysis, provenance, sequential
+from mjtrial import REPO_ROOT, analysis, provenance, registration, sequential
 from mjtrial.conditions import condition_record
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.stages.states import check_drawn_as, check_evaluation_table
@@ -121,11 +121,9 @@ REGISTRATION_INPUT = "registration"
 
 
 def read_registration(path: Path | None) -> Mapping[str, Any] | None:
-    """The registration's record (`registration.json`, whose `config` holds the registered
-    config's sections), or None when there is none: then no comparison is exploratory."""
+    """The registered config's sections (`registration.json`'s current design, as
+    `mjtrial.registration` writes it), or None when nothing is registered: then no comparison
+    is exploratory."""
     if path is None or not Path(path).is_file():
         return None
-    record = json.loads(Path(path).read_text(encoding="utf-8"))
-    if not isinstance(record, Mapping):
-        raise ValueError(f"{path}: expected a JSON object (the registration's record)")
-    return record
+    return registration.read(Path(path))["current"]["design"]["sections"]

@@ -14,8 +14,10 @@ import mujoco
 # recording: the reader of the .rrd stamps this stage reads is part of its code (its hash)
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401
 from mjtrial.conditions import model_edits
-from mjtrial.layout import CONFIG_FILE
+from mjtrial.layout import CONFIG_FILE, Layout
 from mjtrial.physics import compiled_sha256, load_model
+from mjtrial.registration import deviations_seen, manifest_section
+from mjtrial.registration import read as read_registration
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import EVALUATION_RULE, REDRAWN
 from mjtrial.studies.variants import variant_model
@@ -35,6 +37,7 @@ def write_manifest(
     command: str = "snakemake -c2",
     config_file: str = CONFIG_FILE,
     repo_root: Path = REPO_ROOT,
+    registration: Path | None = None,
 ) -> dict[str, Any]:
     """Gather the reproducibility record and the stamp of every output into `manifest.json`.
 
@@ -52,6 +55,7 @@ def write_manifest(
         outputs=outputs,
         model_file=model_file,
         repo_root=repo_root,
+        registration=registration,
     )
     stamp = make_stage_stamp("manifest", dict(config), inputs, repo_root=repo_root)
     provenance.write_json(manifest, output, stamp)
@@ -82,9 +86,11 @@ def manifest_record(
     command: str,
     config_file: str = CONFIG_FILE,
     repo_root: Path = REPO_ROOT,
+    registration: Path | None = None,
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """The manifest the stage writes and its stamp's inputs (`mjtrial verify` checks
-    `manifest.json` against it)."""
+    `manifest.json` against it); `registration`: the registered design's file, when there is
+    one (`mjtrial.registration`), recorded with the run's deviations from it."""
     model = load_model(model_file)
     summary = json.loads(Path(summary_path).read_text())
 
@@ -143,7 +149,21 @@ def manifest_record(
     for stamp in stamps.values():
         if stamp.get("rule") == EVALUATION_RULE and REDRAWN in stamp["extra"]:
             manifest[REDRAWN] = stamp["extra"][REDRAWN]
-    return manifest, {rel(p): p for p in [*outputs, summary_path]}
+    inputs = {rel(p): p for p in [*outputs, summary_path]}
+    registered = read_registration(registration) if registration is not None else None
+    if registered is not None:
+        manifest["registration"] = {
+            "path": rel(registration),
+            **manifest_section(
+                config,
+                registered,
+                stamps=stamps,
+                seen=deviations_seen(Layout(registration.parent)),
+                repo_root=repo_root,
+            ),
+        }
+        inputs[rel(registration)] = registration
+    return manifest, inputs
 
 
 def task_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> dict[str, Any]:

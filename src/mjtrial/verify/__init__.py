@@ -51,6 +51,7 @@ from mjtrial.verify.chain import (
     parse_rule,
 )
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
+from mjtrial.verify.registration import check_registration
 
 __all__ = [
     "STAMPED_SUFFIXES",
@@ -286,6 +287,8 @@ def verify_results(
                 Skipped(rel, "left by an earlier configuration; not one of its outputs")
             )
             continue
+        if file in (layout.registration, layout.deviations):
+            continue  # no job's outputs: checked on their own (check_registration)
         if _is_old_figure(layout, file):
             leftovers.append(Skipped(rel, "a figure no current report draws (an earlier layout)"))
             continue
@@ -331,6 +334,7 @@ def verify_results(
             recomputed_differs=differs,
             outdated=_crate_outdated(layout, stamps, repo_root),
             development_prefix=_relative(layout.development.root, repo_root),
+            sources=[_relative(layout.registration, repo_root)],
         )
 
     report = check()
@@ -355,8 +359,12 @@ def verify_results(
     settled = found.resimulated > 0 and not found.differs
     platform = [w for w in report.warnings if w.startswith(PLATFORM_WARNINGS)] if settled else []
     agree = f"; the {found.resimulated} episodes re-simulated here all agree bit for bit"
+    registered = check_registration(
+        layout, config, path=_relative(layout.registration, repo_root), repo_root=repo_root
+    )
     return dataclasses.replace(
         report,
+        outputs=(*report.outputs, *([registered] if registered else [])),
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *(w for w in report.warnings if w not in platform)),
         notes=(*report.notes, *(w + agree for w in platform)),

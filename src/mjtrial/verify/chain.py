@@ -426,6 +426,7 @@ def check_stamps(
     recomputed_differs: Mapping[str, str] | None = None,
     outdated: Mapping[str, str] | None = None,
     development_prefix: str | None = None,
+    sources: Iterable[str] = (),
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -443,8 +444,10 @@ def check_stamps(
     cover a study sealed since) to why: stale. Outputs under ``development_prefix`` (the
     development states and the pilot) are read by no reported number: one that is stale or
     missing (a pilot of an earlier configuration) is a note, not a failure, and an output
-    outside it that records an input under it is tampered.
+    outside it that records an input under it is tampered. ``sources`` are files under
+    ``outputs_prefix`` that no job writes (the registered design): inputs, as the model is.
     """
+    sources = set(sources)
     unreadable = dict(unreadable or {})
     prefix = outputs_prefix.rstrip("/") + "/"
     shas: dict[str, str | None] = {}
@@ -551,7 +554,7 @@ def check_stamps(
                     f"reads a development output, {source.removeprefix(prefix)}: the evaluation "
                     "never does"
                 )
-            if source.startswith(prefix):
+            if source.startswith(prefix) and source not in sources:
                 expected.add(source)
                 upstream[path].add(source)
                 now_sha = sha(source)

@@ -608,6 +608,7 @@ class _Checker:
                     outputs=outputs,
                     model_file=self.model_file,
                     repo_root=self.repo_root,
+                    registration=layout.registration if layout.registration.exists() else None,
                 )[0],
             ),
         )

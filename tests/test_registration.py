@@ -1,0 +1,218 @@
+"""The registered design (mjtrial.registration): frozen at the first run, never rewritten by
+a rerun, every later difference recorded as a deviation, with whether results existed."""
+
+from __future__ import annotations
+
+import copy
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
+
+from mjtrial import cli, registration
+from mjtrial.diff import diff_runs, render
+from mjtrial.layout import Layout
+from mjtrial.report.registration import falsifier_clause, registration_lines
+from mjtrial.verify import Status, verify_results
+
+RESULTS = "results/research_mode"
+
+
+@pytest.fixture
+def config():
+    return yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+
+
+def test_register_keeps_every_earlier_registration(tmp_path, config):
+    layout = Layout(tmp_path / "results" / "x")
+    first = registration.register(config, layout=layout, repo_root=REPO_ROOT)
+    assert first["current"]["design"]["sections"]["conditions"] == config["conditions"]
+    with pytest.raises(registration.RegistrationError, match="already registered on .*--again"):
+        registration.register(config, layout=layout, repo_root=REPO_ROOT)
+    changed = copy.deepcopy(config)
+    changed["design"]["falsifier"]["threshold"] = 0.05
+    again = registration.register(
+        changed, layout=layout, repo_root=REPO_ROOT, again=True, reason="pilot"
+    )
+    assert again["earlier"][0]["design"] == first["current"]["design"]
+    assert again["earlier"][0]["superseded_utc"] == again["current"]["registered_utc"]
+    data = registration.read(layout.registration)
+    assert registration.problems(data) == []
+    assert registration.deviations(data, registration.design_record(config)) == [
+        {"key": "design.falsifier.threshold", "registered": 0.05, "now": 0.0}
+    ]
+
+
+def test_a_tampered_registration_names_what_was_changed(tmp_path, config):
+    layout = Layout(tmp_path / "results" / "x")
+    registration.register(config, layout=layout, repo_root=REPO_ROOT)
+    data = registration.read(layout.registration)
+    data["current"]["design"]["sections"]["states"]["n"] = 100
+    assert registration.problems(data) == [
+        "the registration: its design is not the one its sha256 was taken of",
+        "the registration history is not the one its sha256 was taken of",
+    ]
+
+
+def test_deviations_name_added_and_removed_keys(config):
+    now = copy.deepcopy(config)
+    now["stopping"] = {"rule": "e-process"}
+    del now["failure_taxonomy"]["max_tilt"]
+    found = registration.changes(config, now)
+    assert {
+        "key": "failure_taxonomy.max_tilt",
+        "registered": 1.0,
+        "now": None,
+        "absent": "now",
+    } in found
+    assert {
+        "key": "stopping",
+        "registered": None,
+        "now": {"rule": "e-process"},
+        "absent": "registered",
+    } in found
+
+
+def _manifest(**record):
+    base = {
+        "path": f"{RESULTS}/registration.json",
+        "registered_utc": "2026-01-01T10:00:00Z",
+        "design_sha256": "ab" * 32,
+        "before_any_rollout": True,
+        "deviations": [],
+        "deviation_noted": None,
+        "earlier": [],
+        "plan": None,
+    }
+    stamps = {
+        f"{RESULTS}/rollouts/fast/shard-00000.parquet": {
+            "rule": "rollout:fast#00000",
+            "created_utc": "2026-01-01T10:00:05Z",
+        }
+    }
+    return {"registration": {**base, **record}, "stamps": stamps}
+
+
+def test_the_report_says_before_any_rollout_only_when_true():
+    summary = {"falsifier": {"verdict": "refuted"}}
+    assert falsifier_clause(_manifest()).startswith("Registered on 2026-01-01 10:00:00 UTC, before")
+    late = _manifest(before_any_rollout=False)
+    assert "after rollouts existed (the first on 2026-01-01 10:00:05 UTC)" in falsifier_clause(late)
+    change = {"key": "design.falsifier.threshold", "registered": 0.0, "now": 0.05}
+    noted = {
+        "first_run_utc": "2026-01-02T09:00:00Z",
+        "results_existed": True,
+        "of_registered_design": True,
+        "verdict": "refuted",
+    }
+    deviated = _manifest(deviations=[change], deviation_noted=noted)
+    assert "before any rollout" not in falsifier_clause(deviated)
+    text = "\n".join(registration_lines(deviated, summary))
+    assert "| `design.falsifier.threshold` | `0.0` | `0.05` |" in text
+    assert "when results existed: a summary of the registered design (verdict REFUTED)" in text
+    assert falsifier_clause({}).startswith("Not registered")
+
+
+def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, monkeypatch):
+    """End to end: the first run registers before any rollout; an edit of the falsifier's
+    threshold and of a condition after the results exist, run with --forceall, leaves the
+    registration as it was and records the deviation with the results that existed; verify
+    checks it and sees tampering; re-registering keeps the earlier one; the diff of the two
+    runs shows the registration first."""
+    (tmp_path / "experiment").mkdir()
+    work = copy_workflow(tmp_path / "experiment")
+
+    def small(config):
+        config["states"]["n"] = 10
+        config["rollout"]["shard_size"] = 10
+        config["analysis"]["n_resamples"] = 200
+        config["recording"]["episodes"] = "none"
+
+    edit_config(work, small)
+    run_snakemake(work)
+    results = work / RESULTS
+    registered = (results / "registration.json").read_bytes()
+    manifest = json.loads((results / "manifest.json").read_text())["registration"]
+    assert manifest["before_any_rollout"] and manifest["deviations"] == []
+    report = (results / "report.md").read_text()
+    assert "before any rollout" in report and "Written before the data" not in report
+    first_run = tmp_path / "first" / "research_mode"
+    shutil.copytree(results, first_run)
+
+    def deviate(config):
+        config["design"]["falsifier"]["threshold"] = 0.05
+        config["conditions"]["slow"]["lift_time"] = 1.4
+
+    edit_config(work, deviate)
+    proc = run_snakemake(work, "--forceall")
+    assert "the design deviates from its registration" in proc.stderr
+    assert (results / "registration.json").read_bytes() == registered  # never rewritten
+    noted = json.loads((results / "deviations.json").read_text())["deviations_seen"]
+    assert [c["key"] for c in noted[0]["changes"]] == [
+        "design.falsifier.threshold",
+        "conditions.slow.lift_time",
+    ]
+    manifest = json.loads((results / "manifest.json").read_text())["registration"]
+    assert [c["key"] for c in manifest["deviations"]] == [
+        "design.falsifier.threshold",
+        "conditions.slow.lift_time",
+    ]
+    assert manifest["deviation_noted"]["results_existed"] is True
+    assert manifest["deviation_noted"]["of_registered_design"] is True
+    report = (results / "report.md").read_text()
+    assert "before any rollout" not in report and "before the data" not in report
+    assert "when results existed: a summary of the registered design" in report
+
+    def check():
+        return verify_results(
+            results, config_path=work / "config" / "config.yaml", repo_root=work, resimulate=0
+        )
+
+    assert check().ok, check().format()
+    good = (results / "registration.json").read_text()
+    tampered = json.loads(good)
+    tampered["current"]["design"]["sections"]["design"]["falsifier"]["threshold"] = 0.05
+    (results / "registration.json").write_text(json.dumps(tampered))
+    verdict = check()[f"{RESULTS}/registration.json"]
+    assert verdict.status is Status.TAMPERED
+    assert "its design is not the one its sha256 was taken of" in "; ".join(verdict.reasons)
+    (results / "registration.json").write_text(good)
+
+    monkeypatch.chdir(work)
+    assert cli.main(["register", "--again", "--reason", "threshold from the pilot"]) == 0
+    data = json.loads((results / "registration.json").read_text())
+    assert data["earlier"][0]["design_sha256"] == json.loads(registered)["current"]["design_sha256"]
+    run_snakemake(work)
+    manifest = json.loads((results / "manifest.json").read_text())["registration"]
+    assert manifest["deviations"] == [] and not manifest["before_any_rollout"]
+    assert len(manifest["earlier"]) == 1
+    assert check().ok
+
+    text = render(diff_runs(first_run, results))
+    assert text.index("Registration") < text.index("How they were made")
+    assert "REGISTERED DESIGN CHANGED" in text
+    assert "design.falsifier.threshold: 0.0 -> 0.05" in text
+
+
+def test_plan_of_a_registered_design_reads_the_pilot(tmp_path, config, capsys):
+    layout = Layout(tmp_path / "results" / "x")
+    registration.register(config, layout=layout, repo_root=REPO_ROOT)
+    assert cli.main(["plan", str(layout.root)]) == 0
+    out = capsys.readouterr().out
+    assert "| pairs (N) | 200 |" in out
+    assert "assumed: half the pairs discordant" in out
+    # a pilot: 40 pairs, 10 discordant
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for name, column in (("slow", [True] * 30 + [False] * 10), ("fast", [True] * 40)):
+        path = layout.development.rollout_table(name)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table({"success": column}), path)
+    assert cli.main(["plan", str(layout.root), "--effect", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "0.250 (the pilot: 40 pairs" in out
+    assert "pairs for a difference of +0.100" in out
