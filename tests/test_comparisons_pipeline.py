@@ -36,6 +36,10 @@ def three(built, tmp_path_factory) -> Path:
         config["analysis"]["comparisons"] = {"against": "fast"}
 
     edit_config(workdir, medium)
+    # planned from the start: the copy's registration (of the two-condition design) goes, and
+    # the run registers this design
+    for name in ("registration.json", "deviations.json"):
+        (workdir / LAYOUT.root / name).unlink(missing_ok=True)
     run_snakemake(workdir)
     return workdir
 

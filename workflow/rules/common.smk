@@ -372,4 +372,4 @@ def figure_outputs():
 def registered_design(wildcards):
     """The registration, when there is one (the analysis marks what it did not plan
     exploratory): written when the workflow loads, before any job."""
-    return [LAYOUT.registration] if LAYOUT.registration.exists() else []
+    return str(LAYOUT.registration) if LAYOUT.registration.exists() else []

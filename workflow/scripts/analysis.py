@@ -7,9 +7,10 @@ from mjtrial.workflow_script import run_job
 
 snakemake = globals()["snakemake"]
 conditions = list(snakemake.params.slice["conditions"])
-# the registration, when the rule names it as an input (comparisons it did not plan are
-# exploratory)
+# the registration, when there is one (comparisons it did not plan are exploratory): a path,
+# or an empty list when nothing is registered
 registration = getattr(snakemake.input, "registration", None)
+registration = registration if isinstance(registration, str) else None
 run_job(
     snakemake,
     run_analysis,
