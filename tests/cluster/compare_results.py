@@ -16,8 +16,15 @@ import pyarrow.parquet as pq
 
 STAMP_KEY = "provenance"
 # JSON files that hold results; the manifest, the seal and the crate record the run itself (its
-# command, job times and the hashes of stamped files), so they differ between two runs.
-RUN_RECORDS = {"manifest.json", "seal.json", "ro-crate-metadata.json"}
+# command, job times and the hashes of stamped files), so they differ between two runs; the
+# registration and its deviations record when the design was registered (a time).
+RUN_RECORDS = {
+    "manifest.json",
+    "seal.json",
+    "ro-crate-metadata.json",
+    "registration.json",
+    "deviations.json",
+}
 
 
 def relative_files(root: Path) -> set[Path]:
