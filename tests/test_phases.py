@@ -42,3 +42,20 @@ def test_pending_timers_end_without_firing():
     cancel_scheduler_timers()
     timer.join(timeout=2)
     assert not timer.is_alive() and not fired
+
+
+def _spin(seconds: float) -> None:
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
+
+
+def test_a_phase_of_every_thread_counts_the_cpu_of_a_worker_it_waits_for():
+    with phases.clocked() as clock:
+        for name, every in (("own thread", False), ("every thread", True)):
+            with phases.phase(name, every_thread=every):
+                worker = threading.Thread(target=_spin, args=(0.2,))
+                worker.start()
+                worker.join()
+    assert clock.totals["own thread"][1] < 0.05  # the caller only waited
+    assert clock.totals["every thread"][1] >= 0.19  # the worker's 0.2 s of CPU

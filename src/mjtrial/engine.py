@@ -192,7 +192,7 @@ def iter_batches(
                 initial_states = np.stack(initial)
             mocap = None  # (size, n_steps, nmocap, 7) when an action moves a mocap body
             if isinstance(controller, OpenLoop):
-                with phases.phase("physics"):
+                with phases.phase("physics", every_thread=True):
                     physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
                 failed_action = None
                 applied = np.broadcast_to(ctrl, (size, *ctrl.shape))
@@ -210,7 +210,7 @@ def iter_batches(
                     models=models,
                 )
                 try:
-                    with phases.phase("physics + policy"):
+                    with phases.phase("physics + policy", every_thread=True):
                         result = closed_loop.run_batch(
                             models,
                             initial_states,

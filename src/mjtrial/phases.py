@@ -2,9 +2,11 @@
 a light clock the rollout stage starts and the engine and recording writer charge, logged as one
 `# phases:` line at the job's end and read by `benchmarks/profile_pipeline.py`.
 
-Each phase's time is exclusive (a phase entered inside another pauses it) and counted on the
-calling thread: wall (`time.perf_counter`) and that thread's CPU (`time.thread_time`). A few
-clock reads per batch: nothing against the batch's physics.
+Each phase's time is exclusive (a phase entered inside another pauses it): wall
+(`time.perf_counter`) and CPU, the calling thread's (`time.thread_time`) or, for a phase whose
+work runs on other threads (`mujoco.rollout`'s pool), every thread's (`time.process_time`, the
+recording writer's overlap included). A few clock reads per batch: nothing against the
+batch's physics.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ class PhaseClock:
     def __init__(self) -> None:
         self.totals: dict[str, list[float]] = {}
         self._current: str | None = None
-        self._since = (0.0, 0.0)
+        self._every_thread = False
+        self._since = (0.0, 0.0, 0.0)
 
     def add(self, name: str, wall: float, cpu: float) -> None:
         total = self.totals.setdefault(name, [0.0, 0.0])
@@ -30,20 +33,22 @@ class PhaseClock:
         total[1] += cpu
 
     def _charge(self) -> None:
-        now = time.perf_counter(), time.thread_time()
+        now = time.perf_counter(), time.thread_time(), time.process_time()
         if self._current is not None:
-            self.add(self._current, now[0] - self._since[0], now[1] - self._since[1])
+            cpu = 2 if self._every_thread else 1
+            self.add(self._current, now[0] - self._since[0], now[cpu] - self._since[cpu])
         self._since = now
 
     @contextmanager
-    def phase(self, name: str) -> Iterator[None]:
+    def phase(self, name: str, *, every_thread: bool = False) -> Iterator[None]:
         self._charge()
-        outer, self._current = self._current, name
+        outer = self._current, self._every_thread
+        self._current, self._every_thread = name, every_thread
         try:
             yield
         finally:
             self._charge()
-            self._current = outer
+            self._current, self._every_thread = outer
 
     def line(self) -> str:
         """One log line: `# phases: <name> <wall> s (cpu <cpu> s), ...`."""
@@ -66,12 +71,13 @@ def clocked() -> Iterator[PhaseClock]:
 
 
 @contextmanager
-def phase(name: str) -> Iterator[None]:
-    """Charge the block to phase `name` of the active clock (nothing when none is)."""
+def phase(name: str, *, every_thread: bool = False) -> Iterator[None]:
+    """Charge the block to phase `name` of the active clock (nothing when none is); its CPU
+    is every thread's with `every_thread`."""
     if _active is None:
         yield
         return
-    with _active.phase(name):
+    with _active.phase(name, every_thread=every_thread):
         yield
 
 
