@@ -114,7 +114,7 @@ onstart:
 
 
 onsuccess:
-    SAFEKEEPING.drop()
+    on_success()
 
 
 onerror:

@@ -112,9 +112,8 @@ def run_plain_loop(config: dict, n: int) -> tuple[float, float, dict[str, np.nda
     return time.perf_counter() - t0, time.process_time() - c0, heights
 
 
-def run_pipeline(n: int) -> tuple[float, float, float, Path]:
-    """A clean `snakemake -c2` on n states in a fresh copy of the workflow: (wall s, CPU s of
-    every process, peak resident MB of the largest process, its folder)."""
+def copy_workflow(n: int) -> Path:
+    """A fresh temporary copy of the workflow, its experiment set to n states."""
     work = Path(tempfile.mkdtemp(prefix="mjtrial-bench-"))
     for name in WORKFLOW:
         src = REPO_ROOT / name
@@ -124,16 +123,31 @@ def run_pipeline(n: int) -> tuple[float, float, float, Path]:
         cfg = yaml.safe_load(path.read_text())
         cfg["states"]["n"] = n
         path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return work
+
+
+def run_snakemake(work: Path, *args: str) -> tuple[float, float, float]:
+    """`snakemake -c2 --quiet *args` in `work`: (wall s, CPU s of every process, peak resident
+    MB of the largest process)."""
     snakemake = str(Path(sys.executable).parent / "snakemake")
     with open(work / "snakemake.out", "w") as out:
         t0 = time.perf_counter()
-        proc = subprocess.Popen([snakemake, "-c2", "--quiet"], cwd=work, stdout=out, stderr=out)
+        proc = subprocess.Popen(
+            [snakemake, "-c2", "--quiet", *args], cwd=work, stdout=out, stderr=out
+        )
         # wait4: this run's own CPU time and peak memory, its descendants included
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
     if os.waitstatus_to_exitcode(status):
         sys.exit(f"snakemake failed:\n{(work / 'snakemake.out').read_text()[-2000:]}")
-    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, work
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
+
+
+def run_pipeline(n: int) -> tuple[float, float, float, Path]:
+    """A clean `snakemake -c2` on n states in a fresh copy of the workflow: (wall s, CPU s of
+    every process, peak resident MB of the largest process, its folder)."""
+    work = copy_workflow(n)
+    return (*run_snakemake(work), work)
 
 
 def job_resources(work: Path, experiment: str) -> dict[str, tuple[float, float]]:

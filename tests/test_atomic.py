@@ -134,3 +134,24 @@ def test_directory_failure_keeps_the_old_one_and_no_temp(tmp_path: Path, error) 
         raise error
     assert [p.name for p in tmp_path.iterdir()] == ["fast"]
     assert (target / "a.rrd").read_text() == "good"
+
+
+def test_fsync_files_flushes_every_file_once(tmp_path, monkeypatch):
+    import threading
+
+    from mjtrial import atomic
+
+    paths = [tmp_path / f"f{i}.txt" for i in range(40)]
+    for p in paths:
+        p.write_text(p.name)
+    flushed, lock = [], threading.Lock()
+
+    def record(p):
+        with lock:
+            flushed.append(Path(p))
+
+    monkeypatch.setattr(atomic, "fsync_file", record)
+    atomic.fsync_files(iter(paths))  # a generator, as the crate's copy passes
+    assert sorted(flushed) == sorted(paths)
+    atomic.fsync_files([])
+    assert len(flushed) == 40

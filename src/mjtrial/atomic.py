@@ -15,7 +15,8 @@ import json
 import os
 import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ __all__ = [
     "atomic_directory",
     "atomic_path",
     "fsync_file",
+    "fsync_files",
     "remove_folder",
     "temp_path_for",
     "write_bytes_atomic",
@@ -56,6 +58,22 @@ def fsync_file(p: str | os.PathLike[str]) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+# Threads that flush many files at once: the filesystem's journal commits their fsyncs
+# together (ext4: the crate's copy of 230 sources took 0.89 s one by one, 0.21 s so).
+_FSYNC_THREADS = 16
+
+
+def fsync_files(paths: Iterable[str | os.PathLike[str]]) -> None:
+    """`fsync_file` every one of `paths`, several at once; returns once all are on disk."""
+    paths = list(paths)
+    if len(paths) <= 1:
+        for p in paths:
+            fsync_file(p)
+        return
+    with ThreadPoolExecutor(min(_FSYNC_THREADS, len(paths)), "mjtrial-fsync") as pool:
+        list(pool.map(fsync_file, paths))
 
 
 def _fsync_dir(d: Path) -> None:

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from mjtrial import closed_loop
+from mjtrial import closed_loop, phases
 from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 from mjtrial.task import (
     NONFINITE_ACTION,
@@ -179,19 +179,21 @@ def iter_batches(
         for start in range(0, n, batch_size):
             rows = {k: np.asarray(v[start : start + batch_size]) for k, v in values.items()}
             size = len(next(iter(rows.values())))
-            models, initial = [], []
-            for i in range(size):
-                m, s = bound.episode(
-                    {k: float(v[i]) for k, v in rows.items()},
-                    scratch=scratch,
-                    model=slots[i] if slots else None,
-                )
-                models.append(m)
-                initial.append(s)
-            initial_states = np.stack(initial)
+            with phases.phase("episode setup"):
+                models, initial = [], []
+                for i in range(size):
+                    m, s = bound.episode(
+                        {k: float(v[i]) for k, v in rows.items()},
+                        scratch=scratch,
+                        model=slots[i] if slots else None,
+                    )
+                    models.append(m)
+                    initial.append(s)
+                initial_states = np.stack(initial)
             mocap = None  # (size, n_steps, nmocap, 7) when an action moves a mocap body
             if isinstance(controller, OpenLoop):
-                physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
+                with phases.phase("physics", every_thread=True):
+                    physics, sensordata = runner.rollout(models, datas, initial_states, ctrl[None])
                 failed_action = None
                 applied = np.broadcast_to(ctrl, (size, *ctrl.shape))
             else:
@@ -208,17 +210,18 @@ def iter_batches(
                     models=models,
                 )
                 try:
-                    result = closed_loop.run_batch(
-                        models,
-                        initial_states,
-                        policy,
-                        observe,
-                        timing,
-                        runner=runner,
-                        datas=datas,
-                        pushes=pushes,
-                        actuation=bound.actuation,
-                    )
+                    with phases.phase("physics + policy", every_thread=True):
+                        result = closed_loop.run_batch(
+                            models,
+                            initial_states,
+                            policy,
+                            observe,
+                            timing,
+                            runner=runner,
+                            datas=datas,
+                            pushes=pushes,
+                            actuation=bound.actuation,
+                        )
                 except closed_loop.PolicyError as err:
                     where = controller.source or task.source or task.name
                     raise TaskError(f"{where}: {err}") from None
@@ -227,62 +230,66 @@ def iter_batches(
                 applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
                 if result.mocap is not None:
                     mocap = np.repeat(result.mocap, timing.steps_per_control, axis=1)
-            stopped, broken = halted(physics), nonfinite(physics)
-            ok = ~stopped & ~broken
-            episodes = Episodes(
-                model,
-                params,
-                physics,
-                sensordata,
-                ok,
-                applied,
-                {p: rows[p] for p in episode_values},
-                mocap,
-            )
-            measures = dict(call(task, "measure", task.measure, episodes))
-            missing = [m.name for m in task.own_measures if m.name not in measures]
-            if missing:
-                raise TaskError(
-                    f"{task.source or task.name}: measure: expected a value for {missing[0]!r}"
+            with phases.phase("measures + outcome"):
+                stopped, broken = halted(physics), nonfinite(physics)
+                ok = ~stopped & ~broken
+                episodes = Episodes(
+                    model,
+                    params,
+                    physics,
+                    sensordata,
+                    ok,
+                    applied,
+                    {p: rows[p] for p in episode_values},
+                    mocap,
                 )
-            for m in task.own_measures:
-                expect_rows(task, f"measure[{m.name!r}]", measures[m.name], size)
-            success = call(task, "success", task.success, episodes)
-            expect_rows(task, "success", success, size, dtype=bool)
-            success = np.asarray(success, dtype=bool) & ok
-            if failed_action is not None:
-                success &= ~failed_action
-            warning = np.full(size, "", dtype=object)
-            for i in np.flatnonzero(~ok):
-                if isinstance(controller, OpenLoop):
-                    warning[i] = open_loop_warnings(models[i], initial_states[i], ctrl)
-                else:
-                    warning[i] = warning_names(
-                        closed_loop.reference_episode(
-                            models[i],
-                            initial_states[i],
-                            policy,
-                            bound.observer(
-                                controller.observations,
-                                {p: rows[p][i : i + 1] for p in episode_values},
-                                params=params,
-                                n_controls=timing.n_controls,
-                                models=models[i : i + 1],
-                            ),
-                            timing,
-                            pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
-                            actuation=bound.actuation,
-                        ).warnings
+                measures = dict(call(task, "measure", task.measure, episodes))
+                missing = [m.name for m in task.own_measures if m.name not in measures]
+                if missing:
+                    raise TaskError(
+                        f"{task.source or task.name}: measure: expected a value for {missing[0]!r}"
                     )
-            outcome = {
-                "success": success,
-                # copies: a view would keep the batch's trajectories alive with the table's columns
-                **{m.name: np.array(measures[m.name], dtype=np.float64) for m in task.own_measures},
-                "steps_simulated": steps_simulated(physics),
-                "nonfinite": broken,
-                "warning": warning,
-                "failure_category": classify(
-                    bound, success, ok, measures, thresholds, failed_action
-                ),
-            }
+                for m in task.own_measures:
+                    expect_rows(task, f"measure[{m.name!r}]", measures[m.name], size)
+                success = call(task, "success", task.success, episodes)
+                expect_rows(task, "success", success, size, dtype=bool)
+                success = np.asarray(success, dtype=bool) & ok
+                if failed_action is not None:
+                    success &= ~failed_action
+                warning = np.full(size, "", dtype=object)
+                for i in np.flatnonzero(~ok):
+                    if isinstance(controller, OpenLoop):
+                        warning[i] = open_loop_warnings(models[i], initial_states[i], ctrl)
+                    else:
+                        warning[i] = warning_names(
+                            closed_loop.reference_episode(
+                                models[i],
+                                initial_states[i],
+                                policy,
+                                bound.observer(
+                                    controller.observations,
+                                    {p: rows[p][i : i + 1] for p in episode_values},
+                                    params=params,
+                                    n_controls=timing.n_controls,
+                                    models=models[i : i + 1],
+                                ),
+                                timing,
+                                pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
+                                actuation=bound.actuation,
+                            ).warnings
+                        )
+                outcome = {
+                    "success": success,
+                    # copies: a view would keep the batch's trajectories alive with the columns
+                    **{
+                        m.name: np.array(measures[m.name], dtype=np.float64)
+                        for m in task.own_measures
+                    },
+                    "steps_simulated": steps_simulated(physics),
+                    "nonfinite": broken,
+                    "warning": warning,
+                    "failure_category": classify(
+                        bound, success, ok, measures, thresholds, failed_action
+                    ),
+                }
             yield Batch(rows, episodes, outcome)

@@ -65,7 +65,9 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     stamp = make_stage_stamp(
         rule, snakemake.params.get("slice", {}), dict(snakemake.input.items()), repo_root=Path.cwd()
     )
-    log_path.write_text(provenance.log_stamp_line(stamp) + "\n", encoding="utf-8")
+    # a process of its own: what its start and imports cost, in its log only (the profile's)
+    entered = "" if in_process else f"{entered_line()}\n"
+    log_path.write_text(provenance.log_stamp_line(stamp) + "\n" + entered, encoding="utf-8")
     if "rule" in inspect.signature(stage).parameters:  # stages that stamp per job take it too
         kwargs["rule"] = rule
     with job_log(log_path), job_output(log_path, whole_process=not in_process):
@@ -304,6 +306,28 @@ def resources_line() -> str:
     return (
         f"# resources: wall {_process_age():.2f} s, "
         f"cpu {usage.ru_utime + usage.ru_stime:.2f} s, peak rss {_peak_rss_mb():.0f} MB"
+    )
+
+
+def cancel_scheduler_timers() -> None:
+    """End the pending `threading.Timer`s of Snakemake's process, at the end of a run.
+
+    Snakemake's scheduler starts one after each round (its job rate limit's re-evaluation,
+    `--max-jobs-per-timespan`, 1 s by default); the interpreter waits for such a thread before
+    it exits, so a finished run held its exit up to a second (benchmarks/profile_pipeline.py).
+    Once the run is over nothing waits for them to fire.
+    """
+    for thread in threading.enumerate():
+        if isinstance(thread, threading.Timer):
+            thread.cancel()
+
+
+def entered_line() -> str:
+    """This process's wall and CPU time when its stage begins: its start and imports."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return (
+        f"# stage entered: wall {_process_age():.2f} s, "
+        f"cpu {usage.ru_utime + usage.ru_stime:.2f} s"
     )
 
 

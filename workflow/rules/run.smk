@@ -6,6 +6,7 @@ from pathlib import Path
 from mjtrial.layout import script_path
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.workflow_script import (
+    cancel_scheduler_timers,
     import_in_background,
     mark_workflow_process,
     run_in_process,
@@ -75,6 +76,13 @@ def on_start():
             f"mjtrial: could not snapshot {LAYOUT.root} before the run ({err}); no job was "
             "started, so nothing was removed"
         )
+
+
+def on_success():
+    """Drop the snapshot; end Snakemake's pending scheduler timers, which would hold its exit
+    up to a second (`mjtrial.workflow_script.cancel_scheduler_timers`)."""
+    SAFEKEEPING.drop()
+    cancel_scheduler_timers()
 
 
 def on_error():

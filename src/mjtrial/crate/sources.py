@@ -16,7 +16,7 @@ from pathlib import Path
 
 import mjtrial
 from mjtrial import provenance
-from mjtrial.atomic import atomic_directory, fsync_file
+from mjtrial.atomic import atomic_directory, fsync_files
 from mjtrial.layout import STAGES, WORKFLOW_SOURCES
 
 # Found in a source tree, never part of it.
@@ -78,7 +78,7 @@ def copy_sources(workdir: Path, output: Path, read: Iterable[str] = ()) -> None:
             dest = tmp / rel
             dest.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, dest)
-            fsync_file(dest)
+        fsync_files(tmp / rel for rel in files)  # all on disk before the folder is renamed
 
 
 def listed_sources(folder: Path) -> dict[str, tuple[str, int]]:

@@ -24,6 +24,7 @@ import json
 import os
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +35,7 @@ import numpy as np
 import pyarrow as pa
 from rerun.chunk import ChunkStore
 
+from mjtrial import phases
 from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
 from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT, RECORDING_FOLDER_STAMP, write_json
 from mjtrial.recording.arrow import (
@@ -454,6 +456,7 @@ def write_condition_recordings(
             """Build and write a group's recordings, while the caller runs the next rollouts;
             the folder's mesh store with the first."""
             nonlocal meshes
+            began = time.perf_counter(), time.thread_time()
             if meshes is not None:
                 target = folder / MESH_STORE_FILE
                 with strict():
@@ -471,6 +474,11 @@ def write_condition_recordings(
                         recording_id=recording_id,
                     )
                 syncer.put(target)
+            phases.add(
+                "recording (writer thread)",
+                time.perf_counter() - began[0],
+                time.thread_time() - began[1],
+            )
 
         worker = _Worker(write, maxsize=max(1, _QUEUE // _GROUP), name="mjtrial-rrd-writer")
         try:

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, atomic, engine, provenance, recording
+from mjtrial import REPO_ROOT, atomic, engine, phases, provenance, recording
 from mjtrial.conditions import model_edits, policy_path
 from mjtrial.physics import load_model
 from mjtrial.policy_file import load_policy_file, policy_inputs, policy_task, runtime_settings
@@ -284,11 +284,49 @@ def run_shard(
     Rerun recording, one .rrd per episode, written while the next batch runs. Memory is bounded
     by the batch and the shard, never by the number of states. `unrecorded` is the shard's
     recordings folder when `recording.episodes` is none: an earlier run's is removed once the
-    table is written, so that no reader takes its recordings for this run's.
+    table is written, so that no reader takes its recordings for this run's. The log's
+    `# phases:` line says where the time went (`mjtrial.phases`).
     """
-    bound = condition_task(condition_slice, model_file, repo_root=repo_root)
-    task = bound.task
-    values = read_state_values(states_path, task, first=first, stop=stop)
+    with phases.clocked() as clock:
+        table = _run_shard(
+            condition_slice=condition_slice,
+            states_path=states_path,
+            model_file=model_file,
+            first=first,
+            stop=stop,
+            output_table=output_table,
+            output_recording=output_recording,
+            unrecorded=unrecorded,
+            nthread=nthread,
+            rule=rule,
+            batch_size=batch_size,
+            repo_root=repo_root,
+            extra_inputs=extra_inputs,
+        )
+    log.info("%s", clock.line())
+    return table
+
+
+def _run_shard(
+    *,
+    condition_slice: Mapping[str, Any],
+    states_path: Path,
+    model_file: Path,
+    first: int,
+    stop: int,
+    output_table: Path,
+    output_recording: Path | None,
+    unrecorded: Path | None,
+    nthread: int,
+    rule: str,
+    batch_size: int | None,
+    repo_root: Path,
+    extra_inputs: Mapping[str, Any] | None,
+) -> pa.Table:
+    with phases.phase("task + states"):
+        bound = condition_task(condition_slice, model_file, repo_root=repo_root)
+        task = bound.task
+        values = read_state_values(states_path, task, first=first, stop=stop)
     condition = condition_slice["condition"]
     recorded = condition_slice["recording"].get("episodes", "all")
     inputs = {
@@ -299,14 +337,15 @@ def run_shard(
         # a benchmark's evaluation: the parameter file it ran; another MuJoCo: its env's lock
         **(extra_inputs or {}),
     }
-    stamp = make_stage_stamp(
-        rule,
-        dict(condition_slice),
-        inputs,
-        threads=nthread,
-        repo_root=repo_root,
-        extra=policy_settings(condition_slice),
-    )
+    with phases.phase("stamp"):
+        stamp = make_stage_stamp(
+            rule,
+            dict(condition_slice),
+            inputs,
+            threads=nthread,
+            repo_root=repo_root,
+            extra=policy_settings(condition_slice),
+        )
     columns: dict[str, list[np.ndarray]] = {c: [] for c in rollout_columns(task)}
     progress = Progress(f"{rule}", total=stop - first)
 
@@ -330,24 +369,29 @@ def run_shard(
         for _ in batches():
             pass
     else:
-        recording.write_condition_recordings(
-            output_recording,
-            spec=recording_spec(
-                bound,
-                engine.episode_steps(bound, condition_parameters(bound, condition_slice)),
-                condition_slice["recording"]["rate_hz"],
-            ),
-            condition=condition,
-            episodes=episodes(),
-            stamp=stamp,
+        with phases.phase("recording (main thread)"):
+            recording.write_condition_recordings(
+                output_recording,
+                spec=recording_spec(
+                    bound,
+                    engine.episode_steps(bound, condition_parameters(bound, condition_slice)),
+                    condition_slice["recording"]["rate_hz"],
+                ),
+                condition=condition,
+                episodes=episodes(),
+                stamp=stamp,
+            )
+    with phases.phase("table + row hash"):
+        table = outcome_table(task, columns)
+        # The table's stamp also records the hash of its rows (the arrays in hand, no re-read):
+        # every reader refuses the shard once a row is edited (`provenance.read_checked_table`).
+        rows = {provenance.ROWS_KEY: provenance.rows_sha256(table)}
+    with phases.phase("write table"):
+        provenance.write_parquet(
+            table, output_table, {**stamp, "extra": {**stamp["extra"], **rows}}
         )
-    table = outcome_table(task, columns)
-    # The table's stamp also records the hash of its rows (the arrays in hand, no re-read):
-    # every reader refuses the shard once a row is edited (`provenance.read_checked_table`).
-    rows = {provenance.ROWS_KEY: provenance.rows_sha256(table)}
-    provenance.write_parquet(table, output_table, {**stamp, "extra": {**stamp["extra"], **rows}})
-    if unrecorded is not None:
-        atomic.remove_folder(unrecorded)
+        if unrecorded is not None:
+            atomic.remove_folder(unrecorded)
     log.info(
         "%s: %d/%d successes -> %s",
         rule,
