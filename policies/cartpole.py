@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 import yaml
 
-from mjtrial.closed_loop import BatchPolicy
+from mjtrial.closed_loop import BatchPolicy, replay_splits
 from mjtrial.engine import iter_batches
 from mjtrial.physics import STATE_QPOS
 from mjtrial.stages.stamping import config_slice
@@ -245,7 +245,7 @@ class OnnxPolicy:
 
 class Recorder:
     """A policy whose calls are kept: each call's observations and controls, one list per
-    reset (the engine's replays of a batch's first instants start lists of their own)."""
+    reset (the engine's replays of a batch start lists of their own)."""
 
     def __init__(self, policy: BatchPolicy) -> None:
         self.policy = policy
@@ -261,8 +261,19 @@ class Recorder:
         return ctrl
 
     def episodes(self, n_controls: int) -> list[list[tuple[np.ndarray, np.ndarray]]]:
-        """The calls of whole batches of episodes (`n_controls` instants from a reset)."""
-        return [c for c in self.calls if len(c) == n_controls]
+        """The calls of whole batches of episodes (`n_controls` instants from a reset), less the
+        engine's replays: after a batch of n > 1 rows it replays each row alone, from a reset of
+        its own (`mjtrial.closed_loop.replay_splits`), n lists that repeat what is recorded."""
+        out, replays = [], 0
+        for calls in self.calls:
+            if replays:
+                replays -= 1
+                continue
+            if len(calls) == n_controls:
+                out.append(calls)
+                rows = len(calls[0][0])
+                replays = len(replay_splits(rows))
+        return out
 
 
 def check_export(

@@ -398,6 +398,7 @@ def test_provenance_imports_no_other_mjtrial_module() -> None:
         "mjtrial.atomic",
         "mjtrial.provenance.formats",
         "mjtrial.provenance.model_closure",
+        "mjtrial.provenance.rows",
         "mjtrial.provenance.stamp",
     }
 

@@ -352,7 +352,8 @@ def test_a_policy_that_depends_on_its_batch_fails_the_rollout_in_one_line(cartpo
     with pytest.raises(TaskError) as err:  # one batch of 10 (a shard_size of 10)
         list(iter_batches(bound, values, condition, thresholds=THRESHOLDS, batch_size=10))
     message = str(err.value)
-    assert message.startswith(f"{cartpole.source}: policy: episode row 9 of a batch of 10 ")
+    assert message.startswith(f"{cartpole.source}: policy: batch dependence: episode row ")
+    assert " of a batch of 10 " in message
     assert "(rollout.shard_size)" in message and "\n" not in message
 
 

@@ -49,7 +49,7 @@ from mjtrial.stages.rollout import (
     rollout_columns,
 )
 from mjtrial.stages.train import record_sha256
-from mjtrial.verify.recompute import json_difference, markdown_difference, table_difference
+from mjtrial.verify.differences import json_difference, markdown_difference, table_difference
 
 __all__ = ["BenchmarkRecomputation", "recompute_benchmark", "record_problems"]
 

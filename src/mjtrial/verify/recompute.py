@@ -21,7 +21,6 @@ code or the model changed) a difference is expected, and the rebuild fixes it.
 from __future__ import annotations
 
 import functools
-import json
 import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -50,13 +49,11 @@ from mjtrial.stages.rollout import nominal_episode
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
-from mjtrial.verify.chain import dict_diff
 from mjtrial.verify.coverage import DEFAULT_RESIMULATE, coverage
+from mjtrial.verify.differences import SHOWN as _SHOWN
+from mjtrial.verify.differences import json_difference, markdown_difference, table_difference
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
-
-# How many differing keys, lines or rows a reason names.
-_SHOWN = 3
 
 
 @dataclass
@@ -90,77 +87,6 @@ class Recomputation:
             f"{self.seed} draws it again{'; ' + self.coverage if self.coverage else ''}): "
             f"{len(self.differs)} differ{other}"
         )
-
-
-# --------------------------------------------------------------------------------------------
-# Comparing an output with its recomputation
-# --------------------------------------------------------------------------------------------
-
-
-def _json_payload(path: Path) -> dict[str, Any]:
-    obj = json.loads(provenance.read_output_text(path))
-    return {k: v for k, v in obj.items() if k != "provenance"}
-
-
-def _roundtrip(obj: Any) -> Any:
-    """`obj` as JSON gives it back (tuples as lists, numpy scalars as numbers)."""
-    return json.loads(json.dumps(obj, default=lambda v: v.item()))
-
-
-def json_difference(path: Path, expected: Mapping[str, Any]) -> str | None:
-    """Why a JSON output is not `expected` (its stamp aside), or None."""
-    have, want = _json_payload(path), _roundtrip(dict(expected))
-    if json.dumps(have, sort_keys=True) == json.dumps(want, sort_keys=True):
-        return None
-    diff = dict_diff(have, want) or ["(in a value that compares equal)"]
-    more = f" and {len(diff) - _SHOWN} more" if len(diff) > _SHOWN else ""
-    return f"{'; '.join(diff[:_SHOWN])}{more} (file -> recomputed)"
-
-
-def markdown_difference(path: Path, expected: str) -> str | None:
-    """Why a Markdown output's text is not `expected` (its front matter aside), or None."""
-    _, body = provenance.formats._split_front_matter(provenance.read_output_text(path))
-    if body == expected:
-        return None
-    have, want = body.splitlines(), expected.splitlines()
-    for i in range(max(len(have), len(want))):
-        a = have[i] if i < len(have) else "(end of file)"
-        b = want[i] if i < len(want) else "(end of text)"
-        if a != b:
-            return f"line {i + 1}: {a[:60]!r} in the file, {b[:60]!r} recomputed"
-    return "differs in line endings"
-
-
-def _column_equal(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Element-wise equality, NaN equal to NaN and None to None."""
-    if a.dtype.kind == "f" and b.dtype.kind == "f":
-        return (a == b) | (np.isnan(a) & np.isnan(b))
-    return np.array([x == y for x, y in zip(a.tolist(), b.tolist(), strict=True)], dtype=bool)
-
-
-def table_difference(
-    table: pa.Table, expected: Mapping[str, np.ndarray], *, what: str = "rows"
-) -> str | None:
-    """Why `table`'s rows are not `expected` (column -> values, state ids aligned), or None."""
-    if table.num_rows != len(next(iter(expected.values()))):
-        return f"{table.num_rows} rows, {len(next(iter(expected.values())))} recomputed"
-    bad_rows = np.zeros(table.num_rows, dtype=bool)
-    bad_columns = []
-    for name, values in expected.items():
-        if name not in table.column_names:
-            return f"no column {name!r}"
-        have = table.column(name).to_numpy(zero_copy_only=False)
-        unequal = ~_column_equal(have, np.asarray(values))
-        if unequal.any():
-            bad_columns.append(name)
-            bad_rows |= unequal
-    if not bad_columns:
-        return None
-    ids = table.column("state_id").to_numpy()[bad_rows].tolist()
-    shown = ", ".join(map(str, ids[:_SHOWN])) + (
-        f" and {len(ids) - _SHOWN} more" if len(ids) > _SHOWN else ""
-    )
-    return f"{what} for states {shown} differ in {', '.join(bad_columns)}"
 
 
 def _platform_note(stamp: Mapping[str, Any], mujoco_version: str) -> str:
