@@ -479,6 +479,15 @@ def _data(folder: Path) -> dict[str, object]:
         data.pop("stamps", None)  # the manifest's copies of every stamp
         if path.name == "seal.json":
             data.pop("outputs")  # sha256 of stamped files, whose stamps hold their time
+            data.pop("registration", None)  # the same, of the registration
+        if path.name == "registration.json":  # each build registers anew: the design, no time
+            data = {k: data["current"][k] for k in ("design", "design_sha256", "plan")}
+        if path.name == "manifest.json" and "registration" in data:
+            data["registration"] = {
+                k: v
+                for k, v in data["registration"].items()
+                if k not in ("sha256", "registered_utc")  # the file's hash holds its time
+            }
         out[str(rel)] = data
     return out
 
