@@ -383,7 +383,7 @@ def test_a_comparison_at_its_ceiling_gets_newcombes_interval():
 
 def test_an_unregistered_comparison_is_exploratory_and_leaves_the_planned_family_alone():
     states, outcomes, _ = _three_conditions()
-    registered = {"config": {"design": {"falsifier": FALSIFIER}, "analysis": {}}}
+    registered = {"design": {"falsifier": FALSIFIER}, "analysis": {}}  # registered sections
     summary = _three_summary(
         states, outcomes, comparisons={"against": "fast"}, registered=registered
     )

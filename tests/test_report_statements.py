@@ -216,7 +216,7 @@ def _three_condition_summary() -> dict:
         condition_parameters={name: {} for name in success},
         falsifier={**falsifier, "threshold": 0.0},
         analysis=analysis,
-        registered={"config": {"design": {"falsifier": falsifier}, "analysis": {}}},
+        registered={"design": {"falsifier": falsifier}, "analysis": {}},  # registered sections
     )
 
 

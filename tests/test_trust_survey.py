@@ -152,6 +152,8 @@ def test_the_documented_recovery_after_a_kill_restores_everything(built, tmp_pat
     run_snakemake(workdir, "--unlock")
     run_snakemake(workdir, "--rerun-incomplete")
     after = _data(workdir / RESULTS)
+    # the killed run's edited design is on the record as a deviation from the registration
+    assert "conditions.fast.lift_time" in json.dumps(after.pop("deviations.json"))
     assert after.keys() == before.keys()
     for name, value in before.items():
         assert value.equals(after[name]) if hasattr(value, "equals") else value == after[name]

@@ -70,7 +70,9 @@ def check_registration(
     if isinstance(recorded, Mapping):
         if recorded.get("sha256") != data.get("sha256"):
             reasons.append("the manifest records another registration")
-        elif recorded.get("deviations") != json.loads(json.dumps(found, default=str)):
+        elif _of_config(recorded.get("deviations")) != _of_config(
+            json.loads(json.dumps(found, default=str))
+        ) and _current(layout.manifest, repo_root):
             reasons.append(
                 "the manifest's deviations are not those recomputed from the config against "
                 "the registration"
@@ -78,3 +80,35 @@ def check_registration(
     if reasons:
         return OutputResult(path, Status.TAMPERED, tuple(reasons), RULE)
     return OutputResult(path, Status.OK, (), RULE)
+
+
+def _current(path: Path, repo_root: Path) -> bool:
+    """Whether every input `path`'s stamp records still has the sha256 it recorded: a manifest
+    built before a task or config file changed is stale (the chain says so), and its
+    deviations are those of the design it was built with, not a forgery."""
+    try:
+        inputs = provenance.read_stamp(path).get("inputs", {})
+    except (OSError, ValueError):
+        return True
+    entries = [e for v in inputs.values() for e in (v if isinstance(v, list) else [v])]
+    for entry in entries:
+        if not isinstance(entry, Mapping) or "path" not in entry or "sha256" not in entry:
+            continue
+        file = Path(repo_root) / entry["path"]
+        if file.is_file() and provenance.file_sha256(file) != entry["sha256"]:
+            return False
+        if not file.exists():
+            return False
+    return True
+
+
+def _of_config(found: Any) -> Any:
+    """A deviations list less its changes of the task's files and the model: those the chain
+    already judges (an edited or added task file makes every output that read it stale), so a
+    manifest built before one is stale, not forged."""
+    if not isinstance(found, list):
+        return found
+    code = ("task_files_sha256", "model_sha256")
+    return [
+        c for c in found if not (isinstance(c, Mapping) and str(c.get("key", "")).startswith(code))
+    ]
