@@ -135,3 +135,32 @@ def write(folder: Path, name: str, graph, **changes) -> Path:
     path = save(graph, folder / f"{name}.onnx", ir_version=ir_version)
     (folder / f"{name}.yaml").write_text(yaml.safe_dump(contract(**changes), sort_keys=False))
     return path
+
+
+def save_with_external_data(
+    graph, path: Path, *, location: str | None, attributes: bool = False
+) -> Path:
+    """`graph` saved with every initializer's data outside the `.onnx` file (node attributes'
+    too with `attributes`): in `location` beside it, or (None) one file per tensor named after
+    it, as `onnx.save_model` lays them out."""
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
+    model.ir_version = IR_VERSION
+    onnx.save_model(
+        model,
+        str(path),
+        save_as_external_data=True,
+        all_tensors_to_one_file=location is not None,
+        location=location,
+        size_threshold=0,
+        convert_attribute=attributes,
+    )
+    return path
+
+
+def onnx_external_locations(path: Path) -> set[str]:
+    """The external data locations of a saved graph, as the `onnx` package lists them (the
+    reference for `mjtrial.onnx_data`)."""
+    from onnx.external_data_helper import ExternalDataInfo, _get_all_tensors, uses_external_data
+
+    model = onnx.load(str(path), load_external_data=False)
+    return {ExternalDataInfo(t).location for t in _get_all_tensors(model) if uses_external_data(t)}

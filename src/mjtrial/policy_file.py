@@ -9,6 +9,8 @@ actuators), the mocap bodies its further columns move (`mjtrial.task.MocapAction
 each), the control period it was
 trained at, an optional normalization and an optional recurrent state. Everything is checked
 against the task and the graph before any rollout: each mismatch is one line naming the file.
+A graph saved with external data (its initializers' bytes in files beside it) is made of those
+files too: each is an input, stamped and copied with the graph (`policy_file_paths`).
 
 Determinism: the project promises that an episode's outcome does not depend on its batch or on
 thread counts, and that two runs agree bit for bit; onnxruntime promises neither in general.
@@ -39,6 +41,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
+from mjtrial.onnx_data import GraphFormatError, external_data
 from mjtrial.physics import ModelError, load_model
 from mjtrial.task import ClosedLoop, Control, MocapAction, Task, TaskError, address
 
@@ -119,6 +122,56 @@ def contract_path(onnx_file: Path) -> Path:
     """The contract of a policy file: `<file>.yaml` beside it, else the folder's `policy.yaml`."""
     own = onnx_file.with_suffix(".yaml")
     return own if own.is_file() else onnx_file.with_name(FOLDER_CONTRACT)
+
+
+def data_files(onnx_file: Path) -> list[Path]:
+    """The external data files the graph loads (`mjtrial.onnx_data`), each a file inside the
+    graph's folder; `PolicyFileError` (one line naming the graph, the tensor and the location)
+    for one that is missing or elsewhere, or not an initializer of the main graph (a node
+    attribute's or a subgraph's: onnxruntime 1.31.1 reads those relative to the working folder,
+    not the graph's, measured)."""
+    try:
+        tensors = external_data(onnx_file)
+    except GraphFormatError:
+        return []  # onnxruntime's load then says why, in one line (`open_session`)
+    folder = onnx_file.parent
+    files: list[Path] = []
+    for tensor in tensors:
+        where = f"{onnx_file}: tensor {tensor.name!r} has its data in {tensor.location!r}"
+        file = folder / tensor.location
+        if not tensor.main:
+            raise PolicyFileError(
+                f"{where}, a node attribute's or a subgraph's, which onnxruntime looks for in "
+                "the working folder; expected external data for the main graph's initializers "
+                "only"
+            )
+        if (
+            Path(tensor.location).is_absolute()
+            or ".." in Path(tensor.location).parts
+            or not file.resolve().is_relative_to(folder.resolve())
+        ):
+            raise PolicyFileError(
+                f"{where}; expected a file in the graph's folder (a relative path without "
+                "'..', not a link out of it)"
+            )
+        if not file.is_file():
+            raise PolicyFileError(f"{where}, which is not a file beside it; expected {file}")
+        if file not in files:
+            files.append(file)
+    return files
+
+
+def policy_file_paths(onnx_file: str | Path) -> list[Path]:
+    """Every file a policy file's run reads: the graph, its contract and the graph's external
+    data files: the inputs of a job that runs it, stamped and copied with the run. Lenient
+    (a graph that cannot be read gives graph and contract): `load_policy_file` is the check."""
+    onnx_file = Path(onnx_file)
+    try:
+        data = data_files(onnx_file) if onnx_file.is_file() else []
+    except PolicyFileError:
+        tensors = external_data(onnx_file)
+        data = list(dict.fromkeys(onnx_file.parent / t.location for t in tensors))
+    return [onnx_file, contract_path(onnx_file), *data]
 
 
 def read_contract(onnx_file: Path) -> Contract:
@@ -363,6 +416,7 @@ class PolicyFile:
     contract_sha256: str
     task: Task
     session: onnxruntime.InferenceSession = dataclasses.field(repr=False, compare=False)
+    data: tuple[Path, ...] = ()  # the graph's external data files (`data_files`)
 
     @property
     def observations(self) -> tuple[str, ...]:
@@ -374,8 +428,9 @@ class PolicyFile:
 
     @property
     def files(self) -> list[Path]:
-        """The files it is made of (graph, contract): the inputs of a stamp that used it."""
-        return [self.path, self.contract.source]
+        """The files it is made of (graph, contract, external data): the inputs of a stamp
+        that used it."""
+        return [self.path, self.contract.source, *self.data]
 
     def policy(self, model: mujoco.MjModel, params: Mapping[str, float]) -> OnnxPolicy:
         """The batch policy under a condition: its actuators and control period checked
@@ -462,9 +517,12 @@ def load_policy_file(path: str | Path, task: Task) -> PolicyFile:
                 f"{where}: normalization.{key}: {len(values)} numbers; expected {n_columns}, "
                 "one per observation column"
             )
+    data = data_files(path)
     session = open_session(path)
     check_graph(contract, session, path, n_columns)
-    return PolicyFile(path, contract, file_sha256(path), file_sha256(where), task, session)
+    return PolicyFile(
+        path, contract, file_sha256(path), file_sha256(where), task, session, tuple(data)
+    )
 
 
 def _widths(task: Task, names: Sequence[str], where: Path) -> list[int]:
@@ -499,6 +557,7 @@ def policy_task(task: Task, policy_file: PolicyFile) -> Task:
 
 
 def policy_inputs(paths: Sequence[str | Path]) -> dict[str, Any]:
-    """A stamp's record of the policy files a stage ran: each graph with its contract."""
-    files = [f for p in paths for f in (Path(p), contract_path(Path(p)))]
+    """A stamp's record of the policy files a stage ran: each graph with its contract and its
+    external data files."""
+    files = [f for p in paths for f in policy_file_paths(p)]
     return {"policy": files} if files else {}

@@ -14,7 +14,7 @@ from mjtrial.benchmark.config import (
     train_slice,
 )
 from mjtrial.layout import BenchmarkLayout
-from mjtrial.policy_file import contract_path
+from mjtrial.policy_file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.stages.stamping import config_slice, stage_code_hash
 from mjtrial.task import task_files
@@ -56,12 +56,13 @@ def task_content_of(wildcards):
 
 
 def policy_files_of(wildcards):
-    """The run's policy file and its contract (a method that runs one per training seed),
-    or none: inputs of its training and evaluation, so editing either reruns just them.
+    """The run's policy file, its contract and the graph's external data files (a method that
+    runs one per training seed), or none: inputs of its training and evaluation, so editing
+    any reruns just them.
     """
     files = BENCHMARK_TASKS[wildcards.task].policies.get(wildcards.method, {})
     policy = files.get(int(wildcards.seed))
-    return [] if policy is None else [policy, str(contract_path(Path(policy)))]
+    return [] if policy is None else [str(p) for p in policy_file_paths(policy)]
 
 
 def policy_content_of(wildcards):

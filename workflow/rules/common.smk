@@ -18,7 +18,7 @@ from mjtrial.layout import (
     shard_ids,
     shard_range,
 )
-from mjtrial.policy_file import contract_path
+from mjtrial.policy_file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.registration import RegistrationError, ensure_registered, note_deviation
 from mjtrial.simenv import build as build_env
@@ -339,10 +339,11 @@ def task_content(wildcards=None):
 
 
 def policy_files(wildcards):
-    """The condition's policy file and its contract (`conditions.<name>.policy`), or none: the
-    rollout's inputs, so that editing either reruns the condition."""
+    """The condition's policy file, its contract and the graph's external data files
+    (`conditions.<name>.policy`), or none: the rollout's inputs, so that editing any reruns
+    the condition."""
     policy = policy_path(all_conditions(config)[wildcards.condition])
-    return [] if policy is None else [policy, str(contract_path(Path(policy)))]
+    return [] if policy is None else [str(p) for p in policy_file_paths(policy)]
 
 
 def policy_content(wildcards):

@@ -43,8 +43,8 @@ def evaluation_condition(
 
 
 def changed_policy_files(record: Mapping[str, Any], repo_root: Path) -> list[str]:
-    """The policy files (graph, contract) a parameter record names whose sha256 is not the
-    one it records: edited since the training (a missing file counts)."""
+    """The policy files (graph, contract, external data) a parameter record names whose sha256
+    is not the one it records: edited since the training (a missing file counts)."""
     policy = record.get("policy")
     if not policy:
         return []
@@ -52,6 +52,7 @@ def changed_policy_files(record: Mapping[str, Any], repo_root: Path) -> list[str
     for path, sha in (
         (policy["path"], policy["sha256"]),
         (policy["contract"], policy["contract_sha256"]),
+        *policy.get("data", {}).items(),
     ):
         file = Path(repo_root) / path
         if not file.is_file() or provenance.file_sha256(file) != sha:

@@ -39,13 +39,18 @@ def record_sha256(record: Mapping[str, Any]) -> str:
 
 def policy_record(path: str, task: Any, repo_root: Path) -> dict[str, str]:
     """What a parameter record says of its policy file: the file (as the config names it) and
-    the sha256 of its graph and of its contract, checked against the task."""
+    the sha256 of its graph, of its contract and of the graph's external data files (`data`,
+    only for a graph that has them), checked against the task."""
     checked = load_policy_file(Path(repo_root) / path, task)
+    data = {
+        provenance.repo_relative(f, repo_root): provenance.file_sha256(f) for f in checked.data
+    }
     return {
         "path": path,
         "sha256": checked.sha256,
         "contract": provenance.repo_relative(checked.contract.source, repo_root),
         "contract_sha256": checked.contract_sha256,
+        **({"data": data} if data else {}),
     }
 
 
