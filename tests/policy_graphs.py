@@ -164,3 +164,76 @@ def onnx_external_locations(path: Path) -> set[str]:
 
     model = onnx.load(str(path), load_external_data=False)
     return {ExternalDataInfo(t).location for t in _get_all_tensors(model) if uses_external_data(t)}
+
+
+def doubled_above(rows: int, *, recurrent: bool = False):
+    """The tanh MLP 2-8-1 whose output (with `recurrent`, its memory output `memory_out` of 3
+    columns instead) has twice the batch's rows when the batch has more than `rows`: right for a
+    small probe, wrong in the engine's batches."""
+    graph = tanh_mlp([2, 8, 1])
+    doubled = "memory_out" if recurrent else "action"
+    graph.initializer.extend(
+        [
+            numpy_helper.from_array(np.array([0], dtype=np.int64), "first"),
+            numpy_helper.from_array(np.array([1], dtype=np.int64), "one_row"),
+            numpy_helper.from_array(np.array([rows], dtype=np.int64), "rows"),
+        ]
+    )
+    if recurrent:  # memory_out: the memory fed back, as it came
+        graph.node.append(helper.make_node("Identity", ["memory_in"], ["memory_kept"]))
+        graph.input.append(tensor("memory_in", 3))
+        graph.output.append(tensor("memory_out", 3))
+        source = "memory_kept"
+    else:
+        for node in graph.node:
+            node.output[:] = ["mlp" if o == "action" else o for o in node.output]
+        source = "mlp"
+    twice = helper.make_graph(
+        [helper.make_node("Concat", [source, source], ["twice_out"], axis=0)],
+        "twice",
+        [],
+        [helper.make_tensor_value_info("twice_out", TensorProto.FLOAT, None)],
+    )
+    once = helper.make_graph(
+        [helper.make_node("Identity", [source], ["once_out"])],
+        "once",
+        [],
+        [helper.make_tensor_value_info("once_out", TensorProto.FLOAT, None)],
+    )
+    graph.node.extend(
+        [
+            helper.make_node("Shape", ["observations"], ["shape"]),
+            helper.make_node("Slice", ["shape", "first", "one_row"], ["batch"]),
+            helper.make_node("Greater", ["batch", "rows"], ["more"]),
+            helper.make_node("Squeeze", ["more"], ["large"]),
+            helper.make_node("If", ["large"], [doubled], then_branch=twice, else_branch=once),
+        ]
+    )
+    return graph
+
+
+def shifted_above(rows: int, shift: float = 0.01):
+    """The tanh MLP 2-8-1 whose action moves by `shift` when the batch has more than `rows`
+    rows: invariant in small batches, batch dependent in the engine's."""
+    graph = tanh_mlp([2, 8, 1])
+    for node in graph.node:
+        node.output[:] = ["mlp" if o == "action" else o for o in node.output]
+    graph.initializer.extend(
+        [
+            numpy_helper.from_array(np.array([0], dtype=np.int64), "first"),
+            numpy_helper.from_array(np.array([1], dtype=np.int64), "one_row"),
+            numpy_helper.from_array(np.array([rows], dtype=np.int64), "rows"),
+            numpy_helper.from_array(np.array(shift, dtype=np.float32), "shift"),
+        ]
+    )
+    graph.node.extend(
+        [
+            helper.make_node("Shape", ["observations"], ["shape"]),
+            helper.make_node("Slice", ["shape", "first", "one_row"], ["batch"]),
+            helper.make_node("Greater", ["batch", "rows"], ["more"]),
+            helper.make_node("Cast", ["more"], ["more_float"], to=TensorProto.FLOAT),
+            helper.make_node("Mul", ["more_float", "shift"], ["offset"]),
+            helper.make_node("Add", ["mlp", "offset"], ["action"]),
+        ]
+    )
+    return graph

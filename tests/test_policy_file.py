@@ -341,7 +341,11 @@ def test_policy_check_reports_the_contract_a_nominal_episode_invariance_and_time
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith(f"{tmp_path / 'encoder-lqr.onnx'}: contract ")
     assert "  nominal episode: success" in out  # the task's own LQR balances the nominal state
-    assert "  batch invariance: 8 episodes alone and in one batch agree bit for bit" in out
+    # the engine's batch for the cart-pole: 131 episodes of 1,500 steps in 24 MB
+    assert (
+        "  batch invariance: 131 episodes alone and in one batch (the engine's) agree bit for bit"
+        in out
+    )
     assert out[5].startswith("  per call (median of 200): 1 row(s) ")
     bad = write(tmp_path, "bad", tanh_mlp([2, 8, 1]), observations=["pole_rate", "pole_angle"])
     assert main(["policy", "check", str(bad), "--task", task]) == 0
@@ -361,8 +365,8 @@ def test_policy_check_compares_every_batch_the_engine_splits_the_episodes_into(
     tmp_path, capsys, monkeypatch
 ):
     """The cart-pole's pole mass edits the model, so the engine holds a model copy per batch
-    slot; a budget of 5 copies splits the 8 episodes into 5 and 3, and the invariant LQR graph
-    still agrees with each episode run alone."""
+    slot; a budget of 5 copies splits the engine's 131 episodes into 26 batches of 5 and one of
+    1, and the invariant LQR graph still agrees with each episode run alone."""
     import mujoco
 
     from mjtrial import engine
@@ -377,6 +381,6 @@ def test_policy_check_compares_every_batch_the_engine_splits_the_episodes_into(
     assert main(["policy", "check", str(_lqr_file(tmp_path)), "--task", task]) == 0
     out = capsys.readouterr().out.splitlines()
     assert (
-        "  batch invariance: 8 episodes alone and in the engine's batches of 5, 3 agree bit for bit"
-        in out
+        "  batch invariance: 131 episodes alone and in the engine's 27 batches (26 of 5, 1 of 1) "
+        "agree bit for bit" in out
     )

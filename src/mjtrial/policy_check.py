@@ -1,6 +1,7 @@
 """`mjtrial policy check FILE --task T`: a policy file against a task before any experiment
-names it: the contract against the task and the graph, a nominal episode, batch invariance on a
-few states (each episode alone against all in one batch, bit for bit) and the time per call."""
+names it: the contract against the task and the graph, a nominal episode, batch invariance (as
+many states as the engine runs in one batch for this task, each episode alone against all in
+the engine's batches, bit for bit) and the time per call."""
 
 from __future__ import annotations
 
@@ -16,7 +17,6 @@ from mjtrial.policy_file import PolicyFile, load_policy_file, policy_task
 from mjtrial.task import BoundTask, Task
 from mjtrial.task_checks import nominal_values
 
-INVARIANCE_STATES = 8  # episodes run together and each alone
 TIMED_CALLS = 200  # calls per timed batch size (the median is reported)
 
 
@@ -28,11 +28,11 @@ class PolicyCheck:
       policy: the policy file, checked against the task and the graph.
       privileged: the privileged observations it reads (a config must allow each).
       nominal: the nominal episode's outcome: "success" or its failure category.
-      invariant: every episode the same bits alone as in the engine's batches of
-        `INVARIANCE_STATES` episodes.
+      invariant: every episode the same bits alone as in the engine's batches.
       call_seconds: batch size -> median seconds per call (1 row, and the engine's batch).
-      batches: the sizes of the engine's batches the episodes ran in together (one batch of
-        `INVARIANCE_STATES` unless the task's memory budget splits them).
+      batches: the sizes of the engine's batches the episodes ran in together: one batch of
+        the engine's size for the task (`engine.batch_size_for`, what a rollout's batch is at
+        most) unless the task's memory budget splits them.
     """
 
     policy: PolicyFile
@@ -40,7 +40,7 @@ class PolicyCheck:
     nominal: str
     invariant: bool
     call_seconds: Mapping[int, float]
-    batches: tuple[int, ...] = (INVARIANCE_STATES,)
+    batches: tuple[int, ...]
 
     def lines(self) -> list[str]:
         """The check's report, one fact a line."""
@@ -58,17 +58,25 @@ class PolicyCheck:
                 else "none"
             ),
             f"  nominal episode: {self.nominal}",
-            f"  batch invariance: {INVARIANCE_STATES} episodes alone and in "
+            f"  batch invariance: {sum(self.batches)} episodes alone and in "
             + (
-                "one batch "
+                "one batch (the engine's) "
                 if len(self.batches) == 1
-                else f"the engine's batches of {', '.join(map(str, self.batches))} "
+                else f"the engine's {len(self.batches)} batches ({_sizes(self.batches)}) "
             )
             + ("agree bit for bit" if self.invariant else "DIFFER: results would depend on batch"),
             f"  per call (median of {TIMED_CALLS}): {times}",
             f"  onnxruntime {settings['onnxruntime']}, {settings['intra_op_num_threads']} thread, "
             f"{settings['execution_mode']}, {settings['graph_optimization_level']}",
         ]
+
+
+def _sizes(batches: tuple[int, ...]) -> str:
+    """Batch sizes as said: `5, 3`, or `26 of 5, 1 of 1` when some repeat."""
+    counts = {n: batches.count(n) for n in batches}
+    if all(c == 1 for c in counts.values()):
+        return ", ".join(map(str, batches))
+    return ", ".join(f"{c} of {n}" for n, c in counts.items())
 
 
 def _outcomes(bound: BoundTask, values, condition, thresholds, *, batch_size: int):
@@ -89,10 +97,13 @@ def check_policy_file(
     declared = {o.name: o for o in task.observations}
     privileged = tuple(n for n in policy.observations if declared[n].source is None)
     ((_, category),) = _outcomes(bound, nominal_values(task), condition, thresholds, batch_size=1)
+    # as many states as a rollout's batch holds at most: a graph that depends on the batch
+    # only in large batches shows it here, not first in the rollout (`closed_loop`'s replays)
+    batch = batch_size_for(bound.model, episode_steps(bound, condition))
     rng = np.random.default_rng(0)
-    values = {p.name: rng.uniform(p.low, p.high, INVARIANCE_STATES) for p in task.state_parameters}
+    values = {p.name: rng.uniform(p.low, p.high, batch) for p in task.state_parameters}
     # the engine may split the episodes (a task's memory budget): every batch is compared
-    together = _outcomes(bound, values, condition, thresholds, batch_size=INVARIANCE_STATES)
+    together = _outcomes(bound, values, condition, thresholds, batch_size=batch)
     alone = _outcomes(bound, values, condition, thresholds, batch_size=1)
     invariant = np.array_equal(
         np.concatenate([physics for physics, _ in together]),
@@ -103,7 +114,7 @@ def check_policy_file(
     width = sum(bound.widths(policy.observations))
     call_seconds = {}
     # a reference episode's batch, and the engine's for this task
-    for n in sorted({1, batch_size_for(bound.model, episode_steps(bound, condition))}):
+    for n in sorted({1, batch}):
         rows = rng.normal(size=(n, width))
         batch_policy.reset(n)
         spent = []

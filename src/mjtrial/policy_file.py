@@ -41,6 +41,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
+from mjtrial.engine import MAX_BATCH
 from mjtrial.onnx_data import GraphFormatError, external_data
 from mjtrial.physics import ModelError, load_model
 from mjtrial.task import ClosedLoop, Control, MocapAction, Task, TaskError, address
@@ -65,6 +66,9 @@ SESSION_SETTINGS: dict[str, Any] = {
     "graph_optimization_level": "ORT_ENABLE_ALL",
 }
 _FLOAT32 = "tensor(float)"
+# The batch sizes a graph's shapes are probed at: a small one, and the engine's largest batch
+# (one call, under a millisecond for the networks tested).
+PROBE_ROWS = (2, MAX_BATCH)
 _IR_TOO_NEW = re.compile(r"Unsupported model IR version: (\d+), max supported IR version: (\d+)")
 
 
@@ -279,8 +283,9 @@ def check_graph(
     contract: Contract, session: onnxruntime.InferenceSession, onnx_file: Path, n_columns: int
 ) -> None:
     """The graph's inputs and outputs against the contract: names, shapes, dtypes, a dynamic
-    batch dimension; then a zero batch of two rows run through it for the shapes a graph leaves
-    symbolic."""
+    batch dimension; then zero batches of `PROBE_ROWS` rows run through it for the shapes a
+    graph leaves symbolic (a shape that changes with the batch's size is also checked at every
+    call: `OnnxPolicy`)."""
     inputs = {a.name: a for a in session.get_inputs()}
     outputs = {a.name: a for a in session.get_outputs()}
     fed = {contract.input: (n_columns, f"the {n_columns} observation column(s)")}
@@ -312,18 +317,22 @@ def check_graph(
                 f"(its outputs: {sorted(outputs)})"
             )
         _check_tensor(onnx_file, "output", outputs[name], width, what)
-    feeds = {name: np.zeros((2, width), dtype=np.float32) for name, (width, _) in fed.items()}
-    try:
-        answers = session.run(list(read), feeds)
-    except Exception as err:  # noqa: BLE001 - onnxruntime raises its own classes
-        first = str(err).strip().splitlines()[0]
-        raise PolicyFileError(f"{onnx_file}: a batch of 2 zero rows failed: {first}") from None
-    for (name, (width, what)), value in zip(read.items(), answers, strict=True):
-        if value.shape != (2, width) or value.dtype != np.float32:
+    for rows in PROBE_ROWS:
+        feeds = {n: np.zeros((rows, width), dtype=np.float32) for n, (width, _) in fed.items()}
+        try:
+            answers = session.run(list(read), feeds)
+        except Exception as err:  # noqa: BLE001 - onnxruntime raises its own classes
+            first = str(err).strip().splitlines()[0]
             raise PolicyFileError(
-                f"{onnx_file}: output {name!r} of a batch of 2 rows has shape {value.shape} "
-                f"and dtype {value.dtype}; expected (2, {width}) float32 ({what})"
-            )
+                f"{onnx_file}: a batch of {rows} zero rows failed: {first}"
+            ) from None
+        for (name, (width, what)), value in zip(read.items(), answers, strict=True):
+            if value.shape != (rows, width) or value.dtype != np.float32:
+                raise PolicyFileError(
+                    f"{onnx_file}: output {name!r} of a batch of {rows} rows has shape "
+                    f"{value.shape} and dtype {value.dtype}; expected ({rows}, {width}) float32 "
+                    f"({what})"
+                )
 
 
 class OnnxPolicy:
@@ -347,13 +356,16 @@ class OnnxPolicy:
         ctrl_range: np.ndarray,
         nu: int,
         n_mocap: int = 0,
+        graph: Path | None = None,
     ) -> None:
         self.session, self.contract = session, contract
+        self.graph = graph or contract.source  # the file an error names
         self.columns = np.asarray(columns, dtype=np.int64)  # the ctrl column of each output
         self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
         self.half_span = (self.high - self.low) / 2.0
         self.nu, self.n_mocap = nu, n_mocap
         self.outputs = [contract.output, *(r.output for r in contract.recurrent)]
+        self.widths = [contract.n_outputs, *(r.size for r in contract.recurrent)]
         self.state: dict[str, np.ndarray] = {}
         self.failed = np.zeros(0, dtype=bool)
 
@@ -373,6 +385,14 @@ class OnnxPolicy:
         answers = self.session.run(
             self.outputs, {self.contract.input: x.astype(np.float32), **self.state}
         )
+        for name, width, value in zip(self.outputs, self.widths, answers, strict=True):
+            # checked at every call: `check_graph`'s probe of 2 rows cannot see a shape that
+            # changes with the batch, and a recurrent state that grows would grow each call
+            if value.shape != (len(x), width):
+                raise PolicyFileError(
+                    f"{self.graph}: output {name!r} of a batch of {len(x)} rows has shape "
+                    f"{value.shape}; expected ({len(x)}, {width}), one row per episode"
+                )
         for r, value in zip(self.contract.recurrent, answers[1:], strict=True):
             self.state[r.input] = value
         action = answers[0].astype(np.float64)
@@ -484,6 +504,7 @@ class PolicyFile:
             ctrl_range=np.array(ranges).reshape(len(columns), 2),
             nu=self.contract.n_outputs if actions else model.nu,
             n_mocap=n_mocap,
+            graph=self.path,
         )
 
 

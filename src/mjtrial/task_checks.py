@@ -94,6 +94,8 @@ def run_task_code(
                 check_batch_independence(policy, probe)
             except PolicyError as err:
                 raise TaskError(f"{controller.source or _where(task)}: {err}") from None
+            except TaskError:  # a policy file's own one line (`PolicyFileError`), its file named
+                raise
             except Exception as err:  # noqa: BLE001 - the policy's code, on its input's width
                 given = ", ".join(
                     f"{n} {w}" for n, w in zip(controller.observations, widths, strict=True)
