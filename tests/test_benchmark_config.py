@@ -106,18 +106,18 @@ CASES = {
     "a glob matching fewer files than seeds": (
         _set(("seeds",), [1, 2, 3, 4, 5, 6]),
         f"{MLP_POLICY}: 'policies/cartpole_mlp/seed-*.onnx': expected one file per training seed "
-        "[1, 2, 3, 4, 5, 6], each with its seed as the last number of its name, got 5: "
+        "[1, 2, 3, 4, 5, 6], each with its seed as the only number of its name, got 5: "
         "policies/cartpole_mlp/seed-1.onnx, policies/cartpole_mlp/seed-2.onnx, ",
     ),
     "a glob whose files are not the seeds": (
         _set(("seeds",), [1, 2, 3, 4, 6]),
         f"{MLP_POLICY}: 'policies/cartpole_mlp/seed-*.onnx': expected one file per training seed "
-        "[1, 2, 3, 4, 6], each with its seed as the last number of its name, got 5: ",
+        "[1, 2, 3, 4, 6], each with its seed as the only number of its name, got 5: ",
     ),
     "a glob matching no file": (
         _set(MLP_TASKS + ("cartpole_latency",), {"policy": "policies/nowhere/seed-*.onnx"}),
         f"{MLP_POLICY}: 'policies/nowhere/seed-*.onnx': expected one file per training seed "
-        "[1, 2, 3, 4, 5], each with its seed as the last number of its name, got 0: no file",
+        "[1, 2, 3, 4, 5], each with its seed as the only number of its name, got 0: no file",
     ),
     "a policy file trained for another task": (
         _set(MLP_TASKS + ("gantry_lift",), {"policy": "policies/cartpole_mlp/seed-*.onnx"}),

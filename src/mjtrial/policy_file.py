@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -199,6 +200,14 @@ def read_contract(onnx_file: Path) -> Contract:
         key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
         raise PolicyFileError(f"{path}: {key}: {error.message}")
     norm = raw.get("normalization")
+    # JSON Schema's `number` takes YAML's .nan and .inf, and a NaN passes every bound
+    for key, values in [
+        ("control_period", [raw["control_period"]]),
+        *((f"normalization.{k}", norm[k]) for k in ("mean", "std") if norm),
+    ]:
+        bad = [v for v in values if not math.isfinite(v)]
+        if bad:
+            raise PolicyFileError(f"{path}: {key}: {bad[0]}; expected finite numbers")
     return Contract(
         source=path,
         task=raw["task"],

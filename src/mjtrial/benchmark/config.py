@@ -75,20 +75,26 @@ def benchmark_runs(config: Mapping[str, Any]) -> list[tuple[str, str, int]]:
 
 def checkpoint_files(pattern: str, seeds: list[int], *, repo_root: Path) -> dict[int, str]:
     """The policy file of each training seed: the files `pattern` matches (relative to
-    `repo_root`), each holding its seed as the last number of its name (`seed-3.onnx`: seed 3).
-    `ValueError` (the expectation, one line) unless exactly one file per seed matches."""
+    `repo_root`), each holding its seed as the only number of its name (`seed-3.onnx`: seed 3;
+    `seed-3-v2.onnx` is refused). `ValueError` (the expectation, one line) unless exactly one
+    file per seed matches."""
     if Path(pattern).is_absolute() or ".." in Path(pattern).parts:
         raise ValueError("expected a glob inside the repository, relative to it")
     found = sorted(glob.glob(pattern, root_dir=repo_root))
     by_seed: dict[int, list[str]] = {}
     for name in found:
         numbers = re.findall(r"\d+", Path(name).stem)
+        if len(numbers) > 1:
+            raise ValueError(
+                f"{name} has {len(numbers)} numbers in its name ({', '.join(numbers)}); expected "
+                "its training seed as the only number (seed-3.onnx: seed 3)"
+            )
         by_seed.setdefault(int(numbers[-1]) if numbers else -1, []).append(name)
     if sorted(by_seed) != sorted(seeds) or any(len(v) > 1 for v in by_seed.values()):
         got = ", ".join(found) if found else "no file"
         raise ValueError(
             f"expected one file per training seed {sorted(seeds)}, each with its seed as the "
-            f"last number of its name, got {len(found)}: {got}"
+            f"only number of its name, got {len(found)}: {got}"
         )
     return {s: Path(by_seed[s][0]).as_posix() for s in seeds}
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mjtrial.engine import iter_batches
-from mjtrial.task import BoundTask, Task
+from mjtrial.task import BoundTask, ObservationModel, Task
 
 OPTIMIZER = "cma"
 SIGMA0 = 0.3  # the initial step size in the unit box
@@ -118,7 +118,26 @@ def check_search(
         if name in tuned:
             raise ValueError(f"fixed.{name}: also tuned; expected one or the other")
         _check_value(known[name], float(value), f"fixed.{name}", f"{float(value):g}")
+    _check_observation_models(task, out, fixed)
     return out
+
+
+def _check_observation_models(
+    task: Task, tuned: Mapping[str, tuple[float, float]], fixed: Mapping[str, float]
+) -> None:
+    """Each tuned range's ends and each fixed value against the observation models that use
+    the parameter (a noise >= 0, a dropout in [0, 1)): what the rollout would refuse at the
+    first candidate that reaches it. Each model's bounds are an interval, so the ends say it
+    for the whole range."""
+    for o in task.observations:
+        for role, name in (o.errors.parameters() if o.errors else {}).items():
+            if name not in tuned and name not in fixed:
+                continue
+            kind = "tuned" if name in tuned else "fixed"
+            for value in tuned[name] if name in tuned else (float(fixed[name]),):
+                problem = ObservationModel(**{role: name}).problem({name: value})
+                if problem is not None:
+                    raise ValueError(f"{kind}.{name}: observation {o.name!r}: {problem}")
 
 
 def _check_value(p, value: float, where: str, got: str) -> None:

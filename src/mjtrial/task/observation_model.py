@@ -124,7 +124,11 @@ def with_errors(
                 noise.append(std * np.stack(z, 1))
             x = x + noise[0][k]
         if quantum:
-            x = np.round(x / quantum) * quantum
+            with np.errstate(over="ignore"):
+                steps = x / quantum
+            # a quantum below x's own float spacing (x / quantum overflows: a quantum such as
+            # 5e-324): the nearest multiple, as a float, is x itself
+            x = np.where(np.isinf(steps) & np.isfinite(x), x, np.round(steps) * quantum)
         if lost is not None:
             if k > 0:
                 x = np.where(lost[k], last[0], x)
