@@ -15,7 +15,7 @@ from mjtrial.benchmark.config import checkpoint_files
 from mjtrial.benchmark.tuning import check_search
 from mjtrial.cli import main
 from mjtrial.engine import iter_batches
-from mjtrial.policy_file import PolicyFileError, load_policy_file
+from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
 from mjtrial.task import BoundTask, load_task
 
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)
@@ -113,3 +113,20 @@ def test_a_checkpoint_name_with_more_than_one_number_is_refused(tmp_path):
         "seed-3-v2.onnx has 2 numbers in its name (3, 2); expected its training seed as the "
         "only number (seed-3.onnx: seed 3)"
     )
+
+
+def test_a_column_driving_a_list_of_actuators_runs_and_is_reported(tmp_path, capsys):
+    """`actuators: [[cart_motor]]` (one column, a list of actuators) gives the episodes the
+    plain `[cart_motor]` gives, and `policy check` says it (before: two tracebacks)."""
+    listed = write(tmp_path, "listed", tanh_mlp([2, 8, 1]), actuators=[["cart_motor"]])
+    plain = write(tmp_path, "plain", tanh_mlp([2, 8, 1]))
+    values = {p.name: np.linspace(p.low, p.high, 4) for p in TASK.state_parameters}
+    physics = []
+    for path in (listed, plain):
+        bound = BoundTask.of(policy_task(TASK, load_policy_file(path, TASK)))
+        [batch] = iter_batches(bound, values, {}, thresholds={"fall_angle": 0.5})
+        physics.append(batch.episodes.physics)
+    np.testing.assert_array_equal(physics[0], physics[1])
+    task_file = str(REPO_ROOT / "tasks" / "cartpole_latency" / "task.py")
+    assert main(["policy", "check", str(listed), "--task", task_file]) == 0
+    assert "actuators [cart_motor] (ctrlrange); control period 0.01 s" in capsys.readouterr().out

@@ -108,6 +108,8 @@ class Actuation:
             value = c.scale * outputs[:, c.column]
             for j, actuator in enumerate(c.actuators):
                 ctrl[:, actuator] = value if c.qpos is None else qpos[:, c.qpos[j]] + value
+        if not self.mocaps:  # actuators alone (a column driving several): no target moves
+            return ctrl, targets
         new = targets.copy()
         w = 0
         for m in self.mocaps:

@@ -50,7 +50,9 @@ class PolicyCheck:
         return [
             f"{self.policy.path}: contract {c.source}, sha256 {self.policy.sha256}",
             f"  task {c.task}: observations {', '.join(c.observations)}; actuators "
-            f"{', '.join(c.actuators)} ({c.action_scale}); control period {c.control_period:g} s",
+            f"{', '.join(_actuator(a) for a in c.actuators)} ({c.action_scale})"
+            + "".join(f", mocap body {m['body']}" for m in c.mocap)
+            + f"; control period {c.control_period:g} s",
             "  privileged observations: "
             + (
                 f"{', '.join(self.privileged)} (a config must allow each, with a reason)"
@@ -69,6 +71,11 @@ class PolicyCheck:
             f"  onnxruntime {settings['onnxruntime']}, {settings['intra_op_num_threads']} thread, "
             f"{settings['execution_mode']}, {settings['graph_optimization_level']}",
         ]
+
+
+def _actuator(entry: str | tuple[str, ...]) -> str:
+    """A contract's actuator entry as said: one name, or the names one column drives."""
+    return entry if isinstance(entry, str) else f"[{', '.join(entry)}]"
 
 
 def _sizes(batches: tuple[int, ...]) -> str:
