@@ -4,12 +4,13 @@ that run it, stamped, copied with the run (`mjtrial.policy_file.policy_file_path
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, copy_workflow, run_snakemake
 from onnx import TensorProto, helper, numpy_helper
 from policy_graphs import (
     contract,
@@ -19,6 +20,7 @@ from policy_graphs import (
     write,
 )
 
+from mjtrial import provenance
 from mjtrial.onnx_data import external_data
 from mjtrial.policy_file import (
     PolicyFileError,
@@ -133,3 +135,34 @@ def test_external_data_missing_or_outside_the_graphs_folder_is_one_line(tmp_path
             "subgraph's, which onnxruntime looks for in the working folder; expected external "
             "data for the main graph's initializers only"
         )
+
+
+def test_a_data_file_is_a_rollout_input_stamped_and_its_edit_reruns_the_condition(tmp_path):
+    """The rollout of a condition whose graph keeps its weights in `weights.bin`: the stamp
+    records the file, and an edit of its bytes alone (its time kept) reruns the shard."""
+    workdir = copy_workflow(tmp_path)
+    _policy(workdir / "policies" / "external")
+    config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
+    config["experiment"] = "external"
+    config["states"]["n"] = config["rollout"]["shard_size"] = 16
+    config["conditions"]["graph"] = {"latency": 0.0, "policy": "policies/external/net.onnx"}
+    for study in ("sweep", "variants"):
+        config.pop(study, None)
+    (workdir / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    shard = "results/external/rollouts/graph/shard-00000.parquet"
+    run_snakemake(workdir, shard)
+    recorded = provenance.read_stamp(workdir / shard)["inputs"]["policy"]
+    weights = workdir / "policies" / "external" / "weights.bin"
+    assert {r["path"]: r["sha256"] for r in recorded} == {
+        "policies/external/net.onnx": provenance.file_sha256(weights.with_name("net.onnx")),
+        "policies/external/net.yaml": provenance.file_sha256(weights.with_name("net.yaml")),
+        "policies/external/weights.bin": provenance.file_sha256(weights),
+    }
+    assert "Nothing to be done" in run_snakemake(workdir, shard, "-n").stdout
+    edited = bytearray(weights.read_bytes())
+    edited[0] ^= 1
+    times = weights.stat()
+    weights.write_bytes(bytes(edited))
+    os.utime(weights, ns=(times.st_atime_ns, times.st_mtime_ns))
+    dry = run_snakemake(workdir, shard, "-n").stdout
+    assert "rollout" in dry and "Nothing to be done" not in dry
