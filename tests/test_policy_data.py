@@ -166,3 +166,22 @@ def test_a_data_file_is_a_rollout_input_stamped_and_its_edit_reruns_the_conditio
     os.utime(weights, ns=(times.st_atime_ns, times.st_mtime_ns))
     dry = run_snakemake(workdir, shard, "-n").stdout
     assert "rollout" in dry and "Nothing to be done" not in dry
+
+
+def test_a_benchmark_record_names_the_data_files_and_evaluation_sees_their_edit(tmp_path):
+    """A training record of a policy file holds its data files' sha256 (`data`), and the
+    evaluation refuses a record whose data file changed since, as it does the graph's."""
+    from mjtrial.stages.evaluate import changed_policy_files
+    from mjtrial.stages.train import policy_record
+
+    _policy(tmp_path / "policies" / "external")
+    record = {"policy": policy_record("policies/external/net.onnx", TASK, tmp_path)}
+    weights = tmp_path / "policies" / "external" / "weights.bin"
+    assert record["policy"]["data"] == {
+        "policies/external/weights.bin": provenance.file_sha256(weights)
+    }
+    assert changed_policy_files(record, tmp_path) == []
+    weights.write_bytes(weights.read_bytes()[::-1])
+    assert changed_policy_files(record, tmp_path) == ["policies/external/weights.bin"]
+    plain = _plain(tmp_path / "policies")
+    assert "data" not in policy_record(plain.relative_to(tmp_path).as_posix(), TASK, tmp_path)
