@@ -10,8 +10,10 @@ not a dependency of a run (onnxruntime is), and its `onnx.load` would hold a 400
 weights in the memory of Snakemake's process, which asks for a policy's files at every job; the
 walk below skips every tensor's bytes. It reads the messages onnxruntime reads tensors from
 (onnx.proto3): the graph's initializers and sparse initializers, every node attribute's tensors
-and subgraphs (If, Loop, Scan), and the model's functions; `tests/test_policy_file.py` checks
-it against `onnx`'s own list on graphs with external data.
+and subgraphs (If, Loop, Scan), and the model's functions; `tests/test_policy_data.py` checks
+it against `onnx`'s own list on graphs with external data. Each tensor says whether it is an
+initializer of the main graph: onnxruntime 1.31.1 looks for the others' data in the working
+folder, not the graph's, so `policy_file.data_files` refuses them.
 """
 
 from __future__ import annotations
