@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
 from pathlib import Path
@@ -420,50 +419,18 @@ def _new_task(args: argparse.Namespace) -> int:
     return 0
 
 
-def _task_reference(reference: str) -> str:
-    """A task as `--task` names it: a task.py path, an installed task's name, or the name of
-    one of the repository's own tasks (`tasks/<name>/task.py`, as its contract names it)."""
-    own = Path("tasks") / reference / "task.py"
-    if not reference.endswith(".py") and own.is_file():
-        return own.as_posix()
-    return reference
-
-
 def _policy_check(args: argparse.Namespace) -> int:
     # imported here: onnxruntime's import would slow every other command
-    import jsonschema
+    from mjtrial.policy_check import check_policy_file, parse_settings, policy_check_task
+    from mjtrial.task import TaskError
 
-    from mjtrial.policy_check import check_policy_file
-    from mjtrial.task import TaskError, load_task
-
-    condition = {}
-    for item in args.set or []:
-        name, _, value = item.partition("=")
-        try:
-            condition[name] = float(value)
-        except ValueError:
-            condition[name] = math.nan
-        if not math.isfinite(condition[name]):
-            print(
-                f"mjtrial policy check: --set {item}: expected NAME=NUMBER, a finite number",
-                file=sys.stderr,
-            )
-            return 2
     try:
-        task = load_task(_task_reference(args.task), repo_root=Path("."))
-        known = {p.name: p for p in task.protocol_parameters}
-        for name, value in condition.items():
-            if name not in known:
-                raise TaskError(f"{args.task}: --set {name}: not a protocol parameter")
-            # the bounds the config's schema holds a condition's value to
-            error = jsonschema.exceptions.best_match(
-                jsonschema.Draft202012Validator(known[name].schema()).iter_errors(value)
-            )
-            if error is not None:
-                raise TaskError(
-                    f"{args.task}: --set {name}={value:g}: expected within the task's bounds "
-                    f"({error.message})"
-                )
+        condition = parse_settings(args.set or [])
+    except ValueError as err:
+        print(f"mjtrial policy check: {err}", file=sys.stderr)
+        return 2
+    try:
+        task = policy_check_task(args.task, condition)
         found = check_policy_file(args.file, task, condition=condition)
     except TaskError as err:  # PolicyFileError included: one line naming the file
         print(f"mjtrial policy check: {err}", file=sys.stderr)

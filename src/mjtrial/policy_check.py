@@ -5,16 +5,18 @@ the engine's batches, bit for bit) and the time per call."""
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 
 from mjtrial.engine import batch_size_for, episode_steps, iter_batches
 from mjtrial.policy_file import PolicyFile, load_policy_file, policy_task
-from mjtrial.task import BoundTask, Task
+from mjtrial.task import BoundTask, Task, TaskError, load_task
 from mjtrial.task_checks import nominal_values
 
 TIMED_CALLS = 200  # calls per timed batch size (the median is reported)
@@ -138,3 +140,43 @@ def check_policy_file(
         call_seconds=call_seconds,
         batches=tuple(len(physics) for physics, _ in together),
     )
+
+
+def parse_settings(items: Sequence[str]) -> dict[str, float]:
+    """`--set NAME=VALUE` items as a condition; `ValueError` (one line) for an item that is not
+    NAME=a finite number."""
+    condition = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            condition[name] = float(value)
+        except ValueError:
+            condition[name] = math.nan
+        if not math.isfinite(condition[name]):
+            raise ValueError(f"--set {item}: expected NAME=NUMBER, a finite number")
+    return condition
+
+
+def policy_check_task(
+    reference: str, condition: Mapping[str, float], *, repo_root: Path = Path(".")
+) -> Task:
+    """The task `--task` names: a task.py path, an installed task's name, or the name of one of
+    the repository's own tasks (`tasks/<name>/task.py`, as a contract names it); `TaskError`
+    (one line) for a condition's value that is not one of its protocol parameters within the
+    bounds the config's schema holds a condition to."""
+    own = Path(repo_root) / "tasks" / reference / "task.py"
+    named = own.as_posix() if not reference.endswith(".py") and own.is_file() else reference
+    task = load_task(named, repo_root=Path(repo_root))
+    known = {p.name: p for p in task.protocol_parameters}
+    for name, value in condition.items():
+        if name not in known:
+            raise TaskError(f"{reference}: --set {name}: not a protocol parameter")
+        error = jsonschema.exceptions.best_match(
+            jsonschema.Draft202012Validator(known[name].schema()).iter_errors(value)
+        )
+        if error is not None:
+            raise TaskError(
+                f"{reference}: --set {name}={value:g}: expected within the task's bounds "
+                f"({error.message})"
+            )
+    return task
