@@ -50,6 +50,33 @@ def _element(model: mujoco.MjModel, kind: mujoco.mjtObj | str, name: str) -> int
 # --------------------------------------------------------------------------------------------
 
 
+def _free_joint(model: mujoco.MjModel, body: int) -> int | None:
+    """The free joint of a body placed by one (MuJoCo then ignores its `pos` and `quat`: its
+    pose is the joint's qpos), else None."""
+    joint = model.body_jntadr[body]
+    free = model.body_jntnum[body] and model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_FREE
+    return int(joint) if free else None
+
+
+def _refuse_free_body(model: mujoco.MjModel, body: int, name: str, what: str) -> None:
+    """Refuse to set a free body's `body_pos` or `body_quat`: no episode would see it."""
+    joint = _free_joint(model, body)
+    if joint is None:
+        return
+    free = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+    free = repr(free) if free else f"#{joint}"
+    instead = (
+        f"a JointPosition on joint {free} (index 0, 1, 2: x, y, z)"
+        if what == "pos"
+        else f"a Custom applier (stage 'initial') that turns joint {free}'s quaternion "
+        "(qpos[3:7], w-x-y-z) in the initial state"
+    )
+    raise TaskError(
+        f"body {name!r} is placed by its free joint {free}, so MuJoCo ignores its body {what} "
+        f"(no episode would differ); expected {instead}"
+    )
+
+
 def _own_frame(model: mujoco.MjModel, kind: str, index: int) -> None:
     """Make the compiler's shortcut forget a geom's or site's frame: one compiled at its body's
     frame (`geom_sameframe`, `site_sameframe`) has its `pos` and `quat` ignored by
@@ -143,6 +170,8 @@ class ModelValue:
                 f"{what}: expected a numeric field {self.attribute!r} with an "
                 f"index {self.index} (it has {field_.size} numbers)"
             )
+        if self.kind == "body" and self.attribute in ("pos", "quat"):
+            _refuse_free_body(model, element.id, self.name, self.attribute)
         kind, attribute, index = self.kind, self.attribute, self.index
         name = element.id  # an index: the element may be unnamed (`#0`, `on:<name>`)
         moves = attribute in ("pos", "quat")
@@ -189,7 +218,12 @@ class Rotation:
     z) from its orientation in the model as loaded: `Rotation("geom", "target", 2)` yaws a goal
     marker. The quaternion is set from the nominal one each time (`q = q0 * (cos v/2, sin v/2
     along the axis)`), so a reused model copy gets the value a fresh one would; a mocap body's
-    pose is set in the reset data too, as `MocapPosition` does."""
+    pose is set in the reset data too, as `MocapPosition` does.
+
+    A body placed by a free joint is refused: MuJoCo ignores its `body_quat` (its pose is the
+    joint's qpos). Turning that qpos instead would make this an edit of the initial state,
+    applied after the reset and the task's `episode_setup`, from an orientation the keyframe or
+    the setup gives rather than the model's: another parameter, which a `Custom` says plainly."""
 
     kind: str
     name: str
@@ -209,6 +243,8 @@ class Rotation:
             raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
         obj, field_ = kinds[self.kind]
         index = _element(model, obj, self.name)
+        if self.kind == "body":
+            _refuse_free_body(model, index, self.name, "quat")
         nominal = getattr(model, field_)[index].copy()
         mocap = model.body_mocapid[index] if self.kind == "body" else -1
         kind, axis = self.kind, self.axis
