@@ -139,7 +139,7 @@ def _check(config: dict) -> str:
 
 
 NOTHING = "changes nothing: the edited model simulates as the committed one"
-UNDONE = "and a condition's edits apply after a variant's, so the variant's run of it would be"
+UNDONE = "and a condition's edits apply after a variant's: the variant's run of 'fast' would keep"
 
 
 def _gantry_cube_moved() -> dict:
@@ -193,7 +193,8 @@ def test_a_condition_that_sets_a_variants_value_is_refused_naming_both():
     config["conditions"]["fast"]["model"] = {"option": {"timestep": 0.0025}}
     assert _check(config).startswith(
         "config/config.yaml: variants.timestep_1ms.option.timestep: condition 'fast' sets it too "
-        f"(conditions.fast.model.option.timestep), {UNDONE} the nominal one"
+        f"(conditions.fast.model.option.timestep), {UNDONE} the condition's value, yet be counted "
+        "as the variant's"
     )
 
 

@@ -588,8 +588,9 @@ def _check_variant_applies(
                 fail(
                     f"variants.{name}.{value}",
                     f"condition {condition!r} sets it too ({where}.{value}), and a condition's "
-                    "edits apply after a variant's, so the variant's run of it would be the "
-                    "nominal one; expected a variant and conditions that edit different values",
+                    f"edits apply after a variant's: the variant's run of {condition!r} would "
+                    "keep the condition's value, yet be counted as the variant's; expected a "
+                    "variant and conditions that edit different values",
                 )
         if variant_version(variant) is not None:
             continue  # its own MuJoCo runs it: never the nominal run
