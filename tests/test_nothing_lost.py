@@ -83,6 +83,13 @@ def test_a_job_failing_at_run_time_loses_no_result(work, case, breaks, args, log
     assert proc.returncode != 0
     assert "mjtrial: a job failed; the previous results were put back unchanged" in proc.stderr
     assert digest(work / "results") == before
+    # The console ends on the failed job's reason, read back from its log (not only Snakemake's
+    # "At least one job did not complete successfully").
+    tail = proc.stderr.split("the previous results were put back unchanged", 1)[1]
+    assert any(
+        line.startswith(logged) and f"(its log: {LAYOUT.logs_dir}/" in line
+        for line in tail.splitlines()
+    ), proc.stderr
     # The failed job's log: its stamp first, then the one-line error, then the traceback.
     logs = sorted((work / LAYOUT.logs_dir).glob("*.log"), key=lambda p: p.stat().st_mtime)
     text = logs[-1].read_text()

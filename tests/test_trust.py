@@ -362,7 +362,7 @@ BAD_INPUT = [
     (
         "variant that changes nothing",
         config_case(lambda c: c.update(variants={"same": {"option": {"timestep": 0.002}}})),
-        "variants.same: changes nothing: the edited model is the committed one",
+        "variants.same: changes nothing: the edited model simulates as the committed one",
     ),
     (
         "two identical variants",
@@ -374,7 +374,7 @@ BAD_INPUT = [
                 }
             )
         ),
-        "variants.rk4_again: the same model as variants.rk4; expected each variant once",
+        "variants.rk4_again: the same simulation as variants.rk4; expected each variant once",
     ),
     # a corrupt manifest is named so, not as another experiment's (survey 2, case 4)
     (

@@ -20,7 +20,7 @@ from snakemake.iocontainers import Namedlist
 
 from mjtrial.provenance import STAMP_VERSION
 from mjtrial.task import load_task
-from mjtrial.workflow_script import JobFailed, job_log, run_in_process
+from mjtrial.workflow_script import JobFailed, failure_reasons, job_log, run_in_process
 
 SCRIPT = """
 import logging
@@ -232,3 +232,24 @@ def test_a_task_package_loads_while_another_thread_imports():
         sys.setswitchinterval(interval)
         for i in range(64):
             sys.modules.pop(f"_mjtrial_churn_{i}", None)
+
+
+def test_a_failed_jobs_reason_is_read_back_from_its_log_for_the_console(script, tmp_path):
+    """`onerror` repeats each failed job's one-line reason at the end of the console: the line
+    `run_job` wrote (not the traceback below it); a job killed before writing one is said to
+    have stopped without saying why, with its log's last line; a log never written is named."""
+    args, proc = _run_as_script(script, tmp_path, "fail")
+    assert proc.returncode == 1
+    failed = args["logs"][0]
+    killed = tmp_path / "logs" / "rollout_slow_00001.log"
+    killed.write_text("# mjtrial.provenance: {}\nrollout:slow#00001: 3/5 episodes\n")
+    never = tmp_path / "logs" / "rollout_slow_00002.log"
+    assert failure_reasons([failed, killed, never]) == [
+        f"error: states: the states table has no rows (its log: {failed})",
+        "error: a job stopped without saying why (killed, out of memory or crashed); its log "
+        f"{killed} ends: rollout:slow#00001: 3/5 episodes",
+        f"error: a job failed before writing its log {never}",
+    ]
+    assert failure_reasons([failed] * 3) == failure_reasons([failed])  # each log once
+    many = failure_reasons([killed, failed, never], shown=1)
+    assert many[1:] == ["error: and 2 more failed jobs: see their logs"]

@@ -39,9 +39,9 @@ from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simenv import model_overrides, variant_version
-from mjtrial.studies.variants import nominal_model_hash, variant_model
+from mjtrial.studies.variants import edited_values, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
-from mjtrial.task_checks import check_observations, run_task_code
+from mjtrial.task_checks import check_observations, nominal_episode_sha256, run_task_code
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -427,12 +427,23 @@ def check_config(
         fail("task", str(err))
     finally:
         mujoco.set_mju_user_warning(printer)
+    nominal = nominal_episode_sha256(bound)
     for on_model, conditions in groups:
+        if on_model.model is not bound.model and nominal_episode_sha256(on_model) == nominal:
+            (name,) = conditions  # a condition with edits of the model has a group of its own
+            fail(f"conditions.{name}.model", f"changes nothing: {_SAME_SIMULATION}")
         designed = {n: c for n, c in conditions.items() if n in config["conditions"]}
         unstable = _unstable(on_model, designed, config["failure_taxonomy"])
         if unstable:
             fail("model", f"{config['model']}: {unstable}")
-    _check_studies(config, schema, model_file, task, fail)
+    _check_studies(config, schema, model_file, bound, fail)
+
+
+# What "changes nothing" means for an edit of the model, said once for conditions and variants.
+_SAME_SIMULATION = (
+    "the edited model simulates as the committed one (`physics.simulated_sha256`: a colour, a "
+    "name, a value every element overrides or MuJoCo ignores); expected an edit of the physics"
+)
 
 
 def _conditions_by_model(
@@ -474,15 +485,18 @@ def _check_studies(
     config: Mapping[str, Any],
     schema: Mapping[str, Any],
     model_file: Path,
-    task: Task,
+    bound: BoundTask,
     fail: Callable[[str, str], None],
 ) -> None:
     """Variants that apply to the model and keep the protocol's step; a sweep whose conditions
     are valid ones. An unstable variant is not refused: its verdict is `invalid`. A variant
-    named as the committed model, one that changes nothing, and two that make the same model
-    are refused: each would be counted in "survives N of M" without testing anything new."""
+    named as the committed model, one that changes nothing, two that make the same model, and
+    one that a condition's own edits undo (`_check_variant_applies`) are refused: each would be
+    counted in "survives N of M" without testing anything new. "The same" is the same
+    simulation (`task_checks.nominal_episode_sha256`), not the same bytes."""
     variants = config.get("variants") or {}
-    seen = {(None, nominal_model_hash(model_file)): NOMINAL} if variants else {}
+    task = bound.task
+    seen = {(None, nominal_episode_sha256(bound)): NOMINAL} if variants else {}
     for name, variant in variants.items():
         key = f"variants.{name}"
         if name == NOMINAL:
@@ -491,27 +505,31 @@ def _check_studies(
         if version == mujoco.__version__:
             fail(f"{key}.mujoco", f"{version} is the MuJoCo that runs; expected another version")
         try:  # the edits are checked on this MuJoCo; the version's own runs in its environment
-            model, sha256 = variant_model(model_file, model_overrides(variant), key_prefix=key)
+            model, _ = variant_model(model_file, model_overrides(variant), key_prefix=key)
         except ValueError as err:  # one line, "<key>: <expectation>" (ModelError included)
             named, _, expectation = str(err).partition(": ")
             if named.startswith(key):
                 fail(named, expectation)
             fail(key, str(err))
-        if seen.get((version, sha256)) == NOMINAL:
-            fail(key, "changes nothing: the edited model is the committed one; expected an edit")
-        if (version, sha256) in seen:
-            same = seen[version, sha256]
-            fail(key, f"the same model as variants.{same}; expected each variant once")
-        seen[version, sha256] = name
         try:
-            bound = BoundTask.of(task, model)
+            on_variant = BoundTask.of(task, model)
         except ModelCheckError as err:
             fail(key, err.problem)
         except TaskError as err:
             fail(key, str(err))
+        simulated = (version, nominal_episode_sha256(on_variant))
+        if seen.get(simulated) == NOMINAL:
+            fail(key, f"changes nothing: {_SAME_SIMULATION}")
+        if simulated in seen:
+            fail(
+                key,
+                f"the same simulation as variants.{seen[simulated]}; expected each variant once",
+            )
+        seen[simulated] = name
+        _check_variant_applies(config, name, model_file, task, fail)
         for problem in budget.episode_problems(
             config["conditions"],
-            bound,
+            on_variant,
             timestep_key=f"{key}.option.timestep",
             rate_hz=float(config["recording"]["rate_hz"]),
         ):
@@ -543,6 +561,54 @@ def _check_studies(
             f"expected smaller or larger: the reference {reference:g} lies inside the sweep, "
             "so which way values cost must be said",
         )
+
+
+def _check_variant_applies(
+    config: Mapping[str, Any],
+    name: str,
+    model_file: Path,
+    task: Task,
+    fail: Callable[[str, str], None],
+) -> None:
+    """A variant's run of a condition applies the condition's own edits of the model after the
+    variant's (`variant_model`'s `then`), so a value both set is the condition's: that run
+    would be the nominal one, yet counted and given a verdict as the variant's. Refused, naming
+    the value; and where the edits undo the variant otherwise (a class's value every element
+    of the condition sets), the runs' simulations are compared."""
+    variant = config["variants"][name]
+    overrides = model_overrides(variant)
+    changed = set(edited_values(overrides))
+    for condition, spec in config["conditions"].items():
+        edits = model_edits(spec)
+        if not edits:
+            continue
+        where = f"conditions.{condition}.model"
+        for value in edited_values(edits):
+            if value in changed:
+                fail(
+                    f"variants.{name}.{value}",
+                    f"condition {condition!r} sets it too ({where}.{value}), and a condition's "
+                    f"edits apply after a variant's: the variant's run of {condition!r} would "
+                    "keep the condition's value, yet be counted as the variant's; expected a "
+                    "variant and conditions that edit different values",
+                )
+        if variant_version(variant) is not None:
+            continue  # its own MuJoCo runs it: never the nominal run
+        try:
+            runs = [
+                BoundTask.of(task, variant_model(model_file, o, key_prefix=where, then=then)[0])
+                for o in (overrides, {})
+                for then in [[(edits, where)]]
+            ]
+        except (ValueError, TaskError) as err:  # ModelError included: one line
+            fail(f"variants.{name}", f"with condition {condition!r}'s edits: {err}")
+        if nominal_episode_sha256(runs[0]) == nominal_episode_sha256(runs[1]):
+            fail(
+                f"variants.{name}",
+                f"changes nothing in condition {condition!r}: its edits ({where}) undo the "
+                "variant's, so the variant's run of it would be the nominal one; expected a "
+                "variant and conditions that edit different values",
+            )
 
 
 def _unstable(

@@ -7,6 +7,7 @@ qvel, act, ...), shape `(n_steps, nstate)`; a batch stacks episodes in front.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from pathlib import Path
@@ -82,6 +83,77 @@ def compiled_sha256(model: mujoco.MjModel) -> str:
     if paths.strip(b"\0"):
         mjb = mjb.replace(paths, b"\0" * len(paths))
     return hashlib.sha256(mjb).hexdigest()
+
+
+# Fields of a compiled model that no step, reset or sensor reads: how it looks (colours,
+# materials, textures, lights, skins, the groups a viewer shows) and what things are called.
+# The actuators' groups are read (`opt.disableactuator`), and so are cameras (a camera
+# projection sensor): both stay. A field kept by mistake only lets an edit through as before.
+_NOT_SIMULATED_PREFIXES = ("name_", "mat_", "tex_", "light_", "skin_")
+_NOT_SIMULATED_MARKS = ("_rgba", "_matid", "_pathadr", "texcoord")
+_NOT_SIMULATED = frozenset(
+    {"names", "names_map", "paths", "geom_group", "site_group", "jnt_group", "tendon_group"}
+    | {"flex_group"}
+)
+
+
+@functools.cache
+def _simulated_fields(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The fields of `MjModel` (`dir` of one) kept, in order: the same for every model."""
+    return tuple(
+        name
+        for name in sorted(names)
+        if not name.startswith("_")
+        and name not in _NOT_SIMULATED
+        and not name.startswith(_NOT_SIMULATED_PREFIXES)
+        and not any(mark in name for mark in _NOT_SIMULATED_MARKS)
+    )
+
+
+def simulated_sha256(model: mujoco.MjModel, state: np.ndarray) -> str:
+    """The sha256 of what a simulation from `state` (an mjSTATE_FULLPHYSICS vector) under
+    `model` depends on: equal hashes, the same simulation, so an edit or a state parameter
+    whose hashes are equal changes nothing and is refused.
+
+    Not a comparison of the model's bytes (`compiled_sha256`), which a colour, a name or a
+    number MuJoCo ignores would change, nor a short simulation, which an edit that acts only
+    later or elsewhere (a joint limit not reached, a contact not yet made) would pass as the
+    same: every field of the model that can act on the physics, `opt` and the mean inertia the
+    solver scales by, and the initial state. Left out are the fields listed above and those
+    MuJoCo ignores for their element: a body whose joint is free is placed by its qpos alone,
+    so its `body_pos` and `body_quat` are never read, and its qpos0 only by a reset, whose
+    result `state` is (with a keyframe, qpos0 is not even that); a joint without a spring
+    never reads its `qpos_spring` (which a free body's position sets too).
+    """
+    free = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
+    unsprung = np.flatnonzero(
+        (model.jnt_stiffness == 0) & (model.jnt_stiffnesspoly == 0).all(axis=-1)
+    )
+    widths = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4}
+    unread = {  # qpos entries a field holds for joints that never read them
+        "qpos0": free,  # a free joint's: a reset's alone (other joints' kinematics read theirs)
+        "qpos_spring": unsprung,  # the rest position of a joint without a spring
+    }
+    digest = hashlib.sha256()
+    for name in _simulated_fields(tuple(dir(model))):
+        value = getattr(model, name)
+        if not isinstance(value, np.ndarray):
+            continue
+        if free.size and name in ("body_pos", "body_quat"):
+            value = value.copy()
+            value[model.jnt_bodyid[free]] = 0
+        elif name in unread and unread[name].size:
+            value = value.copy()
+            for joint in unread[name]:
+                adr = model.jnt_qposadr[joint]
+                value[adr : adr + widths.get(int(model.jnt_type[joint]), 1)] = 0
+        digest.update(f"{name} {value.dtype.char} {value.shape}".encode())
+        digest.update(np.ascontiguousarray(value).tobytes())
+    for name in sorted(a for a in dir(model.opt) if not a.startswith("_")):
+        digest.update(name.encode() + np.asarray(getattr(model.opt, name)).tobytes())
+    digest.update(np.float64(model.stat.meaninertia).tobytes())
+    digest.update(np.ascontiguousarray(state, dtype=np.float64).tobytes())
+    return digest.hexdigest()
 
 
 def halted(physics: np.ndarray) -> np.ndarray:

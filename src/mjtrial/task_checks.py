@@ -15,6 +15,7 @@ import numpy as np
 
 from mjtrial.closed_loop import PolicyError, check_batch_independence
 from mjtrial.engine import iter_batches
+from mjtrial.physics import simulated_sha256
 from mjtrial.task import (
     BoundTask,
     ClosedLoop,
@@ -132,10 +133,14 @@ def _check_outcome(task: Task, episodes: Episodes, thresholds: Mapping[str, floa
         expect_rows(task, f"failure category {c.name!r}", hit, n, dtype=bool)
 
 
-def _model_fingerprint(model) -> bytes:
-    """Every numeric array of a model, as bytes: equal fingerprints, equal physics."""
-    arrays = (getattr(model, name) for name in sorted(dir(model)) if not name.startswith("_"))
-    return b"".join(a.tobytes() for a in arrays if isinstance(a, np.ndarray))
+def nominal_episode_sha256(bound: BoundTask) -> str:
+    """The sha256 of what the nominal episode's simulation depends on: its own model and its
+    initial state, each state parameter at its nominal value (`physics.simulated_sha256`). Two
+    models with equal hashes run the nominal episode alike: an edit of the model that leaves it
+    equal changes nothing (a condition's, a variant's, or a variant's run of a condition)."""
+    values = {k: v[0] for k, v in nominal_values(bound.task).items()}
+    model, state = bound.episode(values, scratch=mujoco.MjData(bound.model))
+    return simulated_sha256(model, state)
 
 
 def _check_parameters_applied(bound: BoundTask) -> None:
@@ -156,7 +161,7 @@ def _check_parameters_applied(bound: BoundTask) -> None:
                 if pushes
                 else None
             )
-            seen.append((_model_fingerprint(model), state.tobytes(), repr(push)))
+            seen.append((simulated_sha256(model, state), repr(push)))
         if seen[0] == seen[1]:
             raise TaskError(
                 f"{_where(task)}: state parameter {p.name!r}: the episode is the same at its low "

@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
@@ -89,6 +89,44 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
             log.info("%s", thread_resources_line(*started))
         else:
             log.info("%s", resources_line())
+
+
+ERROR_LINE = "error: "  # how `run_job`'s one-line reason for a failure begins, in the log
+FAILURES_SHOWN = 5  # failed jobs whose reasons the console repeats at the end of a run
+
+
+def failure_reasons(logs: Iterable[str | Path], *, shown: int = FAILURES_SHOWN) -> list[str]:
+    """The failed jobs' one-line reasons, read from their logs, for the end of the console.
+
+    A job in a process of its own (a rollout) prints its reason where it fails, and Snakemake
+    then prints the other jobs it waits for and its own error block, ending on "At least one
+    job did not complete successfully"; on a cluster the job's console is not the user's at
+    all. So the workflow's `onerror` repeats each failed job's `error: <rule>: <message>` (the
+    line `run_job` writes before the traceback) with its log's path; for a job that died
+    without one (killed, out of memory, a crash in native code) it says so, with the log's last
+    line. At most `shown` lines, then how many more failed.
+    """
+    paths = list(dict.fromkeys(str(p) for p in logs))
+    lines = []
+    for path in paths[:shown]:
+        try:
+            text = Path(path).read_text(encoding="utf-8", errors="replace").splitlines()
+        except OSError:
+            lines.append(f"error: a job failed before writing its log {path}")
+            continue
+        end = next((i for i, t in enumerate(text) if t.startswith("Traceback")), len(text))
+        reason = [t for t in text[:end] if t.startswith(ERROR_LINE)]
+        if reason:
+            lines.append(f"{reason[-1]} (its log: {path})")
+            continue
+        last = next((t for t in reversed(text) if t.strip()), "(empty)")
+        lines.append(
+            f"error: a job stopped without saying why (killed, out of memory or crashed); its "
+            f"log {path} ends: {last.strip()}"
+        )
+    if len(paths) > shown:
+        lines.append(f"error: and {len(paths) - shown} more failed jobs: see their logs")
+    return lines
 
 
 # The Snakemake process that starts the jobs, by its pid, for a job in a process of its own.

@@ -7,6 +7,7 @@ from mjtrial.layout import script_path
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.workflow_script import (
     cancel_scheduler_timers,
+    failure_reasons,
     import_in_background,
     mark_workflow_process,
     run_in_process,
@@ -87,7 +88,11 @@ def on_success():
 
 def on_error():
     """Put back every output the failed run removed or rebuilt, and say so: the folder is
-    the last good run's (a job that succeeded may not fit what the failed one left)."""
+    the last good run's (a job that succeeded may not fit what the failed one left). Then say
+    why each job failed, from its log, so the console ends on the reason
+    (mjtrial.workflow_script.failure_reasons)."""
+    failed = getattr(workflow.scheduler, "failed", None) or ()
+    reasons = failure_reasons(log for job in failed for log in job.log)
     restored = SAFEKEEPING.restore(replaced=True)
     SAFEKEEPING.drop()
     if restored:
@@ -96,3 +101,5 @@ def on_error():
             f"{', '.join(map(str, restored))}",
             file=sys.stderr,
         )
+    for reason in reasons:
+        print(reason, file=sys.stderr)

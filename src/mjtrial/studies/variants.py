@@ -297,6 +297,25 @@ def nominal_model_hash(model_file: Path | str) -> str:
     return variant_model(model_file, {})[1]
 
 
+def edited_values(edits: Mapping[str, Any]) -> list[str]:
+    """Each value that edits set, by its key below their prefix: `option.timestep`,
+    `geom.floor.friction`, `default.main.joint.damping` (edits `apply_overrides` accepted)."""
+    keys = []
+    for kind, entries in edits.items():
+        if kind == "option":
+            keys += [f"option.{name}" for name in entries]
+        elif kind == "default":
+            keys += [
+                f"default.{name}.{of}.{attribute}"
+                for name, kinds in entries.items()
+                for of, attributes in kinds.items()
+                for attribute in attributes
+            ]
+        else:
+            keys += [f"{kind}.{e}.{a}" for e, attributes in entries.items() for a in attributes]
+    return keys
+
+
 def describe_edits(edits: Mapping[str, Any]) -> str:
     """Edits in a line of the report: `joint hinge frictionloss 0.2; option timestep 0.001`."""
     parts = []

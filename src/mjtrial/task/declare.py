@@ -1,6 +1,6 @@
-"""What a task declares: its state parameters and how each is applied, its protocol parameters,
-observations, controllers, measures, outcomes and failure categories, and the errors a task
-raises.
+"""What a task declares: its state parameters (how each is applied: `mjtrial.task.appliers`),
+its protocol parameters, observations, controllers, measures, outcomes and failure categories,
+and the errors a task raises.
 """
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
@@ -45,228 +45,18 @@ def _element(model: mujoco.MjModel, kind: mujoco.mjtObj | str, name: str) -> int
         raise TaskError(str(err)) from None
 
 
-# --------------------------------------------------------------------------------------------
-# State parameters and how each is applied
-# --------------------------------------------------------------------------------------------
+class Applier(Protocol):
+    """How a state parameter is applied (`mjtrial.task.appliers`: `BodyMass`, `JointPosition`,
+    `JointVelocity`, `ModelValue`, `MocapPosition`, `Rotation`, `Custom`, `DISTURBANCE`,
+    `EPISODE_SETUP`): its `stage` ("model", "initial", "disturbance" or "setup") and
+    `bind(model)`, which resolves its names and returns `apply(model, data, value)` (None for
+    a value the controller or the setup reads)."""
 
+    stage: str
 
-def _own_frame(model: mujoco.MjModel, kind: str, index: int) -> None:
-    """Make the compiler's shortcut forget a geom's or site's frame: one compiled at its body's
-    frame (`geom_sameframe`, `site_sameframe`) has its `pos` and `quat` ignored by
-    `mj_kinematics`, so a position or orientation set per episode would not move it."""
-    if kind in ("geom", "site"):
-        getattr(model, f"{kind}_sameframe")[index] = 0
-
-
-@dataclass(frozen=True)
-class BodyMass:
-    """Sets a body's mass (inertia as compiled); constants are recomputed (`mj_setConst`)."""
-
-    body: str
-    stage = "model"
-    sets = True  # writes its value whatever was there: a model copy can be reused
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        index = _element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)
-
-        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            m.body_mass[index] = value
-
-        return apply
-
-
-@dataclass(frozen=True)
-class JointPosition:
-    """Adds the value to a joint's position in the reset pose (a hinge's angle, a slide's
-    offset; `index` picks a component of a free or ball joint's qpos)."""
-
-    joint: str
-    index: int = 0
-    stage = "initial"
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        adr = model.jnt_qposadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, self.joint)] + self.index
-
-        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            d.qpos[adr] = d.qpos[adr] + value
-
-        return apply
-
-
-@dataclass(frozen=True)
-class JointVelocity:
-    """Sets a joint's velocity (`index`: a component of a multi-dof joint's qvel)."""
-
-    joint: str
-    index: int = 0
-    stage = "initial"
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        adr = model.jnt_dofadr[_element(model, mujoco.mjtObj.mjOBJ_JOINT, self.joint)] + self.index
-
-        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            d.qvel[adr] = value
-
-        return apply
-
-
-@dataclass(frozen=True)
-class ModelValue:
-    """Sets one number of an element of the episode's model, by MuJoCo's named accessor:
-    `ModelValue("geom", "target", "pos", 0)` sets `model.geom("target").pos[0]` (a goal's x).
-    `kind` is an `MjModel` accessor (`body`, `geom`, `site`, `joint`, `actuator`, `tendon`,
-    `eq`, `sensor`, ...), `attribute` that element's field without its prefix (`pos`, `size`,
-    `friction`, `damping`, `gear`), `index` the number within it. Applied before constants
-    are recomputed, like every model parameter."""
-
-    kind: str
-    name: str
-    attribute: str
-    index: int = 0
-    stage = "model"
-    sets = True  # writes its value whatever was there: a model copy can be reused
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        what = f"{self.kind} {self.name!r}"
-        try:
-            accessor = getattr(model, self.kind)
-            # an address (`#0`, `on:<name>`) for the kinds it covers, else MuJoCo's lookup
-            ref = _element(model, self.kind, self.name) if self.kind in address.KINDS else self.name
-            element = accessor(ref)
-        except (AttributeError, TypeError):
-            raise TaskError(f"expected an MjModel element kind, got {self.kind!r}") from None
-        except KeyError:
-            raise TaskError(f"expected a {self.kind} named {self.name!r} in the model") from None
-        field_ = np.atleast_1d(getattr(element, self.attribute, None))
-        if field_.dtype.kind != "f" or not 0 <= self.index < field_.size:
-            raise TaskError(
-                f"{what}: expected a numeric field {self.attribute!r} with an "
-                f"index {self.index} (it has {field_.size} numbers)"
-            )
-        kind, attribute, index = self.kind, self.attribute, self.index
-        name = element.id  # an index: the element may be unnamed (`#0`, `on:<name>`)
-        moves = attribute in ("pos", "quat")
-
-        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            target = getattr(m, kind)(name)
-            getattr(target, attribute)[index] = value
-            if moves:
-                _own_frame(m, kind, target.id)
-
-        return apply
-
-
-@dataclass(frozen=True)
-class MocapPosition:
-    """Sets a mocap body's position along one axis (0, 1, 2: x, y, z): in the episode's model
-    (`body_pos`), from which every reset, `mujoco.rollout`'s included, takes the mocap pose (an
-    mjSTATE_FULLPHYSICS state does not hold it, so a value set in the reset data alone would be
-    lost), and in the reset data."""
-
-    body: str
-    axis: int
-    stage = "model"
-    sets = True  # writes its value whatever was there: a model copy can be reused
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        mocap = model.body_mocapid[_element(model, mujoco.mjtObj.mjOBJ_BODY, self.body)]
-        if mocap < 0:
-            raise TaskError(f"expected body {self.body!r} to be a mocap body")
-        if self.axis not in (0, 1, 2):
-            raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
-        axis, body = self.axis, model.body_mocapid.tolist().index(mocap)
-
-        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            m.body_pos[body, axis] = value
-            d.mocap_pos[mocap, axis] = value
-
-        return apply
-
-
-@dataclass(frozen=True)
-class Rotation:
-    """Turns a body, geom or site by `value` radians about one of its own axes (0, 1, 2: x, y,
-    z) from its orientation in the model as loaded: `Rotation("geom", "target", 2)` yaws a goal
-    marker. The quaternion is set from the nominal one each time (`q = q0 * (cos v/2, sin v/2
-    along the axis)`), so a reused model copy gets the value a fresh one would; a mocap body's
-    pose is set in the reset data too, as `MocapPosition` does."""
-
-    kind: str
-    name: str
-    axis: int
-    stage = "model"
-    sets = True  # from the nominal orientation, whatever was there: a model copy can be reused
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        kinds = {
-            "body": (mujoco.mjtObj.mjOBJ_BODY, "body_quat"),
-            "geom": (mujoco.mjtObj.mjOBJ_GEOM, "geom_quat"),
-            "site": (mujoco.mjtObj.mjOBJ_SITE, "site_quat"),
-        }
-        if self.kind not in kinds:
-            raise TaskError(f"kind: expected one of {list(kinds)}, got {self.kind!r}")
-        if self.axis not in (0, 1, 2):
-            raise TaskError(f"axis: expected 0, 1 or 2, got {self.axis!r}")
-        obj, field_ = kinds[self.kind]
-        index = _element(model, obj, self.name)
-        nominal = getattr(model, field_)[index].copy()
-        mocap = model.body_mocapid[index] if self.kind == "body" else -1
-        kind, axis = self.kind, self.axis
-
-        def apply(m: mujoco.MjModel, d: mujoco.MjData, value: float) -> None:
-            turn = np.zeros(4)
-            turn[0], turn[1 + axis] = np.cos(value / 2), np.sin(value / 2)
-            quat = getattr(m, field_)[index]
-            mujoco.mju_mulQuat(quat, nominal, turn)
-            _own_frame(m, kind, index)
-            if mocap >= 0:
-                d.mocap_quat[mocap] = quat
-
-        return apply
-
-
-@dataclass(frozen=True)
-class Custom:
-    """A function of the task's own: `fn(model, data, value)`, applied to the episode's model
-    (`stage="model"`, before constants are recomputed) or to its reset data (`"initial"`)."""
-
-    fn: Callable[[mujoco.MjModel, mujoco.MjData, float], None]
-    stage: str = "initial"
-
-    def bind(self, model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None]:
-        return self.fn
-
-
-@dataclass(frozen=True)
-class Disturbance:
-    """Read by the closed-loop controller's `pushes`, not applied to the initial state."""
-
-    stage = "disturbance"
-
-    def bind(self, model: mujoco.MjModel) -> None:
-        return None
-
-
-DISTURBANCE = Disturbance()
-"""A state parameter's `apply` when the closed-loop controller's `pushes` read it (a
-disturbance during the episode, not an initial condition)."""
-
-
-@dataclass(frozen=True)
-class ReadBySetup:
-    """Applied by the task's `episode_setup`, which is given every state value: a suite's reset
-    places objects and goals relative to where its own settling left the robot, which no
-    declared applier can express."""
-
-    stage = "setup"
-
-    def bind(self, model: mujoco.MjModel) -> None:
-        return None
-
-
-EPISODE_SETUP = ReadBySetup()
-"""A state parameter's `apply` when the task's `episode_setup` reads it (an object placed relative
-to where the suite's own reset left the robot)."""
+    def bind(
+        self, model: mujoco.MjModel
+    ) -> Callable[[mujoco.MjModel, mujoco.MjData, float], None] | None: ...
 
 
 @dataclass(frozen=True)
@@ -278,16 +68,7 @@ class StateParameter:
     unit: str
     low: float
     high: float
-    apply: (
-        BodyMass
-        | JointPosition
-        | JointVelocity
-        | ModelValue
-        | MocapPosition
-        | Custom
-        | Disturbance
-        | ReadBySetup
-    )
+    apply: Applier
     description: str = ""
     nominal: float | None = None  # the careless evaluation's single state (default: mid-range)
 
