@@ -32,12 +32,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq
+
 from mjtrial import provenance
 from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
 from mjtrial.stages.look import shards_run
+from mjtrial.stages.states import piloted_overlap
 from mjtrial.verify.chain import (
     PLATFORM_WARNINGS,
     STAMPED_SUFFIXES,
@@ -226,6 +229,29 @@ def _config_of_the_run(
     return config, command_line, [warning]
 
 
+def _piloted(layout: Layout, outputs: tuple[OutputResult, ...], *, repo_root: Path):
+    """The outputs, the evaluation states not OK when any of them is a state a pilot of this
+    experiment tuned on (`stages.states.piloted_overlap`): the states stage refuses them."""
+    states = _relative(layout.states, repo_root)
+    try:
+        reason = piloted_overlap(pq.read_table(layout.states), development=layout.development)
+    except (OSError, ValueError, KeyError):
+        return outputs  # unreadable states or pilot: the stamps' checks say so
+    if reason is None:
+        return outputs
+    reason = reason.replace(str(layout.root), _relative(layout.root, repo_root))
+    return tuple(
+        dataclasses.replace(
+            o,
+            status=Status.STALE if o.status is Status.OK else o.status,
+            reasons=(*o.reasons, reason),
+        )
+        if o.path == states
+        else o
+        for o in outputs
+    )
+
+
 def verify_results(
     results_dir: Path,
     *,
@@ -364,7 +390,10 @@ def verify_results(
     )
     return dataclasses.replace(
         report,
-        outputs=(*report.outputs, *([registered] if registered else [])),
+        outputs=(
+            *_piloted(layout, report.outputs, repo_root=repo_root),
+            *([registered] if registered else []),
+        ),
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *(w for w in report.warnings if w not in platform)),
         notes=(*report.notes, *(w + agree for w in platform)),
