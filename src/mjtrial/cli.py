@@ -248,8 +248,10 @@ def _verify(args: argparse.Namespace) -> int:
     resimulate = args.resimulate  # None: every episode if that fits verify's time budget
     try:
         if results_dir is not None:
+            # an experiment's copy is verified as what it is (`verify_results`); a benchmark's
+            # is named
             origin = copied_from(results_dir, repo_root=repo_root)
-            if origin:
+            if origin and (looks_like_benchmark(results_dir) or _is_benchmark_file(config_path)):
                 print(f"mjtrial verify: {origin}", file=sys.stderr)
                 return 2
             if not args.config and not recorded and looks_like_benchmark(results_dir):

@@ -55,6 +55,7 @@ from mjtrial.verify.chain import (
     dict_diff,
     parse_rule,
 )
+from mjtrial.verify.folder import placed_as_recorded, recorded_as
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
 from mjtrial.verify.registration import check_registration
 
@@ -309,6 +310,16 @@ def verify_results(
         repo_root
     ):
         results_dir = results_dir.resolve()  # the repository reached through a symlink
+    recorded = recorded_as(results_dir, repo_root=repo_root)
+    if recorded is not None:
+        return _verify_copy(
+            results_dir,
+            recorded=recorded,
+            config_path=Path(config_path),
+            repo_root=repo_root,
+            resimulate=resimulate,
+            seed=seed,
+        )
     if results_dir != repo_root and repo_root not in results_dir.parents:
         raise ValueError(
             f"{results_dir}: not inside the repository root {repo_root}; stamps record paths "
@@ -437,3 +448,35 @@ def verify_results(
             for why, conditions in found.elsewhere.items()
         ),
     )
+
+
+def _verify_copy(
+    results_dir: Path,
+    *,
+    recorded: str,
+    config_path: Path,
+    repo_root: Path,
+    resimulate: int | None,
+    seed: int | None,
+) -> VerifyReport:
+    """A copy of a run (`verify.folder.recorded_as`) checked as what it is: placed where its
+    seal says the run was recorded, in a view of this checkout (`placed_as_recorded`), its files
+    against its seal and stamps and its recomputations and re-simulations with this checkout's
+    code, config, model and task; a note says so, and what needs the original place."""
+    shown = provenance.path_in_repo(results_dir, repo_root) or results_dir.as_posix()
+    with placed_as_recorded(results_dir, recorded=recorded, repo_root=repo_root) as view:
+        in_view = provenance.path_in_repo(config_path, repo_root)
+        report = verify_results(
+            view / recorded,
+            config_path=view / in_view if in_view else config_path,
+            repo_root=view,
+            resimulate=resimulate,
+            seed=seed,
+        )
+    note = (
+        f"{shown} is a copy of the run recorded as {recorded}: checked as it (its files against "
+        "its seal and stamps, its recomputations and re-simulations with this checkout's code, "
+        f"config, model and task); rebuilding or updating it with snakemake needs it at "
+        f"{recorded}"
+    )
+    return dataclasses.replace(report, results_dir=shown, notes=(note, *report.notes))
