@@ -41,34 +41,42 @@ def recorded_as(results_dir: Path, *, repo_root: Path) -> str | None:
     return recorded.as_posix()
 
 
-def _link_or_copy(source: str, target: str) -> None:
+def _link_or_copy(source: Path, target: Path) -> None:
     try:
         os.link(source, target)
     except OSError:  # another file system
         shutil.copy2(source, target)
 
 
+def _mirror(source: Path, target: Path, *, skip: str | None = None) -> None:
+    """`source`'s files at `target`, linked or copied, so that they resolve inside the view (a
+    model or policy file outside the repository is refused); a Python environment (the
+    MuJoCo versions' `envs/`) is a symlink, not copied. Hidden files and `__pycache__` are
+    left out, and the entry named `skip`."""
+    if (source / "pyvenv.cfg").is_file():
+        target.symlink_to(source, target_is_directory=True)
+        return
+    target.mkdir()
+    for entry in sorted(source.iterdir()):
+        if entry.name.startswith(".") or entry.name in ("__pycache__", skip):
+            continue
+        if entry.is_symlink():
+            (target / entry.name).symlink_to(os.readlink(entry))
+        elif entry.is_dir():
+            _mirror(entry, target / entry.name)
+        elif entry.is_file():
+            _link_or_copy(entry, target / entry.name)
+
+
 @contextmanager
 def placed_as_recorded(results_dir: Path, *, recorded: str, repo_root: Path) -> Iterator[Path]:
-    """A temporary view of the checkout `repo_root` (its files, linked or copied; no hidden
-    folder and not the folder holding `recorded`, `results/`) with `results_dir` placed at
-    `recorded` (a symlink, read as a symlinked results folder is): yields the view's root."""
+    """A temporary view of the checkout `repo_root` (`_mirror`; not the folder holding
+    `recorded`, `results/`) with `results_dir` placed at `recorded` (a symlink, read as a
+    symlinked results folder is): yields the view's root."""
     top = Path(recorded).parts[0]
     with tempfile.TemporaryDirectory(prefix="mjtrial-verify-copy-") as tmp:
-        view = Path(tmp).resolve()
-        for entry in sorted(Path(repo_root).iterdir()):
-            if entry.name.startswith(".") or entry.name == top:
-                continue
-            if entry.is_dir():
-                shutil.copytree(
-                    entry,
-                    view / entry.name,
-                    symlinks=True,
-                    copy_function=_link_or_copy,
-                    ignore=shutil.ignore_patterns(".*", "__pycache__"),
-                )
-            elif entry.is_file():
-                _link_or_copy(str(entry), str(view / entry.name))
+        view = Path(tmp).resolve() / "checkout"
+        _mirror(Path(repo_root), view, skip=top)
         place = view / recorded
         place.parent.mkdir(parents=True, exist_ok=True)
         place.symlink_to(Path(results_dir).resolve(), target_is_directory=True)
