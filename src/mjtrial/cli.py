@@ -246,6 +246,13 @@ def _verify(args: argparse.Namespace) -> int:
         print(f"mjtrial verify: {foreign}", file=sys.stderr)
         return 2
     resimulate = args.resimulate  # None: every episode if that fits verify's time budget
+    if args.strict and resimulate == 0:
+        print(
+            "mjtrial verify: --strict with --resimulate 0: a strict check re-simulates "
+            "episodes; give --resimulate K > 0 (or `all`), or leave it out",
+            file=sys.stderr,
+        )
+        return 2
     try:
         if results_dir is not None:
             # an experiment's copy is verified as what it is (`verify_results`); a benchmark's
