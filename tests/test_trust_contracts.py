@@ -12,6 +12,7 @@ import yaml
 from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial.verify import Status, verify_results
+from mjtrial.verify.contracts import contract_change
 
 POLICY = "policies/cartpole_mlp/seed-1.onnx"  # read through the folder's policy.yaml
 RESULTS = Path("results") / "mlp_contract"
@@ -66,3 +67,29 @@ def test_a_contract_added_beside_a_policy_file_is_named(built, tmp_path, changes
     )
     lqr = (RESULTS / "rollouts" / "lqr" / "shard-00000.parquet").as_posix()
     assert report.status_of(lqr) is Status.OK
+
+
+def test_contract_change_names_a_shadowing_and_a_removed_contract(tmp_path):
+    """The check both verifies share (an experiment's and a benchmark's): what a graph reads
+    now against the contract its stamp records."""
+    folder = tmp_path / "policies" / "mlp"
+    folder.mkdir(parents=True)
+    for name in ("seed-1.onnx", "policy.yaml"):
+        (folder / name).write_text(name)
+    records = [
+        {"path": "policies/mlp/seed-1.onnx", "sha256": "0"},
+        {"path": "policies/mlp/policy.yaml", "sha256": "0"},
+    ]
+    assert contract_change(records, repo_root=tmp_path) is None
+    (folder / "seed-1.yaml").write_text("own")
+    assert contract_change(records, repo_root=tmp_path) == (
+        "contract changed: policies/mlp/seed-1.onnx now reads policies/mlp/seed-1.yaml, which "
+        "shadows policies/mlp/policy.yaml it ran with (remove seed-1.yaml or rebuild)"
+    )
+    own = [records[0], {"path": "policies/mlp/seed-1.yaml", "sha256": "0"}]
+    assert contract_change(own, repo_root=tmp_path) is None
+    (folder / "seed-1.yaml").unlink()
+    assert contract_change(own, repo_root=tmp_path) == (
+        "contract changed: policies/mlp/seed-1.onnx now reads policies/mlp/policy.yaml, not "
+        "policies/mlp/seed-1.yaml it ran with"
+    )

@@ -28,7 +28,6 @@ import dataclasses
 import functools
 import json
 import os
-import posixpath
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -40,7 +39,6 @@ from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
-from mjtrial.policy_file import contract_path
 from mjtrial.stages.look import shards_run
 from mjtrial.stages.states import piloted_overlap
 from mjtrial.verify.chain import (
@@ -55,6 +53,7 @@ from mjtrial.verify.chain import (
     dict_diff,
     parse_rule,
 )
+from mjtrial.verify.contracts import contract_change
 from mjtrial.verify.folder import placed_as_recorded, recorded_as
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
 from mjtrial.verify.registration import check_registration
@@ -194,30 +193,16 @@ def _crate_outdated(layout: Layout, stamps: Mapping[str, Any], repo_root: Path) 
 
 def _contracts_changed(stamps: Mapping[str, Any], *, repo_root: Path) -> dict[str, str]:
     """Outputs whose policy file now reads another contract than the one its stamp records
-    (`policy_file.contract_path`: a `<file>.yaml` added beside a graph that ran with its
-    folder's `policy.yaml` shadows it), each with a reason naming both contracts. A contract
-    edited in place is an input changed, which the stamps' checks name."""
+    (`verify.contracts.contract_change`), each with the reason naming both contracts."""
     changed: dict[str, str] = {}
     for path, stamp in stamps.items():
         inputs = stamp.get("inputs") if isinstance(stamp, Mapping) else None
         for name, records in (inputs.items() if isinstance(inputs, Mapping) else ()):
-            if not (name == "policy" or str(name).startswith("policy:")):
-                continue
-            files = [r.get("path") for r in records if isinstance(r, Mapping)]
-            files = [f for f in files if isinstance(f, str)]
-            for graph in (f for f in files if f.endswith(".onnx")):
-                now = provenance.repo_relative(contract_path(repo_root / graph), repo_root)
-                if now in files:
-                    continue
-                folder = posixpath.dirname(graph)
-                used = [f for f in files if f.endswith(".yaml") and posixpath.dirname(f) == folder]
-                was = used[0] if used else "another contract"
-                changed[path] = (
-                    f"contract changed: {graph} now reads {now}, which shadows {was} it ran "
-                    f"with (remove {posixpath.basename(now)} or rebuild)"
-                    if now != was and posixpath.basename(now) != "policy.yaml"
-                    else f"contract changed: {graph} now reads {now}, not {was} it ran with"
-                )
+            if name == "policy" or str(name).startswith("policy:"):
+                if isinstance(records, list) and (
+                    why := contract_change(records, repo_root=repo_root)
+                ):
+                    changed[path] = why
     return changed
 
 
