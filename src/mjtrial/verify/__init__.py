@@ -246,7 +246,9 @@ def _config_of_the_run(
     return config, command_line, [warning]
 
 
-def _piloted(layout: Layout, outputs: tuple[OutputResult, ...], *, repo_root: Path):
+def _piloted(
+    layout: Layout, outputs: tuple[OutputResult, ...], *, repo_root: Path
+) -> tuple[OutputResult, ...]:
     """The outputs, the evaluation states not OK when any of them is a state a pilot of this
     experiment tuned on (`stages.states.piloted_overlap`): the states stage refuses them."""
     states = _relative(layout.states, repo_root)
