@@ -30,7 +30,10 @@ if foreign_package(Path.cwd()):
 # configuration the run used.
 try:
     CONFIG_SOURCE, COMMAND_LINE_CONFIG, run_config = run_configuration(
-        workflow.configfiles, workflow.config_settings.config_args, config
+        workflow.configfiles,
+        workflow.config_settings.config_args,
+        config,
+        repo_root=Path.cwd(),
     )
     CONFIG_SOURCE = os.path.relpath(CONFIG_SOURCE)
     config.clear()

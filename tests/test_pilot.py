@@ -26,6 +26,7 @@ from mjtrial.layout import Layout
 from mjtrial.physics import load_model
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.stamping import config_slice
+from mjtrial.stages.states import build_states
 from mjtrial.verify import Status, verify_results
 
 LAYOUT = Layout.of("research_mode")
@@ -233,3 +234,45 @@ def test_the_analysis_refuses_development_states_and_a_pilot_table(piloted, tmp_
         run_analysis(**{**kwargs, "rollout_tables": pilot_tables})
     assert not (tmp_path / "summary.json").exists()
     run_analysis(**kwargs)  # the evaluation's own inputs
+
+
+def swap_seeds(config: dict) -> None:
+    states = config["states"]
+    states["seed"], states["development_seed"] = states["development_seed"], states["seed"]
+
+
+def test_evaluation_states_a_pilot_ran_are_refused_and_fail_verify(piloted, tmp_path):
+    """Issue 34 case 4: seeds swapped after a pilot made the evaluation states the pilot's
+    tuning states, and verify said "verified". A pilot's states stay development states."""
+    work = tmp_path / "experiment"
+    shutil.copytree(piloted, work, symlinks=True)
+    config = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    swap_seeds(config)
+    output = work / "swapped" / "states.parquet"  # beside a copy of the pilot's development/
+    shutil.copytree(work / DEVELOPMENT.root, output.parent / "development", symlinks=True)
+    with pytest.raises(ValueError) as err:
+        build_states(
+            states_slice=config_slice("states", config), output=output, repo_root=work
+        )
+    message = str(err.value)
+    assert "\n" not in message and not output.exists()
+    assert message.startswith("states.seed: 12 of the 12 evaluation states are states the pilot")
+    assert "development_seed 7" in message and "expected a states.seed drawing other" in message
+    # unswapped, the same stage draws the evaluation states as before
+    config = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    drawn = build_states(states_slice=config_slice("states", config), output=output, repo_root=work)
+    assert drawn.equals(pq.read_table(work / LAYOUT.states))
+
+    # the other way round: a pilot run on the evaluation states (seeds swapped for the pilot
+    # only); the run's evaluation states are now tuning states, and verify fails the run
+    edit_config(work, swap_seeds)
+    run_snakemake(work, "pilot", "--config", PILOT_CONFIG)
+    edit_config(work, swap_seeds)
+    development = pq.read_table(work / DEVELOPMENT.states)
+    assert development.equals(pq.read_table(work / LAYOUT.states))
+    report = verify(work)
+    assert not report.ok, report.format()
+    assert report.with_status(Status.STALE) == [LAYOUT.states.as_posix()], report.format()
+    (line,) = [o.line() for o in report.outputs if o.path == LAYOUT.states.as_posix()]
+    assert "12 of the 12 evaluation states are states the pilot tuned on" in line
+    assert f"({DEVELOPMENT.states.as_posix()}, development_seed 2026)" in line

@@ -323,20 +323,54 @@ def test_bad_config_is_a_usage_error(work, capsys):
     assert "states.n" in capsys.readouterr().err
 
 
-def test_a_renamed_copy_is_named_as_such_not_missing(work, monkeypatch, capsys):
-    """Stamps record paths in the repository: a copy under another name holds the original's
-    record; verify says what the folder is, in one line, and checks nothing in place."""
-    shutil.copytree(work / RESULTS, work / f"{RESULTS}_cp", symlinks=True)
+def _copy_note(shown: str) -> str:
+    return (
+        f"note     {shown} is a copy of the run recorded as {RESULTS}: checked as it (its files "
+        "against its seal and stamps, its recomputations and re-simulations with this "
+        "checkout's code, config, model and task); rebuilding or updating it with snakemake "
+        f"needs it at {RESULTS}"
+    )
+
+
+def test_a_copy_verifies_as_what_it_is_inside_and_outside_the_repository(
+    work, tmp_path, monkeypatch, capsys
+):
+    """Issue 34 case 12: a copy said "is a copy of the run recorded as ..." (inside the
+    repository) or "pass --repo-root" (outside) and checked nothing. Stamps record paths in the
+    repository: the copy is checked where its seal says the run was, in a view of the checkout,
+    its files against its seal and its re-simulations with the checkout's code."""
+    inside = f"{RESULTS}_cp"
+    outside = tmp_path / "elsewhere" / "research_mode"
+    shutil.copytree(work / RESULTS, work / inside, symlinks=True)
+    shutil.copytree(work / RESULTS, outside, symlinks=True)
     monkeypatch.chdir(work)
-    assert cli.main(["verify", f"{RESULTS}_cp"]) == 2
-    out = capsys.readouterr()
-    assert out.out == ""
-    assert out.err.splitlines() == [
-        f"mjtrial verify: {RESULTS}_cp is a copy of the run recorded as {RESULTS} (its seal "
-        "lists the outputs there; stamps record paths in the repository): verify "
-        f"{RESULTS}, or rebuild this folder with snakemake"
-    ]
+    for folder, shown in ((inside, inside), (str(outside), outside.as_posix())):
+        assert cli.main(["verify", "--strict", folder]) == 0, capsys.readouterr()
+        out = capsys.readouterr().out.splitlines()
+        assert _copy_note(shown) in out
+        assert out[-1].startswith(f"verified: {shown}: 36 outputs: 36 ok")
+        checked = next(line for line in out if line.startswith("checked  "))
+        assert "re-simulated 24 of 24 episodes" in checked
+    assert not (work / inside / "results").exists()  # nothing written into the copy
     assert cli.main(["verify", RESULTS]) == 0  # the original is what it was
+
+
+def test_a_tampered_copy_is_tampered_not_a_copy_to_go_and_verify_elsewhere(work, tmp_path):
+    outside = tmp_path / "elsewhere" / "research_mode"
+    shutil.copytree(work / RESULTS, outside, symlinks=True)
+    path = outside / "rollouts" / "fast" / "shard-00001.parquet"
+    stamp, table = provenance.read_stamp(path), pq.read_table(path)
+    success = table.column("success").to_pylist()
+    success[0] = not success[0]
+    table = table.set_column(table.schema.get_field_index("success"), "success", pa.array(success))
+    provenance.write_parquet(table.replace_schema_metadata(None), path, stamp)
+    report = verify_results(
+        outside, config_path=work / "config" / "config.yaml", repo_root=work, resimulate=5
+    )
+    assert not report.ok
+    assert report.with_status(Status.TAMPERED) == [f"{RESULTS}/rollouts/fast/shard-00001.parquet"]
+    assert report.notes[0] == _copy_note(outside.as_posix()).removeprefix("note     ")
+    assert verify(work).ok  # the original, in place, is untouched
 
 
 def test_a_benchmarks_folder_without_its_recorded_config_asks_for_it(tmp_path, capsys):

@@ -246,10 +246,19 @@ def _verify(args: argparse.Namespace) -> int:
         print(f"mjtrial verify: {foreign}", file=sys.stderr)
         return 2
     resimulate = args.resimulate  # None: every episode if that fits verify's time budget
+    if args.strict and resimulate == 0:
+        print(
+            "mjtrial verify: --strict with --resimulate 0: a strict check re-simulates "
+            "episodes; give --resimulate K > 0 (or `all`), or leave it out",
+            file=sys.stderr,
+        )
+        return 2
     try:
         if results_dir is not None:
+            # an experiment's copy is verified as what it is (`verify_results`); a benchmark's
+            # is named
             origin = copied_from(results_dir, repo_root=repo_root)
-            if origin:
+            if origin and (looks_like_benchmark(results_dir) or _is_benchmark_file(config_path)):
                 print(f"mjtrial verify: {origin}", file=sys.stderr)
                 return 2
             if not args.config and not recorded and looks_like_benchmark(results_dir):

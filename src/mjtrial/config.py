@@ -35,7 +35,7 @@ from mjtrial.config_files import (  # noqa: F401 - read from here by the workflo
 from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.physics import ModelError, load_model
-from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
+from mjtrial.policy_file import PolicyFileError, contract_path, load_policy_file, policy_task
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simenv import model_overrides, variant_version
@@ -192,6 +192,26 @@ def _check_task_model(
         fail("task", f"its model is {shown}; expected the config's model {config['model']}")
 
 
+def policy_path_problem(policy: str, *, repo_root: Path) -> str | None:
+    """Why a policy file path is refused, or None: it must be written relative to the
+    repository without `..` (as stamps, the crate and the zip record it: `../<checkout>/...`
+    names this checkout's folder, which the zip's unpacked copy has not), and neither the graph
+    nor its contract may be a symlink to a file outside the repository (verify and the zip
+    check what is inside it only)."""
+    root = Path(repo_root).resolve()
+    written = Path(policy)
+    if written.is_absolute() or ".." in written.parts:
+        return (
+            f"expected a path relative to the repository without '..' "
+            f"(policies/<name>/<file>.onnx), got {policy!r}"
+        )
+    for file in (root / written, contract_path(root / written)):
+        if file.exists() and not file.resolve().is_relative_to(root):
+            shown = file.relative_to(root).as_posix()
+            return f"{shown}: a symlink to a file outside the repository; expected a file inside it"
+    return None
+
+
 def _policy_tasks(
     config: Mapping[str, Any], task: Task, *, repo_root: Path, fail: Callable[[str, str], None]
 ) -> dict[str, Task]:
@@ -206,8 +226,8 @@ def _policy_tasks(
             continue
         key = f"conditions.{name}.policy"
         path = (root / policy).resolve()
-        if not path.is_relative_to(root):
-            fail(key, f"expected a file inside the repository, got {policy!r}")
+        if problem := policy_path_problem(policy, repo_root=root):
+            fail(key, problem)
         try:
             out[name] = policy_task(task, load_policy_file(path, task))
         except PolicyFileError as err:

@@ -5,6 +5,7 @@ configuration. What the values must be is `mjtrial.config`'s check.
 
 from __future__ import annotations
 
+import os
 import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -146,6 +147,7 @@ def run_configuration(
     given: Mapping[str, Any],
     *,
     default: str | Path = CONFIG_FILE,
+    repo_root: Path | None = None,
 ) -> tuple[Path, dict[str, Any], dict[str, Any]]:
     """A run's configuration: its file, the values given on top of it, and the two merged.
 
@@ -154,8 +156,19 @@ def run_configuration(
     last one, if several do); merged on top of the default, two experiments' conditions and
     ranges would mix. Other `--configfile` files, then the `--config` values, go on top of it,
     as Snakemake merges them. `given` is Snakemake's config (its reading of `--config`).
+    A `--configfile` outside `repo_root` (the folder Snakemake runs in) is refused: the run
+    records its file relative to the repository and the crate, `source/` and the zip hold the
+    repository's files only, so the zip would not verify elsewhere.
     """
     files = [Path(f) for f in configfiles]
+    for f in files if repo_root is not None else ():
+        root = Path(repo_root).resolve()
+        if not (root / f).resolve().is_relative_to(root):
+            raise ConfigError(
+                f"--configfile {os.path.relpath(root / f, root)}: outside the repository; "
+                "expected a config file inside it "
+                "(say, config/), so that the run's source/, crate and zip hold it"
+            )
     whole = [f for f in files if "experiment" in read_config_file(f)]
     base = whole[-1] if whole else Path(default)
     command_line: dict[str, Any] = {}

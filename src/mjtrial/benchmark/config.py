@@ -28,6 +28,7 @@ from mjtrial.config import (
     _schema_message,
     _Validator,
     check_config,
+    policy_path_problem,
     read_config_file,
 )
 from mjtrial.crate.description import crate_description
@@ -265,6 +266,8 @@ def _policy_files(
     except ValueError as err:
         fail(f"{key}.policy", f"{spec['policy']!r}: {err}")
     for path in files.values():
+        if problem := policy_path_problem(path, repo_root=repo_root):
+            fail(f"{key}.policy", problem)
         try:
             policy_task(bt.task, load_policy_file(repo_root / path, bt.task))
         except TaskError as err:  # a PolicyFileError, or observations the task cannot give

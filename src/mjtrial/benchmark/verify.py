@@ -37,6 +37,7 @@ from mjtrial.crate.record import input_records
 from mjtrial.crate.stamp import read_crate_stamp
 from mjtrial.layout import BenchmarkLayout
 from mjtrial.stages.states import states_rule
+from mjtrial.verify.contracts import contract_change
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE
 
 
@@ -107,7 +108,12 @@ def verify_benchmark(
     def policy_changed(stamp, owner: Path) -> None:
         """Each policy file the stamp records, as it is now: edited after the run, it is
         named once."""
-        for record in stamp.get("inputs", {}).get("policy", []):
+        records = stamp.get("inputs", {}).get("policy", [])
+        shadowed = contract_change(records, repo_root=repo_root) if records else None
+        if shadowed and shadowed not in named:
+            named.add(shadowed)
+            verdict.problems.append(f"{shadowed}; rerun what uses it ({rel(owner)} ran with it)")
+        for record in records:
             path = record.get("path") if isinstance(record, Mapping) else None
             if path is None or path in named:
                 continue

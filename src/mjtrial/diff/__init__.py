@@ -37,7 +37,10 @@ __all__ = [
 
 
 def _inside(path: Path, folder: Path) -> bool:
-    return Path(os.path.abspath(path)).is_relative_to(os.path.abspath(folder))
+    """Whether `path` lies in `folder`, as written or through a symlink on either side."""
+    return Path(os.path.abspath(path)).is_relative_to(os.path.abspath(folder)) or Path(
+        os.path.realpath(path)
+    ).is_relative_to(os.path.realpath(folder))
 
 
 def diff_runs(
@@ -61,8 +64,10 @@ def diff_runs(
       RunError: `a` or `b` is not a run the diff can read, or `recording` lies in one.
       ValueError: `level` not in (0, 1), `tolerance` below 0.
     """
-    if not 0 < level < 1 or not tolerance >= 0:
-        raise ValueError(f"level {level!r}: expected in (0, 1); tolerance {tolerance!r}: >= 0")
+    if not 0 < level < 1:
+        raise ValueError(f"level {level!r}: expected in (0, 1)")
+    if not tolerance >= 0:
+        raise ValueError(f"tolerance {tolerance!r}: expected >= 0")
     runs = [open_run(a)]
     try:
         runs.append(open_run(b))

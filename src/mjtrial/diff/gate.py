@@ -112,9 +112,9 @@ def _made_lines(made: Mapping[str, list[Mapping[str, Any]]]) -> list[str]:
     for section, rows in made.items():
         for row in rows:
             extra = f" (modules: {', '.join(row['modules'])})" if row.get("modules") else ""
-            lines.append(
-                f"  {section}: {row['key']}: {_value(row['a'])} -> {_value(row['b'])}{extra}"
-            )
+            # the commit section's one key is the section itself: "commit: <a> -> <b>"
+            key = section if row["key"] == section else f"{section}: {row['key']}"
+            lines.append(f"  {key}: {_value(row['a'])} -> {_value(row['b'])}{extra}")
     return lines or ["  nothing differs (commit, code, config, model, versions, platform)"]
 
 

@@ -87,8 +87,15 @@ def _differing(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[dict[str, Any
     return [
         {"key": key, "a": a.get(key), "b": b.get(key)}
         for key in sorted(set(a) | set(b), key=lambda k: (k not in a, k))
-        if a.get(key) != b.get(key)
+        if a.get(key) != b.get(key) and not _emptied(key, a, b) and not _emptied(key, b, a)
     ]
+
+
+def _emptied(key: str, one: Mapping[str, Any], other: Mapping[str, Any]) -> bool:
+    """Whether `key` is an empty mapping in `one` (`flatten` keeps `{}` as a leaf: a condition
+    with no settings) that `other` holds keys under: the keys below say what differs, and the
+    condition is in both runs (not "{} -> (absent)")."""
+    return one.get(key) == {} and key not in other and any(k.startswith(f"{key}.") for k in other)
 
 
 def how_made(a: Run, b: Run) -> dict[str, list[dict[str, Any]]]:

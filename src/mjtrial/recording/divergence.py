@@ -6,6 +6,7 @@ MuJoCo version asks it of the nominal model's episode and the variant's, in one 
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -88,4 +89,11 @@ def describe_divergence(d: Mapping[str, Any] | None) -> str:
         return d.get("reason", "-")
     steps = d["step"]
     step = f"step {steps[0]}" if steps[0] == steps[1] else f"steps {steps[0]} | {steps[1]}"
-    return f"t = {d['time']:.4f} s, {step} ({d['quantity']} by {d['difference']:.3g})"
+    quantity = _unescaped(d["quantity"])
+    return f"t = {d['time']:.4f} s, {step} ({quantity} by {d['difference']:.3g})"
+
+
+def _unescaped(entity: str) -> str:
+    """An entity path as a person reads it: Rerun's escapes of its parts removed
+    (`rr.escape_entity_path_part`: `robot0\\:shoulder_lift_link` is `robot0:shoulder_lift_link`)."""
+    return re.sub(r"\\(.)", r"\1", entity)

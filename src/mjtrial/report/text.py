@@ -264,7 +264,8 @@ def _setup(
         f"Development states came from a different seed, {states['development_seed']}"
         + _development_use(config)
         + "; the states stage refuses a configuration whose development and evaluation states "
-        "share a state, so no reported number comes from a tuning state.",
+        "share a state, and evaluation states a pilot of this experiment ran on (whatever the "
+        "seeds say since), so no reported number comes from a tuning state.",
     ]
     plan = summary.get("sample_size")
     if plan:

@@ -9,8 +9,10 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.layout import Layout
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.states import ConstraintError, draw_valid_states, generate_initial_states
 from mjtrial.task import TaskError, call, load_task
@@ -96,6 +98,8 @@ def build_states(
         extra=None if redrawn is None else {REDRAWN: redrawn},
     )
     chosen, seed = (tuning, "development_seed") if development else (table, "seed")
+    if not development:
+        check_not_piloted(table, development=Layout(Path(output).parent).development)
     provenance.write_parquet(chosen, output, stamp)
     log.info(
         "states: %d %s states (seed %d) -> %s",
@@ -153,3 +157,59 @@ def draw_counted_states(
             "expected disjoint seeds"
         )
     return table, tuning, redrawn
+
+
+def piloted_states(development: Layout) -> pa.Table | None:
+    """The development states a pilot of this experiment ran (`snakemake -c2 pilot`): the rows
+    of `development`'s states file whose ids a pilot shard under it holds, that shard made
+    from that very file (its stamp's sha256); None when no pilot ran on it."""
+    states_file = development.states
+    shards = sorted(development.rollouts_dir().rglob("shard-*.parquet"))
+    if not states_file.is_file() or not shards:
+        return None
+    sha = provenance.file_sha256(states_file)
+    ids: set[int] = set()
+    for shard in shards:
+        try:
+            stamp = provenance.read_stamp(shard)
+            source = stamp["inputs"]["states"]["sha256"]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if str(stamp.get("rule", "")).startswith("pilot:") and source == sha:
+            ids.update(int(i) for i in pq.read_table(shard, columns=["state_id"])[0])
+    if not ids:
+        return None
+    table = pq.read_table(states_file)
+    keep = np.isin(table.column("state_id").to_numpy(), sorted(ids))
+    return table.filter(pa.array(keep))
+
+
+def piloted_overlap(table: pa.Table, *, development: Layout) -> str | None:
+    """Why evaluation states `table` are refused: a one-line reason when any of them is a
+    state a pilot of this experiment tuned on (`piloted_states`), else None. A pilot's states
+    stay development states for the experiment, whatever its seeds say since."""
+    piloted = piloted_states(development)
+    if piloted is None:
+        return None
+    parameters = [c for c in table.column_names if c != "state_id"]
+    if not set(parameters) <= set(piloted.column_names):
+        return None  # another task's states: not this experiment's pilot
+    tuned = {tuple(r) for r in np.column_stack([piloted.column(c) for c in parameters])}
+    rows = np.column_stack([table.column(c) for c in parameters])
+    shared = sum(tuple(r) in tuned for r in rows)
+    if not shared:
+        return None
+    seed = (provenance.read_stamp(development.states).get("seeds") or {}).get("development")
+    return (
+        f"states.seed: {shared} of the {table.num_rows} evaluation states are states the pilot "
+        f"tuned on ({development.states}, development_seed {seed}); a pilot's states stay "
+        "development states for this experiment: expected a states.seed drawing other states"
+    )
+
+
+def check_not_piloted(table: pa.Table, *, development: Layout) -> None:
+    """Refuse evaluation states a pilot of this experiment ran (`piloted_overlap`): a one-line
+    ValueError naming the key, the pilot's states file and what is expected."""
+    reason = piloted_overlap(table, development=development)
+    if reason is not None:
+        raise ValueError(reason)

@@ -32,12 +32,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import pyarrow.parquet as pq
+
 from mjtrial import provenance
 from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
 from mjtrial.stages.look import shards_run
+from mjtrial.stages.states import piloted_overlap
 from mjtrial.verify.chain import (
     PLATFORM_WARNINGS,
     STAMPED_SUFFIXES,
@@ -50,6 +53,8 @@ from mjtrial.verify.chain import (
     dict_diff,
     parse_rule,
 )
+from mjtrial.verify.contracts import contract_change
+from mjtrial.verify.folder import placed_as_recorded, recorded_as
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
 from mjtrial.verify.registration import check_registration
 
@@ -186,6 +191,21 @@ def _crate_outdated(layout: Layout, stamps: Mapping[str, Any], repo_root: Path) 
     return {crate: f"it does not cover {names}, sealed after it"}
 
 
+def _contracts_changed(stamps: Mapping[str, Any], *, repo_root: Path) -> dict[str, str]:
+    """Outputs whose policy file now reads another contract than the one its stamp records
+    (`verify.contracts.contract_change`), each with the reason naming both contracts."""
+    changed: dict[str, str] = {}
+    for path, stamp in stamps.items():
+        inputs = stamp.get("inputs") if isinstance(stamp, Mapping) else None
+        for name, records in (inputs.items() if isinstance(inputs, Mapping) else ()):
+            if name == "policy" or str(name).startswith("policy:"):
+                if isinstance(records, list) and (
+                    why := contract_change(records, repo_root=repo_root)
+                ):
+                    changed[path] = why
+    return changed
+
+
 def _recorded_command(manifest: Mapping[str, Any] | None) -> str:
     """The command the manifest says the run was (not derived from any input: not checked)."""
     rerun = manifest.get("rerun") if isinstance(manifest, Mapping) else None
@@ -226,6 +246,31 @@ def _config_of_the_run(
     return config, command_line, [warning]
 
 
+def _piloted(
+    layout: Layout, outputs: tuple[OutputResult, ...], *, repo_root: Path
+) -> tuple[OutputResult, ...]:
+    """The outputs, the evaluation states not OK when any of them is a state a pilot of this
+    experiment tuned on (`stages.states.piloted_overlap`): the states stage refuses them."""
+    states = _relative(layout.states, repo_root)
+    try:
+        reason = piloted_overlap(pq.read_table(layout.states), development=layout.development)
+    except (OSError, ValueError, KeyError):
+        return outputs  # unreadable states or pilot: the stamps' checks say so
+    if reason is None:
+        return outputs
+    reason = reason.replace(str(layout.root), _relative(layout.root, repo_root))
+    return tuple(
+        dataclasses.replace(
+            o,
+            status=Status.STALE if o.status is Status.OK else o.status,
+            reasons=(*o.reasons, reason),
+        )
+        if o.path == states
+        else o
+        for o in outputs
+    )
+
+
 def verify_results(
     results_dir: Path,
     *,
@@ -252,6 +297,16 @@ def verify_results(
         repo_root
     ):
         results_dir = results_dir.resolve()  # the repository reached through a symlink
+    recorded = recorded_as(results_dir, repo_root=repo_root)
+    if recorded is not None:
+        return _verify_copy(
+            results_dir,
+            recorded=recorded,
+            config_path=Path(config_path),
+            repo_root=repo_root,
+            resimulate=resimulate,
+            seed=seed,
+        )
     if results_dir != repo_root and repo_root not in results_dir.parents:
         raise ValueError(
             f"{results_dir}: not inside the repository root {repo_root}; stamps record paths "
@@ -332,7 +387,10 @@ def verify_results(
                 ]
             ],
             recomputed_differs=differs,
-            outdated=_crate_outdated(layout, stamps, repo_root),
+            outdated={
+                **_crate_outdated(layout, stamps, repo_root),
+                **_contracts_changed(stamps, repo_root=repo_root),
+            },
             development_prefix=_relative(layout.development.root, repo_root),
             sources=[_relative(layout.registration, repo_root)],
         )
@@ -364,7 +422,10 @@ def verify_results(
     )
     return dataclasses.replace(
         report,
-        outputs=(*report.outputs, *([registered] if registered else [])),
+        outputs=(
+            *_piloted(layout, report.outputs, repo_root=repo_root),
+            *([registered] if registered else []),
+        ),
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *(w for w in report.warnings if w not in platform)),
         notes=(*report.notes, *(w + agree for w in platform)),
@@ -374,3 +435,35 @@ def verify_results(
             for why, conditions in found.elsewhere.items()
         ),
     )
+
+
+def _verify_copy(
+    results_dir: Path,
+    *,
+    recorded: str,
+    config_path: Path,
+    repo_root: Path,
+    resimulate: int | None,
+    seed: int | None,
+) -> VerifyReport:
+    """A copy of a run (`verify.folder.recorded_as`) checked as what it is: placed where its
+    seal says the run was recorded, in a view of this checkout (`placed_as_recorded`), its files
+    against its seal and stamps and its recomputations and re-simulations with this checkout's
+    code, config, model and task; a note says so, and what needs the original place."""
+    shown = provenance.path_in_repo(results_dir, repo_root) or results_dir.as_posix()
+    with placed_as_recorded(results_dir, recorded=recorded, repo_root=repo_root) as view:
+        in_view = provenance.path_in_repo(config_path, repo_root)
+        report = verify_results(
+            view / recorded,
+            config_path=view / in_view if in_view else config_path,
+            repo_root=view,
+            resimulate=resimulate,
+            seed=seed,
+        )
+    note = (
+        f"{shown} is a copy of the run recorded as {recorded}: checked as it (its files against "
+        "its seal and stamps, its recomputations and re-simulations with this checkout's code, "
+        f"config, model and task); rebuilding or updating it with snakemake needs it at "
+        f"{recorded}"
+    )
+    return dataclasses.replace(report, results_dir=shown, notes=(note, *report.notes))
