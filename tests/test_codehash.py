@@ -8,6 +8,7 @@ itself imports; and, end to end on a copy of the repository with its own package
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -190,3 +191,41 @@ def _stage_of(path: str) -> str:
     if rel == "ro-crate-metadata.json" or rel == "source":
         return "crate"
     return "report"
+
+
+def _fresh_closure(monkeypatch, cache_file: Path, roots: set[str]) -> list[str]:
+    """module_closure in a state as a new process would have it, the cache at `cache_file`."""
+    monkeypatch.setattr(codehash, "IMPORTS_CACHE", cache_file)
+    codehash._statements_cache.cache_clear()
+    codehash._module_imports.cache_clear()
+    return codehash.module_closure(roots)
+
+
+def test_the_kept_import_statements_give_the_closure_parsing_gives(monkeypatch, tmp_path):
+    roots = {"mjtrial.stages.rollout", "mjtrial.verify"}
+    cache_file = tmp_path / "imports.json"
+    # the reference: every module parsed, no cache to read (a folder where the file should be)
+    (tmp_path / "unreadable.json").mkdir()
+    parsed = _fresh_closure(monkeypatch, tmp_path / "unreadable.json", roots)
+    assert _fresh_closure(monkeypatch, cache_file, roots) == parsed  # written ...
+    kept = json.loads(cache_file.read_text())
+    rollout = (codehash.module_file("mjtrial.stages.rollout")).read_bytes()
+    key = hashlib.sha256(rollout).hexdigest()
+    assert [tuple(s[:2]) for s in kept[key]] == [
+        s[:2] for s in codehash.import_statements(rollout.decode())
+    ]
+    assert _fresh_closure(monkeypatch, cache_file, roots) == parsed  # ... and read
+    # the cache is what is read: an entry for the module's content is taken as it stands
+    kept[key] = [["mjtrial.budget", 0, []]]
+    cache_file.write_text(json.dumps(kept))
+    assert "mjtrial.budget" in _fresh_closure(monkeypatch, cache_file, {"mjtrial.stages.rollout"})
+    # an edited module has another key: its kept statements are never used
+    assert kept.pop(key)
+    kept[hashlib.sha256(rollout + b"\n").hexdigest()] = [["mjtrial.budget", 0, []]]
+    cache_file.write_text(json.dumps(kept))
+    assert _fresh_closure(monkeypatch, cache_file, roots) == parsed
+    # a damaged cache is only slower
+    cache_file.write_text('{"truncated": [["mjtrial.bud')
+    assert _fresh_closure(monkeypatch, cache_file, roots) == parsed
+    codehash._statements_cache.cache_clear()
+    codehash._module_imports.cache_clear()

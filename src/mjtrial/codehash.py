@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import json
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
 
-from mjtrial import REPO_ROOT
+from mjtrial import REPO_ROOT, atomic
 
 PACKAGE = "mjtrial"
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -40,6 +41,46 @@ def _is_package(name: str) -> bool:
     return file is not None and file.name == "__init__.py"
 
 
+Statement = tuple[str, int, tuple[str, ...]]  # (module, level, names); names () for `import`
+
+
+def import_statements(source: str) -> list[Statement]:
+    """Every import statement of `source`, anywhere in it, as written (not yet resolved)."""
+    found: list[Statement] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [(a.name, 0, ()) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            found.append((node.module or "", node.level, tuple(a.name for a in node.names)))
+    return found
+
+
+def resolve_imports(statements: list[Statement], *, module: str | None = None) -> set[str]:
+    """The `mjtrial` modules that import `statements` name (see `imported_modules`). Resolved
+    at each use, never cached: `from mjtrial import x` depends on which module files exist."""
+    found: set[str] = set()
+    package = None
+    if module is not None:
+        package = module if _is_package(module) else module.rpartition(".")[0]
+    for base, level, names in statements:
+        if not names:
+            if base.split(".")[0] == PACKAGE:
+                found.add(base)
+            continue
+        if level:
+            if package is None:
+                continue
+            anchor = package.split(".")
+            anchor = anchor[: len(anchor) - (level - 1)]
+            base = ".".join([*anchor, base] if base else anchor)
+        if base.split(".")[0] != PACKAGE:
+            continue
+        for name in names:
+            sub = f"{base}.{name}"
+            found.add(sub if module_file(sub) is not None else base)
+    return found
+
+
 def imported_modules(source: str, *, module: str | None = None) -> set[str]:
     """The `mjtrial` modules that `source` imports anywhere in it.
 
@@ -49,27 +90,47 @@ def imported_modules(source: str, *, module: str | None = None) -> set[str]:
 
     `from mjtrial import x` names the module `mjtrial.x` when that is a module, else `mjtrial`.
     """
-    found: set[str] = set()
-    package = None
-    if module is not None:
-        package = module if _is_package(module) else module.rpartition(".")[0]
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names if a.name.split(".")[0] == PACKAGE)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                if package is None:
-                    continue
-                anchor = package.split(".")
-                anchor = anchor[: len(anchor) - (node.level - 1)]
-                base = ".".join([*anchor, base] if base else anchor)
-            if base.split(".")[0] != PACKAGE:
-                continue
-            for alias in node.names:
-                sub = f"{base}.{alias.name}"
-                found.add(sub if module_file(sub) is not None else base)
-    return found
+    return resolve_imports(import_statements(source), module=module)
+
+
+# Each module's import statements by the sha256 of its source, kept between processes: parsing
+# every module with `ast` cost about 0.6 s of each Snakemake start (it asks for every stage's
+# code hash). A content key cannot go stale; a cache that cannot be read or written is only
+# slower.
+IMPORTS_CACHE = REPO_ROOT / ".snakemake" / "mjtrial-module-imports.json"
+
+
+@cache
+def _statements_cache() -> dict[str, list[Statement]]:
+    try:
+        kept = json.loads(IMPORTS_CACHE.read_text(encoding="utf-8"))
+        return {k: [(m, lv, tuple(n)) for m, lv, n in v] for k, v in kept.items()}
+    except (OSError, ValueError, TypeError):
+        return {}
+
+
+def _source_statements(data: bytes) -> list[Statement]:
+    """`import_statements` of a module's bytes, from the cache when it holds them."""
+    kept = _statements_cache()
+    key = hashlib.sha256(data).hexdigest()
+    if key not in kept:
+        kept[key] = import_statements(data.decode("utf-8"))
+        _unsaved.add(key)
+    return kept[key]
+
+
+_unsaved: set[str] = set()
+
+
+def _save_statements_cache() -> None:
+    if not _unsaved:
+        return
+    _unsaved.clear()
+    try:
+        IMPORTS_CACHE.parent.mkdir(exist_ok=True)
+        atomic.write_json_atomic(IMPORTS_CACHE, _statements_cache())
+    except OSError:
+        pass
 
 
 def _with_parents(name: str) -> list[str]:
@@ -91,6 +152,7 @@ def module_closure(roots: set[str]) -> list[str]:
         seen.add(name)
         for imported in _module_imports(file, name):
             todo += _with_parents(imported)
+    _save_statements_cache()
     return sorted(seen)
 
 
@@ -98,7 +160,7 @@ def module_closure(roots: set[str]) -> list[str]:
 def _module_imports(file: Path, name: str) -> frozenset[str]:
     """`imported_modules` of one module's file, parsed once per process (Snakemake asks for
     every stage's closure at start-up, and the closures share most modules)."""
-    return frozenset(imported_modules(file.read_text(encoding="utf-8"), module=name))
+    return frozenset(resolve_imports(_source_statements(file.read_bytes()), module=name))
 
 
 def _sha256(path: Path) -> str:
