@@ -157,8 +157,8 @@ def _task_calls(
                 if bool(success[i]) != episode.success or margin[i] != again[j]:
                     raise ValueError(
                         f"{evaluations[run]}: state {episode.state_id} re-simulated gave "
-                        f"success {episode.success} and margin {again[j]!r}, the table "
-                        f"{bool(success[i])} and {margin[i]!r}"
+                        f"success {episode.success} and margin {float(again[j])!r}, the table "
+                        f"{bool(success[i])} and {float(margin[i])!r}"
                     )
                 episodes.append(episode)
         stamp_inputs = {
