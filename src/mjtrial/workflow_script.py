@@ -300,7 +300,7 @@ def run_in_process(
 
 
 # What the stages after the rollouts import (scipy.special is imported inside mjtrial.stats's
-# functions, so that `mjtrial plan` starts fast). About 1.5 s of CPU; `import_in_background`
+# functions, so that `mjtrial plan` starts fast). About 1.5 s of CPU; `import_late_stages`
 # spends it while the rollouts run in their own processes, not on the run's critical path.
 LATE_IMPORTS = (
     "mjtrial.stages.failures",
@@ -326,6 +326,15 @@ def import_in_background(modules: tuple[str, ...] = LATE_IMPORTS) -> threading.T
     thread = threading.Thread(target=load, name="mjtrial-imports", daemon=True)
     thread.start()
     return thread
+
+
+_late_imports: list[threading.Thread] = []
+
+
+def import_late_stages() -> None:
+    """`import_in_background` of `LATE_IMPORTS`, once per process."""
+    if not _late_imports:
+        _late_imports.append(import_in_background())
 
 
 @cache
