@@ -16,17 +16,27 @@ first every repeat (the machine is shared and noisy); the figures are the median
 ratios job / baseline, wall and CPU, and the job's phases (its log's `# phases:` line,
 `mjtrial.phases`) of the last repeat.
 
+With `--processes`, each side also runs as a job does, in a process of its own: the job is
+workflow/scripts/rollout.py's work (`pyarrow_without_pandas`, then `run_shard`) in a fresh
+interpreter, its CPU and wall from start to exit (imports and the task's module included; not
+Snakemake's script preamble); the baseline is a fresh interpreter's `import mujoco` plus the
+bare physics above.
+
     python benchmarks/bench_rollout_overhead.py                 # every case, 3 repeats
-    python benchmarks/bench_rollout_overhead.py --cases gantry --repeats 5
+    python benchmarks/bench_rollout_overhead.py --cases gantry --repeats 5 --processes
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
+import resource
 import shutil
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -132,7 +142,34 @@ def baseline_of(slice_: dict, states: Path, model_file: Path, n: int) -> Callabl
     return loop
 
 
-def run_case(name: str, n: int, repeats: int, tmp: Path, record: str) -> None:
+def child_seconds(args: list[str]) -> tuple[float, float]:
+    """Wall and CPU (user + system) seconds of a fresh interpreter running `args`."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    w0 = time.perf_counter()
+    subprocess.run([sys.executable, *args], check=True, env=os.environ | {"PYTHONPATH": SRC})
+    wall = time.perf_counter() - w0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+SRC = str(REPO_ROOT / "src")
+JOB = """
+import sys, json
+from pathlib import Path
+try:  # an earlier commit's tree (PYTHONPATH) may not have it
+    from mjtrial.nopandas import pyarrow_without_pandas
+    pyarrow_without_pandas()
+except ImportError:
+    pass
+from mjtrial.stages.rollout import run_shard
+kwargs = json.loads(sys.argv[1])
+run_shard(**{k: Path(v) if k in PATHS else v for k, v in kwargs.items()})
+"""
+PATHS = ("states_path", "model_file", "output_table", "output_recording")
+BARE_IMPORTS = "import numpy, mujoco\nfrom mujoco import rollout"
+
+
+def run_case(name: str, n: int, repeats: int, tmp: Path, record: str, processes: bool) -> None:
     config_file, conditions, policy = CASES[name]
     config = yaml.safe_load((REPO_ROOT / config_file).read_text())
     config["recording"]["episodes"] = record
@@ -171,6 +208,37 @@ def run_case(name: str, n: int, repeats: int, tmp: Path, record: str) -> None:
         for b in bares:
             b()
 
+    def job_processes() -> tuple[float, float]:
+        wall = cpu = 0.0
+        for s in slices:
+            folder = tmp / f"{name}-{s['condition']}"
+            shutil.rmtree(folder, ignore_errors=True)
+            kwargs = {
+                "condition_slice": s,
+                "states_path": str(states),
+                "model_file": str(model_file),
+                "first": 0,
+                "stop": n,
+                "output_table": str(tmp / f"{name}-{s['condition']}.parquet"),
+                "output_recording": None if record == "none" else str(folder),
+                "nthread": 1,
+                "rule": f"rollout:{s['condition']}",
+            }
+            code = JOB.replace("PATHS", repr(PATHS))
+            w, c = child_seconds(["-c", code, json.dumps(kwargs)])
+            wall, cpu = wall + w, cpu + c
+        return wall, cpu
+
+    def bare_processes() -> tuple[float, float]:
+        wall = cpu = 0.0
+        for b in bares:
+            w, c = child_seconds(["-c", BARE_IMPORTS])
+            w0, c0 = time.perf_counter(), time.process_time()
+            b()
+            wall += w + time.perf_counter() - w0
+            cpu += c + time.process_time() - c0
+        return wall, cpu
+
     lines = PhaseLines()
     logging.getLogger("mjtrial").addHandler(lines)
     logging.getLogger("mjtrial").setLevel(logging.INFO)
@@ -183,14 +251,27 @@ def run_case(name: str, n: int, repeats: int, tmp: Path, record: str) -> None:
             (job if what == "job" else bare)()
             spent[what].append((time.perf_counter() - w0, time.process_time() - c0))
     logging.getLogger("mjtrial").removeHandler(lines)
-    pairs = list(zip(spent["job"], spent["bare"], strict=True))
-    wall = [j[0] / b[0] for j, b in pairs]
-    cpu = [j[1] / b[1] for j, b in pairs]
-    med = statistics.median
     print(
         f"\n{name}: {len(slices)} condition(s) x {n} states, recording {record}, "
         f"{repeats} paired repeats"
     )
+    print_pairs("in this process", spent)
+    for line in lines.lines:  # the last job's, one per condition
+        print("  " + line.replace("), ", ")\n      "))
+    if processes:
+        spent = {"job": [], "bare": []}
+        for r in range(repeats):
+            for what in ("job", "bare") if r % 2 == 0 else ("bare", "job"):
+                spent[what].append(job_processes() if what == "job" else bare_processes())
+        print_pairs("a process each", spent)
+
+
+def print_pairs(what: str, spent: dict[str, list[tuple[float, float]]]) -> None:
+    pairs = list(zip(spent["job"], spent["bare"], strict=True))
+    wall = [j[0] / b[0] for j, b in pairs]
+    cpu = [j[1] / b[1] for j, b in pairs]
+    med = statistics.median
+    print(f"  {what}:")
     print(
         f"  baseline {med(b[0] for _, b in pairs):.3f} s wall {med(b[1] for _, b in pairs):.3f} "
         f"s CPU; job {med(j[0] for j, _ in pairs):.3f} s wall {med(j[1] for j, _ in pairs):.3f} "
@@ -200,8 +281,6 @@ def run_case(name: str, n: int, repeats: int, tmp: Path, record: str) -> None:
         f"  job / baseline: wall {med(wall):.3f}x ({min(wall):.3f}-{max(wall):.3f}), "
         f"CPU {med(cpu):.3f}x ({min(cpu):.3f}-{max(cpu):.3f})"
     )
-    for line in lines.lines:  # the last job's, one per condition
-        print("  " + line.replace("), ", ")\n      "))
 
 
 def main() -> None:
@@ -210,11 +289,14 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=200, help="states per condition")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--record", choices=("all", "failed", "none"), default="all")
+    parser.add_argument(
+        "--processes", action="store_true", help="also each side in a process of its own"
+    )
     args = parser.parse_args()
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     with tempfile.TemporaryDirectory(prefix="mjtrial-overhead-") as tmp:
         for name in args.cases:
-            run_case(name, args.n, args.repeats, Path(tmp), args.record)
+            run_case(name, args.n, args.repeats, Path(tmp), args.record, args.processes)
 
 
 if __name__ == "__main__":
