@@ -24,6 +24,7 @@ bare physics above.
 
     python benchmarks/bench_rollout_overhead.py                 # every case, 3 repeats
     python benchmarks/bench_rollout_overhead.py --cases gantry --repeats 5 --processes
+    python benchmarks/bench_rollout_overhead.py --cases gantry --against /work/main/src
 """
 
 from __future__ import annotations
@@ -142,11 +143,13 @@ def baseline_of(slice_: dict, states: Path, model_file: Path, n: int) -> Callabl
     return loop
 
 
-def child_seconds(args: list[str]) -> tuple[float, float]:
-    """Wall and CPU (user + system) seconds of a fresh interpreter running `args`."""
+def child_seconds(args: list[str], src: str | None = None) -> tuple[float, float]:
+    """Wall and CPU (user + system) seconds of a fresh interpreter running `args` with the
+    package source `src` (default: this tree's)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     w0 = time.perf_counter()
-    subprocess.run([sys.executable, *args], check=True, env=os.environ | {"PYTHONPATH": SRC})
+    env = os.environ | {"PYTHONPATH": src or SRC}
+    subprocess.run([sys.executable, *args], check=True, env=env)
     wall = time.perf_counter() - w0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -169,7 +172,15 @@ PATHS = ("states_path", "model_file", "output_table", "output_recording")
 BARE_IMPORTS = "import numpy, mujoco\nfrom mujoco import rollout"
 
 
-def run_case(name: str, n: int, repeats: int, tmp: Path, record: str, processes: bool) -> None:
+def run_case(
+    name: str,
+    n: int,
+    repeats: int,
+    tmp: Path,
+    record: str,
+    processes: bool,
+    against: str | None = None,
+) -> None:
     config_file, conditions, policy = CASES[name]
     config = yaml.safe_load((REPO_ROOT / config_file).read_text())
     config["recording"]["episodes"] = record
@@ -208,7 +219,7 @@ def run_case(name: str, n: int, repeats: int, tmp: Path, record: str, processes:
         for b in bares:
             b()
 
-    def job_processes() -> tuple[float, float]:
+    def job_processes(src: str | None = None) -> tuple[float, float]:
         wall = cpu = 0.0
         for s in slices:
             folder = tmp / f"{name}-{s['condition']}"
@@ -225,7 +236,7 @@ def run_case(name: str, n: int, repeats: int, tmp: Path, record: str, processes:
                 "rule": f"rollout:{s['condition']}",
             }
             code = JOB.replace("PATHS", repr(PATHS))
-            w, c = child_seconds(["-c", code, json.dumps(kwargs)])
+            w, c = child_seconds(["-c", code, json.dumps(kwargs)], src)
             wall, cpu = wall + w, cpu + c
         return wall, cpu
 
@@ -264,6 +275,12 @@ def run_case(name: str, n: int, repeats: int, tmp: Path, record: str, processes:
             for what in ("job", "bare") if r % 2 == 0 else ("bare", "job"):
                 spent[what].append(job_processes() if what == "job" else bare_processes())
         print_pairs("a process each", spent)
+    if against:
+        spent = {"job": [], "bare": []}  # bare: the other tree's job
+        for r in range(repeats):
+            for src in (SRC, against) if r % 2 == 0 else (against, SRC):
+                spent["job" if src == SRC else "bare"].append(job_processes(src))
+        print_pairs(f"a process each, this tree's job against {against}'s", spent)
 
 
 def print_pairs(what: str, spent: dict[str, list[tuple[float, float]]]) -> None:
@@ -292,11 +309,25 @@ def main() -> None:
     parser.add_argument(
         "--processes", action="store_true", help="also each side in a process of its own"
     )
+    parser.add_argument(
+        "--against",
+        metavar="SRC",
+        help="also this tree's job processes against another tree's (its src folder, e.g. an "
+        "earlier commit's worktree), alternating",
+    )
     args = parser.parse_args()
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     with tempfile.TemporaryDirectory(prefix="mjtrial-overhead-") as tmp:
         for name in args.cases:
-            run_case(name, args.n, args.repeats, Path(tmp), args.record, args.processes)
+            run_case(
+                name,
+                args.n,
+                args.repeats,
+                Path(tmp),
+                args.record,
+                args.processes,
+                args.against,
+            )
 
 
 if __name__ == "__main__":

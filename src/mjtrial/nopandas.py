@@ -11,14 +11,15 @@ pandas (`Table.to_pandas`) imports it then.
 from __future__ import annotations
 
 import sys
-from importlib.abc import MetaPathFinder
 
 import numpy as np
 import pyarrow as pa
 
 
-class _Refuse(MetaPathFinder):
-    def find_spec(self, name, path=None, target=None):  # noqa: ANN001, ANN201
+class _Refuse:
+    """A finder (`sys.meta_path`) that refuses pandas and leaves every other module alone."""
+
+    def find_spec(self, name: str, path: object = None, target: object = None) -> None:
         if name == "pandas":
             raise ImportError("pandas: not imported by this job (mjtrial.nopandas)")
         return None
