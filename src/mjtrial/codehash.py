@@ -53,7 +53,7 @@ def imported_modules(source: str, *, module: str | None = None) -> set[str]:
     package = None
     if module is not None:
         package = module if _is_package(module) else module.rpartition(".")[0]
-    for node in _statements(ast.parse(source)):
+    for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names if a.name.split(".")[0] == PACKAGE)
         elif isinstance(node, ast.ImportFrom):
@@ -70,29 +70,6 @@ def imported_modules(source: str, *, module: str | None = None) -> set[str]:
                 sub = f"{base}.{alias.name}"
                 found.add(sub if module_file(sub) is not None else base)
     return found
-
-
-def _statements(tree: ast.AST) -> list[ast.AST]:
-    """Every statement of `tree`, at any depth: an import is a statement, so it is one of
-    these, and an expression (most of the nodes `ast.walk` would visit) never holds one. A
-    stage's job computes its code hash at each start: this walk costs a third of `ast.walk`'s."""
-    found: list[ast.AST] = []
-    todo = [tree]
-    while todo:
-        node = todo.pop()
-        for field in node._fields:
-            value = getattr(node, field, None)
-            if isinstance(value, list):
-                for item in value:
-                    if isinstance(item, _HOLDERS):
-                        found.append(item)
-                        todo.append(item)
-    return found
-
-
-# the nodes whose lists hold statements: statements (a body, an else), an `except` clause and a
-# `match` case
-_HOLDERS = (ast.stmt, ast.excepthandler, ast.match_case)
 
 
 def _with_parents(name: str) -> list[str]:
