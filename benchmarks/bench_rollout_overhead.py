@@ -24,7 +24,7 @@ bare physics above.
 
     python benchmarks/bench_rollout_overhead.py                 # every case, 3 repeats
     python benchmarks/bench_rollout_overhead.py --cases gantry --repeats 5 --processes
-    python benchmarks/bench_rollout_overhead.py --cases gantry --against /work/main/src
+    python benchmarks/bench_rollout_overhead.py --cases gantry --against ../earlier/src
 """
 
 from __future__ import annotations
