@@ -8,6 +8,10 @@ run_in_env(globals()["snakemake"])
 
 from pathlib import Path  # noqa: E402
 
+from mjtrial.nopandas import pyarrow_without_pandas  # noqa: E402
+
+pyarrow_without_pandas()  # the job converts numpy arrays only: no pandas import (0.3 s of CPU)
+
 from mjtrial.stages.rollout import run_shard  # noqa: E402
 from mjtrial.workflow_script import run_job  # noqa: E402
 

@@ -17,7 +17,6 @@ import pyarrow.parquet as pq
 from mjtrial import REPO_ROOT, atomic, engine, phases, provenance, recording
 from mjtrial.conditions import model_edits, policy_path
 from mjtrial.physics import load_model
-from mjtrial.policy_file import load_policy_file, policy_inputs, policy_task, runtime_settings
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
@@ -87,7 +86,9 @@ def read_state_values(
 ) -> dict[str, np.ndarray]:
     """The states with ids in [first, stop) of `states.parquet`: state_id and the task's state
     parameters, checked (every column present, every value finite, the ids in order)."""
-    table = pq.read_table(path)
+    # one file: `ParquetFile`, not `read_table`, whose dataset module imports pandas (~0.3 s
+    # of a rollout job's CPU, which nothing here uses)
+    table = pq.ParquetFile(path).read()
     missing = [c for c in task.state_columns if c not in table.column_names]
     if missing:
         raise ValueError(
@@ -120,6 +121,8 @@ def condition_task(
     task = load_task(condition_slice["task"], repo_root=repo_root)
     policy = policy_path(condition_slice)
     if policy:
+        from mjtrial.policy_file import load_policy_file, policy_task  # a policy's job only
+
         task = policy_task(task, load_policy_file(Path(repo_root) / policy, task))
     return BoundTask.of(task, condition_model(condition_slice, model_file))
 
@@ -129,13 +132,21 @@ def condition_policy_inputs(
 ) -> dict[str, Any]:
     """A stamp's record of the condition's policy file (graph and contract), or {}."""
     policy = policy_path(condition_slice)
-    return policy_inputs([Path(repo_root) / policy] if policy else [])
+    if not policy:
+        return {}
+    from mjtrial.policy_file import policy_inputs  # a policy's job only (onnx, jsonschema)
+
+    return policy_inputs([Path(repo_root) / policy])
 
 
 def policy_settings(condition_slice: Mapping[str, Any]) -> dict[str, Any] | None:
     """What a stamp records of how the condition's policy file ran (onnxruntime's version and
     session settings), or None for the task's own policy."""
-    return {"policy_runtime": runtime_settings()} if policy_path(condition_slice) else None
+    if not policy_path(condition_slice):
+        return None
+    from mjtrial.policy_file import runtime_settings  # a policy's job only
+
+    return {"policy_runtime": runtime_settings()}
 
 
 def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> mujoco.MjModel:
