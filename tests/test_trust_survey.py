@@ -26,6 +26,7 @@ def test_mostly_unhealthy_episodes_make_the_main_verdict_invalid(built, tmp_path
     workdir = copy_of(built, tmp_path)
 
     def heavy(config):
+        config["rollout"]["shard_size"] = 12  # every rollout runs again: a job per condition
         config["states"]["ranges"]["mass"] = [0.05, 1e30]
         config["analysis"]["bands"]["mass"] = [0.05, 1.0, 1e30]
 
@@ -52,6 +53,8 @@ def test_an_edit_to_an_include_in_another_folder_reruns_and_is_stale(built, tmp_
     scene.write_text(
         scene.read_text().replace('file="gantry_gripper.xml"', 'file="../common/robot.xml"')
     )
+    # every rollout runs again (the model's files moved): a job per condition
+    edit_config(workdir, lambda c: c["rollout"].update(shard_size=12))
     run_snakemake(workdir)
     assert "Nothing to be done" in run_snakemake(workdir, "-n").stdout
     robot = models / "common" / "robot.xml"
@@ -173,7 +176,13 @@ def test_a_deleted_results_folder_does_not_come_back(built, tmp_path):
         when=workdir / RESULTS / "logs" / "rollout_fast_00000.log",
     )
     shutil.rmtree(workdir / RESULTS)
-    edit_config(workdir, lambda c: c.update(experiment="fresh"))
+
+    def fresh(config):  # another experiment, small: one shard of 5 states per condition
+        config.update(experiment="fresh")
+        config["states"]["n"] = 5
+        config["analysis"]["first_k"] = 5
+
+    edit_config(workdir, fresh)
     run_snakemake(workdir, "--unlock")
     proc = run_snakemake(workdir)
     assert "put back" not in proc.stderr
@@ -203,6 +212,7 @@ def test_every_condition_parameter_works_end_to_end(built, tmp_path):
     workdir = copy_of(built, tmp_path)
 
     def add_conditions(c):
+        c["rollout"]["shard_size"] = 12  # a job per condition, not three
         slow = c["conditions"]["slow"]
         for parameter, value in CONDITION_PARAMETERS:
             c["conditions"][f"with_{parameter}"] = {**slow, parameter: value}
