@@ -253,3 +253,20 @@ def test_every_kind_of_outcome_table_is_a_group(tmp_path):
         "v1/c1": ("variants/v1/rollouts/c1.parquet", "states.parquet"),
         "t1/m1/seed-1": ("evaluation/t1/m1/seed-1.parquet", "tasks/t1/states.parquet"),
     }
+
+
+def test_any_fails_on_a_changed_registered_design_and_names_its_keys():
+    same = {"differ": [], "only_a": [], "only_b": []}
+    base = {"outputs": same, "conditions": {}}
+    unchanged = {"changed": False, "changes": []}
+    assert failures({**base, "registration": unchanged}, "any") == []
+    changed = {"changed": True, "changes": [{"key": "hypothesis", "a": "x", "b": "y"}]}
+    assert failures({**base, "registration": changed}, "any") == [
+        "registration: the registered design differs (hypothesis)"
+    ]
+    one_side = {"changed": True, "changes": []}
+    assert failures({**base, "registration": one_side}, "any") == [
+        "registration: the registered design differs (registered in one run only)"
+    ]
+    # the other gates are about outcomes and verdicts, not the design's text
+    assert failures({**base, "registration": changed, "effects": {}}, "verdict") == []

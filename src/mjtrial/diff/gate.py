@@ -63,7 +63,8 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
 
     Every gate fails on a run whose files are not what it sealed (an output edited or gone,
     a table whose rows are not its stamp's): what it found is not what is compared.
-    `any`: also an output is in one run only, or its content differs beyond its stamp; `changed`:
+    `any`: also an output is in one run only, or its content differs beyond its stamp, or the
+    registered designs differ (`diff.registration`); `changed`:
     a condition's success on the shared states differs beyond noise (McNemar's exact p below
     the diff's `level`); `verdict`: a verdict differs (the falsifier's, the experiment's or a
     variant's of the sensitivity study; a benchmark's comparison of two methods)."""
@@ -86,6 +87,13 @@ def failures(diff: Mapping[str, Any], fail_on: str) -> list[str]:
             for g, r in diff["conditions"].items()
             if "only" in r
         ]
+        registered = diff.get("registration") or {}
+        if registered.get("changed"):
+            keys = [c["key"] for c in registered.get("changes", [])]
+            lines.append(
+                "registration: the registered design differs"
+                + (f" ({', '.join(keys)})" if keys else " (registered in one run only)")
+            )
         return lines
     if fail_on == "changed":
         return broken + _changed_conditions(diff)
