@@ -308,3 +308,15 @@ def test_the_resimulated_sample_is_fixed_by_the_seed_and_shard_and_covers_small_
     assert a != sample_ids(1000, 2000, 20, seed=1, key=fast.replace("fast", "slow"))
     assert len(set(a)) == 20 and all(1000 <= i < 2000 for i in a) and a == sorted(a)
     assert sample_ids(10, 12, 20, seed=1, key="k") == [10, 11]
+
+
+def test_a_record_s_difference_from_its_row_names_plain_values():
+    """The table's columns are numpy arrays: their values are said as Python's (`np.True_`,
+    `np.float64(2.5)` before)."""
+    from mjtrial.report.traces import record_difference
+
+    row = {"success": np.True_, "lift": np.float64(2.5)}
+    assert record_difference({"success": False}, row) == "recorded success False differs from True"
+    assert record_difference({"success": True, "lift": 1.0}, row) == (
+        "recorded lift 1.0 differs from 2.5"
+    )

@@ -71,7 +71,8 @@ def record_difference(record: Mapping[str, object], row: Mapping[str, object]) -
             and np.isnan(mine)
             and np.isnan(theirs)
         )
-        if not same:
+        if not same:  # numpy scalars said as numbers and booleans (`np.True_` before)
+            mine, theirs = (getattr(v, "item", lambda v=v: v)() for v in (mine, theirs))
             return f"recorded {key} {mine!r} differs from {theirs!r}"
     return None
 
