@@ -18,6 +18,7 @@ from mjtrial.analysis import summarize
 from mjtrial.physics import load_model
 from mjtrial.report.model import actuator_lines, collision_pairs, contact_lines
 from mjtrial.report.text import _mistakes, _results, _scope_limits
+from mjtrial.stages.stamping import config_slice
 from mjtrial.stats import newcombe_paired_interval
 from mjtrial.task import load_task
 
@@ -90,12 +91,24 @@ def test_actuator_and_contact_statements_are_true_of_each_model(name, path):
 @pytest.mark.parametrize("path", BUILT_IN, ids=[p.stem for p in BUILT_IN])
 def test_a_study_is_named_only_when_the_config_declares_it(path):
     config = _config(path)
-    text = " ".join(_scope_limits(config))
-    assert ("sensitivity study" in text and "declares" in text) == bool(config.get("variants"))
+    # what the report stage is given: its slice of the config, which leaves the variants out
+    for given in (config, config_slice("report", config)):
+        text = " ".join(_scope_limits(given))
+        assert ("sensitivity study" in text and "declares" in text) == bool(config.get("variants"))
     without = {k: v for k, v in config.items() if k != "variants"}
-    text = " ".join(_scope_limits(without))
-    assert "No sensitivity study is configured" in text
-    assert "what the sensitivity study asks" not in text
+    for given in (without, config_slice("report", without)):
+        text = " ".join(_scope_limits(given))
+        assert "No sensitivity study is configured" in text
+        assert "what the sensitivity study asks" not in text
+
+
+def test_the_report_s_slice_changes_when_the_first_variant_comes_not_with_each_one():
+    config = _config(BUILT_IN[0])
+    without = {k: v for k, v in config.items() if k != "variants"}
+    one = {**without, "variants": {"a": {"option": {"timestep": 0.001}}}}
+    two = {**without, "variants": {**one["variants"], "b": {"option": {"timestep": 0.004}}}}
+    assert config_slice("report", one) == config_slice("report", two)
+    assert config_slice("report", without) != config_slice("report", one)
 
 
 TASK = load_task(_config(REPO / "config" / "config.yaml")["task"], repo_root=REPO)

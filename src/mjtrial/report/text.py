@@ -42,6 +42,7 @@ from mjtrial.report.model import (
 )
 from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.stopping import stopping_section
+from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
 from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
 
 
@@ -86,7 +87,7 @@ def _scope_limits(config: Mapping[str, Any]) -> tuple[str, ...]:
         " The config declares a sensitivity study of solver and contact settings "
         "(`snakemake -c2 sensitivity`, reported on its own in `report_sensitivity.md`); "
         "this report includes none of its results."
-        if config.get("variants")
+        if "sensitivity" in config.get(DECLARED_STUDIES, declared_studies(config))
         else " No sensitivity study is configured for this experiment."
     )
     return (

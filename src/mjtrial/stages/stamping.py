@@ -103,15 +103,29 @@ def _slice(
         return crate_description(config)
     if stage in ("manifest", "report"):
         # The whole design, but not the studies' (their own outputs record it): adding a
-        # variant never reruns the built-in experiment; nor the crate's authors and keywords
+        # variant never reruns the built-in experiment, only the report when it is the first
+        # (its scope says whether a study is declared); nor the crate's authors and keywords
         # (the crate records them): naming an author reruns the crate alone.
         design = {k: v for k, v in config.items() if k not in ("variants", "sweep")}
         if "provenance" in design:
             design["provenance"] = {
                 k: v for k, v in design["provenance"].items() if k not in ("authors", "keywords")
             }
+        if stage == "report":  # it says which studies the config declares, not what they hold
+            design[DECLARED_STUDIES] = declared_studies(config)
         return design
     raise ValueError(f"stage: expected one of {list(STAGES)}, got {stage!r}")
+
+
+# The report's slice keeps which studies the config declares (`declared_studies`), without
+# their variants or sweep: its scope says whether a sensitivity study exists.
+DECLARED_STUDIES = "declared_studies"
+
+
+def declared_studies(config: Mapping[str, Any]) -> list[str]:
+    """The studies the config declares: `sensitivity` (variants), `dose_response` (a sweep)."""
+    keys = {"sensitivity": "variants", "dose_response": "sweep"}
+    return [study for study, key in keys.items() if config.get(key)]
 
 
 def stopping_settings(config: Mapping[str, Any]) -> dict[str, Any]:
