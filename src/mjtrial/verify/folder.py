@@ -23,15 +23,23 @@ from mjtrial import provenance
 from mjtrial.layout import BenchmarkLayout, Layout
 
 
+def _sealed_outputs(results_dir: Path) -> list[str] | None:
+    """The outputs the folder's seal lists (repository-relative), or None without a readable
+    seal."""
+    try:
+        listed = json.loads(provenance.read_output_text(Layout(results_dir).seal))["outputs"]
+        return [str(p) for p in listed]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def recorded_as(results_dir: Path, *, repo_root: Path) -> str | None:
     """The folder (repository-relative) where the run in `results_dir` was recorded, when that
     is not where it is now (a copy, a folder renamed since, one outside the repository); None
     when its seal lists this folder's outputs, or there is no readable seal."""
     here = provenance.path_in_repo(results_dir, repo_root)
-    try:
-        listed = json.loads(provenance.read_output_text(Layout(results_dir).seal))["outputs"]
-        outputs = [str(p) for p in listed]
-    except (OSError, ValueError, KeyError, TypeError):
+    outputs = _sealed_outputs(results_dir)
+    if outputs is None:
         return None
     if not outputs or (here is not None and any(Path(p).is_relative_to(here) for p in outputs)):
         return None
@@ -88,10 +96,8 @@ def copied_from(results_dir: Path, *, repo_root: Path) -> str | None:
     folder (a copy, or a folder renamed since): what the folder is and what it was recorded
     as; None when the seal lists this folder's (or there is no readable seal)."""
     here = provenance.path_in_repo(results_dir, repo_root)
-    try:
-        listed = json.loads(provenance.read_output_text(Layout(results_dir).seal))["outputs"]
-        outputs = [str(p) for p in listed]
-    except (OSError, ValueError, KeyError, TypeError):
+    outputs = _sealed_outputs(results_dir)
+    if outputs is None:
         return None
     if here is None or not outputs or any(Path(p).is_relative_to(here) for p in outputs):
         return None
