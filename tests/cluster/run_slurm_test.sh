@@ -217,17 +217,21 @@ done
 say "cluster up after $((SECONDS - start_time)) s"
 
 # --- the same small experiment on SLURM and locally, in two copies of the workflow
-cat >"$work/small.yaml" <<EOF
+# Each run in a copy of the workflow of its own: NAME-slurm and NAME-local. Its config file lives
+# inside the copy (config/small.yaml): the workflow refuses one outside its folder, since a run's
+# source/, crate and zip name files relative to it.
+for copy in {experiment,benchmark}-{slurm,local}; do
+    mkdir -p "$work/$copy"
+    cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles,policies} "$work/$copy/"
+done
+for copy in experiment-slurm experiment-local; do
+    cat >"$work/$copy/config/small.yaml" <<EOF
 states:
   n: $n_states
 analysis:
   n_resamples: 500
   first_k: $((n_states < 10 ? n_states : 10))
 EOF
-# Each run in a copy of the workflow of its own: NAME-slurm and NAME-local.
-for copy in {experiment,benchmark}-{slurm,local}; do
-    mkdir -p "$work/$copy"
-    cp -r "$repo"/{Snakefile,workflow,config,models,tasks,profiles,policies} "$work/$copy/"
 done
 
 # start_runs NAME CONFIGFILE...: the workflow on SLURM (--workflow-profile profiles/slurm) in
@@ -291,7 +295,8 @@ mlp["policy"] = mlp["policy"].replace("seed-*", "seed-[1-3]")
 (folder / "benchmark.yaml").write_text(yaml.safe_dump(bench, sort_keys=False))
 SMALL
     done
-    cat >"$work/small_benchmark.yaml" <<YAML
+    for copy in benchmark-slurm benchmark-local; do
+        cat >"$work/$copy/config/small_benchmark.yaml" <<YAML
 benchmark:
   seeds: [1, 2, 3]
   result: development
@@ -300,14 +305,15 @@ benchmark:
   analysis: {n_resamples: 200}
   closest_calls: 2
 YAML
+    done
 fi
 
 say "running the experiment on SLURM (--workflow-profile profiles/slurm) and locally (-c2)"
-start_runs experiment "$work/small.yaml"
+start_runs experiment config/small.yaml
 if [[ $benchmark == 1 ]]; then
     # states, training, evaluation, solvability, closest calls and report as SLURM jobs
     say "running a benchmark (the cart-pole, $bench_n states, 3 seeds) on SLURM and locally, alongside"
-    start_runs benchmark config/benchmark.yaml "$work/small_benchmark.yaml"
+    start_runs benchmark config/benchmark.yaml config/small_benchmark.yaml
 fi
 
 finish_runs experiment
