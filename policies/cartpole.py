@@ -102,11 +102,13 @@ def run(
     rows: np.ndarray | None = None,
     *,
     batch_size: int = 16,
+    replay_check: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run the episodes of `values` (the rows `rows`, default all) under the benchmark's
     condition with the engine. Returns (success, alive): per episode (n,) bool and the
     fraction of its physics steps before the pole passed `fall_angle` or the cart left the
-    track (1.0 if neither), a graded score for episodes that fail."""
+    track (1.0 if neither), a graded score for episodes that fail. `replay_check` off: a
+    search's scores (`mjtrial.engine.iter_batches`)."""
     if rows is not None:
         values = {k: np.asarray(v)[rows] for k, v in values.items()}
     limits = thresholds(bound)
@@ -115,7 +117,12 @@ def run(
     qpos = [STATE_QPOS + m.jnt_qposadr[m.joint(name).id] for name in ("cart_slide", "pole_hinge")]
     success, alive = [], []
     for batch in iter_batches(
-        bound, values, benchmark_condition(), thresholds=limits, batch_size=batch_size
+        bound,
+        values,
+        benchmark_condition(),
+        thresholds=limits,
+        batch_size=batch_size,
+        replay_check=replay_check,
     ):
         x, angle = (batch.episodes.physics[:, :, i] for i in qpos)
         down = (np.abs(angle) >= limits["fall_angle"]) | (np.abs(x) >= track)

@@ -240,7 +240,8 @@ def run_batch(
       datas: one MjData per runner thread (at least one).
       pushes: a wrench pulse per episode, or None.
       check: replay every instant's observations through the policy, each row alone
-        (`check_replayed`), and raise `PolicyError` if a row's controls differ; off only to
+        (`check_replayed`), and raise `PolicyError` if a row's controls differ; off only where
+        the episodes are a search's scores (`engine.iter_batches`'s `replay_check`) or to
         measure its cost.
       actuation: what the policy's output columns drive (default: every actuator's ctrl); one
         that moves mocap bodies has their targets sent to `mujoco.rollout` as controls, from

@@ -219,8 +219,14 @@ def tune(
     def rate(parameters: dict[str, float], rows: np.ndarray) -> float:
         nonlocal used
         subset = {k: v[rows] for k, v in values.items()}
+        # a search's scores: the parameters it chooses are checked where they are evaluated
         batches = iter_batches(
-            bound, subset, {**fixed, **parameters}, thresholds=thresholds, nthread=nthread
+            bound,
+            subset,
+            {**fixed, **parameters},
+            thresholds=thresholds,
+            nthread=nthread,
+            replay_check=False,
         )
         success = np.concatenate([b.outcome["success"] for b in batches])
         used += len(rows)
