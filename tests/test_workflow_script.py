@@ -253,3 +253,48 @@ def test_a_failed_jobs_reason_is_read_back_from_its_log_for_the_console(script, 
     assert failure_reasons([failed] * 3) == failure_reasons([failed])  # each log once
     many = failure_reasons([killed, failed, never], shown=1)
     assert many[1:] == ["error: and 2 more failed jobs: see their logs"]
+
+
+class _Cycle:
+    """An object in a reference cycle: only the collector frees it."""
+
+    def __init__(self) -> None:
+        self.me = self
+
+
+def test_a_job_alone_freezes_what_survives_and_a_job_beside_another_never_does(
+    script, tmp_path
+):
+    """`release_memory` after an in-process job: the job's own cycles are freed; when no other
+    job runs there, what survives is frozen out of later collections (each then walks only the
+    new objects); a job that ends while another runs freezes nothing, or the other's cycles
+    would never be freed."""
+    import gc
+    import weakref
+
+    gc.unfreeze()
+    try:
+        made: dict[str, weakref.ref] = {}
+
+        def inner_job():  # runs while the outer job is still running
+            cycle = _Cycle()
+            made["during outer"] = weakref.ref(cycle)
+            del cycle
+            frozen = gc.get_freeze_count()
+            run_in_process(script, **job_args(tmp_path, "states", name="inner"))
+            made["freeze count unchanged"] = gc.get_freeze_count() == frozen
+            assert made["during outer"]() is None  # the inner job's collection freed it
+
+        outer = job_args(tmp_path, "print", name="outer")
+        outer["params"] = Named(what="print", slice={}, during=inner_job)
+        assert gc.get_freeze_count() == 0
+        run_in_process(script, **outer)
+        assert made["freeze count unchanged"]  # the inner job ended beside the outer one
+        assert gc.get_freeze_count() > 0  # the outer job ended alone
+        cycle = _Cycle()
+        gone = weakref.ref(cycle)
+        del cycle
+        run_in_process(script, **job_args(tmp_path, "states", name="after"))
+        assert gone() is None  # made after the freeze: still collected
+    finally:
+        gc.unfreeze()
