@@ -262,9 +262,7 @@ class _Cycle:
         self.me = self
 
 
-def test_a_job_alone_freezes_what_survives_and_a_job_beside_another_never_does(
-    script, tmp_path
-):
+def test_a_job_alone_freezes_what_survives_and_a_job_beside_another_never_does(script, tmp_path):
     """`release_memory` after an in-process job: the job's own cycles are freed; when no other
     job runs there, what survives is frozen out of later collections (each then walks only the
     new objects); a job that ends while another runs freezes nothing, or the other's cycles
