@@ -84,6 +84,7 @@ STAGES: dict[str, Stage] = {
         Stage("gather", "gather"),
         Stage("failures", "failures"),
         Stage("analysis", "analysis"),
+        Stage("figures", "figures"),  # the report's figures
         Stage("manifest", "manifest"),
         Stage("report", "report"),
         Stage("seal", "seal"),

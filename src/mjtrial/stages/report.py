@@ -1,4 +1,4 @@
-"""The report stage: the figures and `report.md`, every number formatted from the inputs."""
+"""The report's stages: its figures, then `report.md`, every number formatted from the inputs."""
 
 from __future__ import annotations
 
@@ -18,28 +18,26 @@ from mjtrial.task import BoundTask, load_task
 log = logging.getLogger("mjtrial")
 
 
-def write_report_stage(
+def write_figures_stage(
     *,
     config: Mapping[str, Any],
     summary_path: Path,
-    manifest_path: Path,
     rollout_tables: Mapping[str, Path],
     shard_folders: Mapping[str, Sequence[Path]],
     model_file: Path,
     figures_dir: Path,
-    output: Path,
     repo_root: Path = REPO_ROOT,
 ) -> list[Path]:
-    """Draw the figures and write `report.md`; every number in them comes from the inputs.
+    """Draw the report's figures from the summary, the tables and the recordings.
 
-    `shard_folders` (condition -> its shards' folders of recordings, as the layout names them
-    for this run, none without recordings) hold the sample traces drawn: a folder an earlier
-    run left is never read;
-    `model_file` is the model the report describes (checked against the manifest's hash).
+    A job of their own, apart from `report.md`: they need neither the manifest nor the failures
+    gathered, so they are drawn while the failures job runs (at N = 200 each takes 1-2 s, and
+    the report waited for both one after the other). `shard_folders` (condition -> its shards'
+    folders of recordings, as the layout names them for this run, none without recordings) hold
+    the sample traces drawn: a folder an earlier run left is never read.
     """
     inputs = {
         "summary": summary_path,
-        "manifest": manifest_path,
         **model_inputs(model_file),
         **task_inputs(config["task"], repo_root=repo_root),
         **{f"rollout:{k}": v for k, v in rollout_tables.items()},
@@ -48,12 +46,9 @@ def write_report_stage(
             for k in shard_folders
         },
     }
-    stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
+    stamp = make_stage_stamp("figures", dict(config), inputs, repo_root=repo_root)
     summary = json.loads(Path(summary_path).read_text())
-    manifest = json.loads(Path(manifest_path).read_text())
     bound = BoundTask.of(load_task(config["task"], repo_root=repo_root), load_model(model_file))
-    if bound.model.opt.timestep != manifest["model"]["timestep"]:
-        raise ValueError(f"{model_file}: its timestep differs from the manifest's")
     figures = report.write_figures(
         summary=summary,
         bound=bound,
@@ -64,17 +59,44 @@ def write_report_stage(
         stamp=stamp,
         condition_bounds=_own_bounds(config, model_file, repo_root=repo_root),
     )
+    log.info("figures -> %s (%d files)", figures_dir, len(figures))
+    return figures
+
+
+def write_report_stage(
+    *,
+    config: Mapping[str, Any],
+    summary_path: Path,
+    manifest_path: Path,
+    figure_paths: Sequence[Path],
+    model_file: Path,
+    output: Path,
+    repo_root: Path = REPO_ROOT,
+) -> None:
+    """Write `report.md`; every number in it comes from the inputs, and it shows the figures
+    (`write_figures_stage`). `model_file` is the model the report describes (checked against
+    the manifest's hash)."""
+    inputs = {
+        "summary": summary_path,
+        "manifest": manifest_path,
+        "figures": list(figure_paths),
+        **model_inputs(model_file),
+        **task_inputs(config["task"], repo_root=repo_root),
+    }
+    stamp = make_stage_stamp("report", dict(config), inputs, repo_root=repo_root)
+    manifest = json.loads(Path(manifest_path).read_text())
+    if load_model(model_file).opt.timestep != manifest["model"]["timestep"]:
+        raise ValueError(f"{model_file}: its timestep differs from the manifest's")
     report.write_report(
         summary_path=summary_path,
         config=dict(config),
         manifest_path=manifest_path,
-        figure_paths=figures,
+        figure_paths=figure_paths,
         output=output,
         stamp=stamp,
         repo_root=repo_root,
     )
-    log.info("report -> %s (%d figure files)", output, len(figures))
-    return figures
+    log.info("report -> %s", output)
 
 
 def _own_bounds(

@@ -95,6 +95,8 @@ def _slice(
             "conditions": dict(config["conditions"]),
             "confidence": config["analysis"]["confidence"],
         }
+    if stage == "figures":  # the words and traces of the task and each condition
+        return {"task": config["task"], "conditions": dict(config["conditions"])}
     if stage == "failures":
         return {"failures_max": config["recording"]["failures_max"]}
     if stage == "seal":
