@@ -102,11 +102,15 @@ def test_digest_changes_with_any_file_and_names_it():
 
 # Rules whose inputs come from each stage, directly or not (workflow/rules/*.smk).
 DOWNSTREAM = {  # within the built-in experiment, what `snakemake -c2` plans
-    "states": {"rollout", "gather", "failures", "analysis", "manifest", "report", "seal", "crate"},
-    "rollout": {"gather", "failures", "analysis", "manifest", "report", "seal", "crate"},
-    "gather": {"failures", "analysis", "manifest", "report", "seal", "crate"},
+    "states": {
+        *("rollout", "gather", "failures", "analysis", "figures", "manifest", "report"),
+        *("seal", "crate"),
+    },
+    "rollout": {"gather", "failures", "analysis", "figures", "manifest", "report", "seal", "crate"},
+    "gather": {"failures", "analysis", "figures", "manifest", "report", "seal", "crate"},
     "failures": {"manifest", "report", "seal", "crate"},
-    "analysis": {"manifest", "report", "seal", "crate"},
+    "analysis": {"figures", "manifest", "report", "seal", "crate"},
+    "figures": {"report", "seal", "crate"},
     "manifest": {"report", "seal", "crate"},
     "report": {"seal", "crate"},
     "seal": {"crate"},
@@ -190,6 +194,8 @@ def _stage_of(path: str) -> str:
         return "seal"
     if rel == "ro-crate-metadata.json" or rel == "source":
         return "crate"
+    if rel.startswith("figures/"):
+        return "figures"
     return "report"
 
 

@@ -110,6 +110,7 @@ def test_every_log_begins_with_its_stamp(built):
         "gather_slow",
         "failures",
         "analysis",
+        "figures",
         "manifest",
         "report",
         "seal",
@@ -132,7 +133,7 @@ def test_every_log_holds_its_own_jobs_messages_and_ends_with_its_resources(built
         assert in_process == (not log.stem.startswith(("rollout_", "failures"))), log.name
         stage = rule.split(":")[0]
         others = {"states", "rollout", "gather", "failures", "analysis", "manifest", "report"}
-        others |= {"seal", "crate"}
+        others |= {"figures", "seal", "crate"}
         for line in lines[1:-1]:  # no line of another job: those begin "<stage>:" or "<stage> ->"
             word = line.split(" ")[0].split(":")[0]
             assert word not in others - {stage}, (log.name, line)
@@ -177,7 +178,7 @@ def _edit_png_pixels(workdir: Path) -> Path:
     buffer = BytesIO()
     image.save(buffer, format="png", pnginfo=chunks)
     path.write_bytes(buffer.getvalue())
-    assert provenance.read_stamp(path)["rule"] == "report"
+    assert provenance.read_stamp(path)["rule"] == "figures"
     return path
 
 
@@ -197,7 +198,8 @@ def test_verify_names_an_edited_report_or_figure(work, edit):
     )
     rel = path.relative_to(work).as_posix()
     assert report[rel].status is Status.TAMPERED, report.format()
-    assert "recorded by seal.json" in " ".join(report[rel].reasons)
+    # the seal records its sha256 (and, for a figure, the report that shows it)
+    assert "seal.json does not match" in " ".join(report[rel].reasons)
     assert not report.ok
 
 

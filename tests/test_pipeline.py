@@ -145,6 +145,7 @@ def test_changing_n_resamples_reruns_analysis_and_what_follows_only(built, tmp_p
     assert planned_jobs(workdir) == {
         "all": 1,
         "analysis": 1,
+        "figures": 1,
         "manifest": 1,
         "report": 1,
         "seal": 1,
@@ -161,6 +162,7 @@ def test_changing_fast_lift_time_reruns_fast_rollout_not_slow(built, tmp_path):
         "all": 1,
         "analysis": 1,
         "failures": 1,
+        "figures": 1,
         "manifest": 1,
         "report": 1,
         "rollout": 3,  # fast's 3 shards
