@@ -49,6 +49,7 @@ def test_without_a_stopping_section_the_plan_is_every_shard_and_no_look(tmp_path
         "gather": 2,
         "failures": 1,
         "analysis": 1,
+        "figures": 1,
         "manifest": 1,
         "report": 1,
         "seal": 1,

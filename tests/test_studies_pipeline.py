@@ -189,6 +189,7 @@ def test_the_studies_stay_out_of_snakemake_c2_after_they_ran(studied, tmp_path):
     assert planned_jobs(workdir) == {
         "all": 1,
         "analysis": 1,
+        "figures": 1,
         "manifest": 1,
         "report": 1,
         "seal": 1,
