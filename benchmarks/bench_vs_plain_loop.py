@@ -168,7 +168,11 @@ def logging_share(config: dict, n: int, repeats: int) -> list[float]:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         states = tmp / "states.parquet"
-        build_states(states_slice={**config["states"], "n": n}, output=states, repo_root=REPO_ROOT)
+        build_states(
+            states_slice={**config_slice("states", config), "n": n},
+            output=states,
+            repo_root=REPO_ROOT,
+        )
 
         def stage(recorded: bool) -> float:
             c0 = time.process_time()

@@ -153,3 +153,20 @@ def test_every_script_beside_the_package_still_imports(script):
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "usage:" in done.stdout
+
+
+def test_the_recording_share_benchmark_runs_the_stage_as_the_pipeline_does(monkeypatch):
+    """`--help` imports a benchmark but runs none of its work: the recording share's stage calls
+    (states, then each condition's shard with and without its recordings) run here on 3 states,
+    so a changed stage contract fails a test, not the next person to measure (a states slice
+    without its task did, unseen, for a release)."""
+    import yaml
+
+    monkeypatch.syspath_prepend(str(REPO_ROOT / "benchmarks"))
+    from bench_vs_plain_loop import logging_share
+
+    from mjtrial.layout import CONFIG_FILE
+
+    config = yaml.safe_load((REPO_ROOT / CONFIG_FILE).read_text())
+    (share,) = logging_share(config, 3, 1)
+    assert -1.0 < share < 1.0  # a CPU share; its size is the benchmark's to measure
