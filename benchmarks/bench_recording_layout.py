@@ -34,10 +34,9 @@ from mjtrial.atomic import fsync_file
 from mjtrial.layout import CONFIG_FILE
 from mjtrial.recording.arrow import chunks as recording_chunks
 from mjtrial.recording.write import EpisodeStores
+from mjtrial.stages.condition import condition_parameters, condition_task
 from mjtrial.stages.rollout import (
     condition_batches,
-    condition_parameters,
-    condition_task,
     episode_records,
     read_state_values,
     recording_spec,

@@ -51,12 +51,8 @@ from mujoco import rollout
 from mjtrial import REPO_ROOT, closed_loop
 from mjtrial.conditions import POLICY
 from mjtrial.phases import PHASES_PREFIX
-from mjtrial.stages.rollout import (
-    condition_parameters,
-    condition_task,
-    read_state_values,
-    run_shard,
-)
+from mjtrial.stages.condition import condition_parameters, condition_task
+from mjtrial.stages.rollout import read_state_values, run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
 from mjtrial.task import ClosedLoop, OpenLoop, call

@@ -17,6 +17,7 @@ the same command, alternating which runs first; then prints, from the last build
 
     python benchmarks/profile_pipeline.py               # 2 alternating repeats
     python benchmarks/profile_pipeline.py --repeats 3
+    python benchmarks/profile_pipeline.py --repeats 1 --n 4000   # at scale: 8 rollout jobs
 
 Run it before and after a change (docs/architecture.md, "Checking a change's cost").
 """
@@ -105,6 +106,7 @@ def print_profile(dry: float, wall: float, cpu: float, jobs: list[dict]) -> None
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--n", type=int, default=200, help="states (default: the config's 200)")
     args = parser.parse_args()
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     config = yaml.safe_load((REPO_ROOT / CONFIG_FILE).read_text())
@@ -113,10 +115,10 @@ def main() -> None:
     for r in range(args.repeats):
         for what in ("loop", "pipeline") if r % 2 == 0 else ("pipeline", "loop"):
             if what == "loop":
-                wall, cpu, _ = run_plain_loop(config, 200)
+                wall, cpu, _ = run_plain_loop(config, args.n)
                 runs["loop"].append((wall, cpu))
                 continue
-            work = copy_workflow(200)
+            work = copy_workflow(args.n)
             dry = run_snakemake(work, "-n")[0]
             began = time.time()
             wall, cpu, _ = run_snakemake(work)

@@ -12,7 +12,8 @@ from conftest import REPO_ROOT
 from mjtrial import engine, provenance
 from mjtrial.benchmark.config import check_benchmark_config, train_slice
 from mjtrial.config import read_config_file
-from mjtrial.stages.rollout import condition_task, read_state_values, thresholds_of
+from mjtrial.stages.condition import condition_task, thresholds_of
+from mjtrial.stages.rollout import read_state_values
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
 from mjtrial.stages.train import train_method

@@ -17,7 +17,7 @@ from mjtrial import recording
 from mjtrial.physics import load_model
 from mjtrial.replay import replay_episode
 from mjtrial.report.traces import sample_traces
-from mjtrial.stages.rollout import condition_task
+from mjtrial.stages.condition import condition_task
 from mjtrial.stages.stamping import config_slice
 from mjtrial.task import BoundTask, load_task
 

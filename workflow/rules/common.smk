@@ -24,6 +24,7 @@ from mjtrial.registration import RegistrationError, ensure_registered, note_devi
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
+from mjtrial.stages.condition import episode_steps_of
 from mjtrial.stages.look import stops
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
 from mjtrial.task import task_files
@@ -175,6 +176,22 @@ def shard_bounds(wildcards):
     return shard_range(
         wildcards.shard, config["rollout"]["shard_size"], config["states"]["n"]
     )
+
+
+_EPISODE_STEPS = {}  # qualified condition -> its episode's physics steps
+
+
+def rollout_priority(wildcards):
+    """The job's physics steps, in thousands (its states times the condition's episode steps):
+    Snakemake starts the ready job of highest priority, so the longest shards run first and
+    the short ones fill the cores at the end (longest processing time first)."""
+    key = qualified(wildcards)
+    if key not in _EPISODE_STEPS:
+        _EPISODE_STEPS[key] = episode_steps_of(
+            rollout_slice(wildcards), Path(config["model"]), repo_root=Path.cwd()
+        )
+    first, stop = shard_bounds(wildcards)
+    return (stop - first) * _EPISODE_STEPS[key] // 1000
 
 
 def shard_tables(wildcards):

@@ -95,7 +95,7 @@ def sample_traces(
         names them: a folder an earlier run left is never read).
       conditions: condition -> its protocol parameters (config `conditions.<name>`).
       per_outcome: episodes of each outcome per condition.
-      condition_bounds: condition -> its task on its own model (`stages.rollout.condition_task`),
+      condition_bounds: condition -> its task on its own model (`stages.condition.condition_task`),
         where it edits the model or names a policy file: its steps and time axis are its own
         (another timestep, other steps). A condition not in it ran `bound`.
 

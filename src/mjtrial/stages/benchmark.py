@@ -18,7 +18,7 @@ from mjtrial.benchmark.report import benchmark_report
 from mjtrial.benchmark.solvability import probe_states
 from mjtrial.benchmark.summary import summarize_benchmark
 from mjtrial.report.figures import write_benchmark_figures
-from mjtrial.stages.rollout import condition_task, thresholds_of
+from mjtrial.stages.condition import condition_task, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 
 log = logging.getLogger("mjtrial")

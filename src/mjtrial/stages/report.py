@@ -11,7 +11,7 @@ from typing import Any
 from mjtrial import REPO_ROOT, report
 from mjtrial.conditions import model_edits, policy_path
 from mjtrial.physics import load_model
-from mjtrial.stages.rollout import condition_task
+from mjtrial.stages.condition import condition_task
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.task import BoundTask, load_task
 

@@ -15,13 +15,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, atomic, engine, phases, provenance, recording
-from mjtrial.conditions import model_edits, policy_path
-from mjtrial.physics import load_model
+from mjtrial.conditions import policy_path
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
+from mjtrial.stages.condition import condition_parameters, condition_task, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
-from mjtrial.studies.variants import variant_model
-from mjtrial.task import BoundTask, Measure, Task, address, load_task
+from mjtrial.task import BoundTask, Measure, Task, address
 
 log = logging.getLogger("mjtrial")
 
@@ -112,21 +111,6 @@ def read_state_values(
     return values
 
 
-def condition_task(
-    condition_slice: Mapping[str, Any], model_file: Path, *, repo_root: Path = REPO_ROOT
-) -> BoundTask:
-    """The task a condition runs, on its model: the committed one, edited by the slice's
-    variant, then by the condition's own model edits (`conditions.<name>.model`); with its
-    policy file as the policy where it names one (`conditions.<name>.policy`)."""
-    task = load_task(condition_slice["task"], repo_root=repo_root)
-    policy = policy_path(condition_slice)
-    if policy:
-        from mjtrial.policy_file import load_policy_file, policy_task  # a policy's job only
-
-        task = policy_task(task, load_policy_file(Path(repo_root) / policy, task))
-    return BoundTask.of(task, condition_model(condition_slice, model_file))
-
-
 def condition_policy_inputs(
     condition_slice: Mapping[str, Any], *, repo_root: Path = REPO_ROOT
 ) -> dict[str, Any]:
@@ -147,32 +131,6 @@ def policy_settings(condition_slice: Mapping[str, Any]) -> dict[str, Any] | None
     from mjtrial.policy_file import runtime_settings  # a policy's job only
 
     return {"policy_runtime": runtime_settings()}
-
-
-def condition_model(condition_slice: Mapping[str, Any], model_file: Path) -> mujoco.MjModel:
-    """The model a condition's episodes run on (see `condition_task`)."""
-    variant = condition_slice.get("variant")
-    edits = model_edits(condition_slice)
-    if variant is None and not edits:
-        return load_model(model_file)
-    overrides, prefix = (
-        ({}, "model") if variant is None else (variant["overrides"], f"variants.{variant['name']}")
-    )
-    condition = condition_slice.get("condition", "condition")
-    then = [(edits, f"conditions.{condition}.model")] if edits else []
-    return variant_model(model_file, overrides, key_prefix=prefix, then=then)[0]
-
-
-def condition_parameters(bound: BoundTask, condition_slice: Mapping[str, Any]) -> dict[str, float]:
-    """The condition's protocol parameters, from its slice."""
-    names = {p.name for p in bound.task.protocol_parameters}
-    return {k: v for k, v in condition_slice.items() if k in names}
-
-
-def thresholds_of(bound: BoundTask, condition_slice: Mapping[str, Any]) -> dict[str, float]:
-    """The failure categories' thresholds: the config's `failure_taxonomy`, else defaults."""
-    given = condition_slice.get("failure_taxonomy", {})
-    return {t.name: float(given.get(t.name, t.default)) for t in bound.task.thresholds}
 
 
 def condition_batches(
