@@ -171,6 +171,21 @@ def test_an_in_process_jobs_prints_go_to_its_log_and_the_console_stays(script, t
     assert "after the job" in capsys.readouterr().out
 
 
+def test_a_process_job_leaves_nothing_for_the_exits_collections(script, tmp_path):
+    """A job in a process of its own freezes what is left once it has succeeded, so that the
+    interpreter's exit does not walk it (not a failed one: its exit is not timed)."""
+    marker = tmp_path / "frozen.txt"
+    script.write_text(
+        "import atexit, gc\n"
+        f"atexit.register(lambda: open({str(marker)!r}, 'w').write(str(gc.get_freeze_count())))\n"
+        + SCRIPT
+    )
+    args, proc = _run_as_script(script, tmp_path, "write")
+    assert proc.returncode == 0, proc.stderr
+    assert Path(args["output"][0]).read_text() == "states"
+    assert int(marker.read_text()) > 1000  # every module's objects, frozen
+
+
 def test_a_process_jobs_prints_and_warnings_go_to_its_log(script, tmp_path):
     """As Snakemake's `script:` runs it: what the task prints or warns is in the job's log."""
     args, proc = _run_as_script(script, tmp_path, "print")

@@ -91,6 +91,11 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
             log.info("%s", thread_resources_line(*started))
         else:
             log.info("%s", resources_line())
+    if not in_process:
+        # Done, its outputs written: the process exits next, and the interpreter's exit walks
+        # every object left (numpy, MuJoCo, Rerun, the task) in collections that free nothing
+        # the exit would not: 0.17-0.21 s of a rollout job's process, 0.04 s once frozen.
+        gc.freeze()
 
 
 ERROR_LINE = "error: "  # how `run_job`'s one-line reason for a failure begins, in the log
