@@ -200,6 +200,46 @@ def test_a_non_finite_action_is_a_failure_category_not_a_crash(tmp_path):
     np.testing.assert_array_equal(_run(graph, values, batch_size=1)["physics"], out["physics"])
 
 
+def _per_call(policy, observations: np.ndarray) -> np.ndarray:
+    """What a reset and one call per instant give one episode: (k, nu)."""
+    policy.reset(1)
+    return np.concatenate([policy(observations[k : k + 1]) for k in range(len(observations))])
+
+
+@pytest.mark.parametrize(
+    "case", ["recurrent, raw", "normalized, ctrlrange", "non-finite from instant 5"]
+)
+def test_one_episode_alone_is_a_reset_and_a_call_per_instant_bit_for_bit(tmp_path, case):
+    """`OnnxPolicy.alone`, the replay check's path for a policy file, against the plain per-call
+    path (what the reference episode and verify's re-simulation run): the same bits, for a
+    recurrent state with clipped actions, a normalization with a scaled action, and an action
+    that turns non-finite partway (ctrl 0 from then on, even where it is finite again)."""
+    rng = np.random.default_rng(7)
+    observations = rng.normal(scale=0.3, size=(40, 2))
+    if case == "recurrent, raw":
+        path = _lqr_file(tmp_path)
+    elif case == "normalized, ctrlrange":
+        normalization = {"mean": [0.1, -0.05], "std": [0.4, 0.2]}
+        path = write(tmp_path, "mlp", tanh_mlp([2, 16, 1], seed=3), normalization=normalization)
+        observations *= 5
+    else:
+        path = write(tmp_path, "nan", sqrt_of_angle())
+        observations[:, 1] = np.abs(observations[:, 1])
+        observations[5, 1] = -0.1  # NaN at instant 5 only
+    model, params = BoundTask.of(TASK).model, TASK.parameters({})
+    policy = load_policy_file(path, TASK).policy(model, params)
+    expected = _per_call(policy, observations)
+    got = policy.alone(observations)
+    np.testing.assert_array_equal(got, expected)
+    if case == "non-finite from instant 5":
+        assert (got[5:] == 0).all()
+    elif case == "recurrent, raw":
+        low, high = model.actuator_ctrlrange[0]
+        assert got.min() == low and got.max() == high  # actions clipped at both ends
+    else:
+        assert np.isfinite(got).all() and len(np.unique(got)) == len(got)
+
+
 # --------------------------------------------------------------------------------------------
 # A condition that names a policy file
 # --------------------------------------------------------------------------------------------

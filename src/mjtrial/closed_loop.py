@@ -458,22 +458,38 @@ def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.n
     bit, at every instant: an episode's controls, and so its result, must not depend on its
     batch (the shard's size, the episodes beside it).
 
+    A policy with an `alone(observations)` method (k instants of one episode -> its (k, nu)
+    controls, what a reset and k calls on that row alone give) replays each episode through it:
+    a policy file does (`policy_file.OnnxPolicy.alone`), its graph called on the row alone at
+    every instant and the arithmetic around it once per episode.
+
     Args:
       policy: the batch's policy (reset here; its memory is per episode from a reset on).
       observations: (n, k, n_observations) what the policy saw at its first k instants.
       controls: (n, k, nu) what it returned.
     """
     n, n_controls, nu = controls.shape
+    alone = getattr(policy, "alone", None)  # a policy's own replay of one episode (see above)
     for rows in replay_splits(n):
-        policy.reset(len(rows))
-        again = np.empty((n_controls, len(rows), nu))
-        for k in range(n_controls):  # compared once the episode is replayed: cheaper per call
-            ctrl = np.asarray(policy(observations[rows, k].copy()), dtype=np.float64)
-            if ctrl.shape != (len(rows), nu):
+        if alone is not None and len(rows) == 1:
+            ctrl = np.asarray(alone(observations[rows[0]].copy()), dtype=np.float64)
+            if ctrl.shape != (n_controls, nu):
                 raise PolicyError(
-                    f"policy: expected controls of shape ({len(rows)}, {nu}), got {ctrl.shape}"
+                    f"policy: expected controls of shape ({n_controls}, {nu}) from alone(), got "
+                    f"{ctrl.shape}"
                 )
-            again[k] = ctrl
+            again = ctrl[:, None, :]
+        else:
+            policy.reset(len(rows))
+            again = np.empty((n_controls, len(rows), nu))
+            for k in range(n_controls):  # compared once the episode is replayed: cheaper
+                ctrl = np.asarray(policy(observations[rows, k].copy()), dtype=np.float64)
+                if ctrl.shape != (len(rows), nu):
+                    raise PolicyError(
+                        f"policy: expected controls of shape ({len(rows)}, {nu}), got "
+                        f"{ctrl.shape}"
+                    )
+                again[k] = ctrl
         given = controls[rows].swapaxes(0, 1)  # (k, rows, nu), finite (`_checked_controls`)
         if np.array_equal(again, given):
             continue
