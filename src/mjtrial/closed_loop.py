@@ -495,10 +495,10 @@ def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.n
             continue
         k, bad = (int(x[0]) for x in np.nonzero((again != given).any(axis=2)))
         diff = float(np.max(np.abs(again[k, bad] - given[k, bad])))
-        alone = "it runs alone" if len(rows) == 1 else f"replayed in a batch of {len(rows)}"
+        how = "it runs alone" if len(rows) == 1 else f"replayed in a batch of {len(rows)}"
         raise PolicyError(
             f"policy: batch dependence: episode row {rows[bad]} of a batch of {n} gets other "
-            f"controls at control instant {k} when {alone} (largest difference {diff:.3g}): "
+            f"controls at control instant {k} when {how} (largest difference {diff:.3g}): "
             "its results would depend on the batch (rollout.shard_size); compute each row "
             "from that row's observations alone"
         )
