@@ -16,12 +16,12 @@ rule rollout:
     wildcard_constraints:
         condition=one_of(ALL_CONDITIONS),
         shard=SHARD_PATTERN,
-    # One engine thread per job, and as many jobs side by side as there are cores: no thread
-    # pool to synchronise per batch of episodes (the SLURM profile gives each job 2).
-    threads: 1
     # The longest shards first: at N = 4,000 a slow lift's shard takes 31 s, a fast lift's 19 s,
     # and a fast one started first left a core idle 17 s at the end of the rollouts.
     priority: rollout_priority
+    # One engine thread per job, and as many jobs side by side as there are cores: no thread
+    # pool to synchronise per batch of episodes (the SLURM profile gives each job 2).
+    threads: 1
     params:
         slice=rollout_slice,
         shard=shard_bounds,
