@@ -22,7 +22,7 @@ from mjtrial.closed_loop import (
     reference_episode,
     run_batch,
 )
-from mjtrial.controllers import EncoderFeedback, lqr_gain
+from mjtrial.controllers import EncoderFeedback, StateFeedback, lqr_gain
 from mjtrial.physics import FULLPHYSICS
 
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
@@ -68,6 +68,31 @@ def _policy(model):
     )
     period = STEPS_PER_CONTROL * model.opt.timestep
     return EncoderFeedback(gain, period=period, ctrl_range=model.actuator_ctrlrange)
+
+
+@pytest.mark.parametrize("controller", ["encoder feedback", "state feedback"])
+def test_a_controllers_episode_alone_is_a_reset_and_a_call_per_instant_bit_for_bit(controller):
+    """`alone`, the replay check's path for the built-in controllers (`check_replayed`), against
+    the plain per-call path (what the reference episode and verify's re-simulation run): the
+    same bits, actions clipped at both ends included."""
+    encoder = _policy(NOMINAL)
+    if controller == "encoder feedback":
+        policy = encoder
+        # a slow drift, then two jumps whose finite-difference velocities saturate the motor
+        observations = np.cumsum(np.random.default_rng(5).normal(scale=1e-3, size=(60, 2)), 0)
+        observations[20:, 1] += 0.5
+        observations[40:, 1] -= 1.0
+    else:
+        policy = StateFeedback(encoder.gain[:, :4], ctrl_range=NOMINAL.actuator_ctrlrange)
+        observations = np.random.default_rng(5).normal(scale=0.05, size=(60, 4))
+        observations[[10, 30], 1] = [0.9, -0.9]  # angles that saturate the motor
+    policy.reset(1)
+    expected = np.concatenate([policy(observations[k : k + 1]) for k in range(60)])
+    got = policy.alone(observations)
+    np.testing.assert_array_equal(got, expected)
+    low, high = NOMINAL.actuator_ctrlrange[0]
+    assert got.min() == low and got.max() == high
+    assert low < np.median(got) < high
 
 
 def encoders(states):

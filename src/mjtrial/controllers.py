@@ -76,11 +76,23 @@ class EncoderFeedback:
         previous = y if self._previous is None else self._previous
         self._previous = y.copy()
         velocity = (y - previous) / self.period
+        return self._controls(y, velocity)
+
+    def _controls(self, y: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         state = np.concatenate([y, velocity], axis=1)
         u = np.zeros((len(y), len(self.gain)))
         for j in range(state.shape[1]):  # fixed order: the same sum for any batch
             u -= self.gain[:, j][None, :] * state[:, j][:, None]
         return np.clip(u, self.low, self.high)
+
+    def alone(self, observations: np.ndarray) -> np.ndarray:
+        """One episode's controls from a reset, (k, n_observations) -> (k, nu): what a reset and
+        a call per instant give, bit for bit (the same elementwise arithmetic, its previous
+        readings shifted by one), in one pass: the replay check's
+        (`closed_loop.check_replayed`), which otherwise costs a call per instant and episode."""
+        y = np.asarray(observations, dtype=np.float64)
+        previous = np.concatenate([y[:1], y[:-1]])
+        return self._controls(y, (y - previous) / self.period)
 
 
 class StateFeedback:
@@ -102,3 +114,8 @@ class StateFeedback:
         for j in range(y.shape[1]):
             u -= self.gain[:, j][None, :] * y[:, j][:, None]
         return np.clip(u, self.low, self.high)
+
+    def alone(self, observations: np.ndarray) -> np.ndarray:
+        """One episode's controls at each of its instants (no memory: its rows as a batch), for
+        the replay check (see `EncoderFeedback.alone`)."""
+        return self(observations)
