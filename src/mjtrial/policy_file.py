@@ -441,8 +441,8 @@ class OnnxPolicy:
         `observations` (k, n_observations) -> (k, nu), what `reset(1)` and k calls give, bit
         for bit. The graph runs on the episode's row alone at every instant (the replay's exact
         check, `closed_loop.check_replayed`); the arithmetic around it, elementwise, runs on
-        all k instants at once. The replay of a 200-episode shard of the cart-pole's policy
-        file cost 2.5 times its graph calls, the arithmetic per call."""
+        all k instants at once: per call, it cost 2.5 times the graph's own 11 µs
+        (benchmarks/bench_policy_file.py)."""
         x = self._graph_input(observations)
         state = {
             r.input: np.zeros((1, r.size), dtype=np.float32) for r in self.contract.recurrent
