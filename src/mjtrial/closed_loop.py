@@ -460,8 +460,9 @@ def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.n
 
     A policy with an `alone(observations)` method (k instants of one episode -> its (k, nu)
     controls, what a reset and k calls on that row alone give) replays each episode through it:
-    a policy file does (`policy_file.OnnxPolicy.alone`), its graph called on the row alone at
-    every instant and the arithmetic around it once per episode.
+    a policy file does (`policy_file.OnnxPolicy.alone`, its graph called on the row alone at
+    every instant and the arithmetic around it once per episode), and so do the built-in
+    controllers (`mjtrial.controllers`, the whole episode in one pass).
 
     Args:
       policy: the batch's policy (reset here; its memory is per episode from a reset on).
