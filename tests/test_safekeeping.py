@@ -160,6 +160,25 @@ def test_a_killed_run_gets_back_what_it_had_started_to_rebuild(workdir):
     assert not snap.folder.exists()
 
 
+def test_a_killed_runs_temporaries_go_even_when_nothing_is_put_back(workdir):
+    """Survey case 6 as CI met it: the kill came while a job filled its temporary folder, and
+    every output came back from the snapshot, so the next run had nothing to do and no start
+    to clear it at. The recovery itself removes it; a live run's temporaries stay."""
+    from mjtrial.atomic import temp_path_for
+
+    snap = snapshot(workdir)
+    snap.take()
+    left = temp_path_for(workdir / RESULTS / "rollouts" / "shard-00001")
+    write(left / "episode.rrd", "half")
+    live = snapshot(workdir).recover()  # this process owns the snapshot: alive
+    assert live is None and left.exists()
+    _killed(snap, workdir)
+    recovery = snapshot(workdir).recover()
+    assert recovery.removed == (left,) and recovery.restored == ()
+    assert not left.exists()
+    assert (workdir / RESULTS / "table.parquet").read_text() == "old table"
+
+
 def test_what_the_user_deleted_after_a_kill_stays_deleted(workdir):
     """Survey case 7: only outputs the killed run marked incomplete come back."""
     snap = snapshot(workdir)

@@ -21,8 +21,8 @@ A run killed outright (SIGKILL, a power cut) runs no handler. Whenever the workf
 loaded (any `snakemake` call in the main process, with or without jobs to run), a snapshot whose
 run is dead is used to put back the outputs that run had started to rebuild (those Snakemake
 marks incomplete) and are missing, with their records; the marks of what was put back are
-cleared. A snapshot that cannot be used is set aside (`.snapshot-broken-<time>`) and reported,
-never in the way of a later run.
+cleared, and the hidden temporaries its killed jobs left are removed. A snapshot that cannot be
+used is set aside (`.snapshot-broken-<time>`) and reported, never in the way of a later run.
 """
 
 from __future__ import annotations
@@ -103,6 +103,7 @@ class Recovery:
     """What the workflow's load did with a killed run's snapshot."""
 
     restored: tuple[Path, ...] = ()
+    removed: tuple[Path, ...] = ()  # temporaries the killed run's jobs left
     set_aside: Path | None = None  # where a snapshot that could not be used was moved
     error: str = ""
 
@@ -228,8 +229,12 @@ class Snapshot:
         """At workflow load: use the snapshot a killed run left, if that run is dead.
 
         Puts back the outputs the killed run had started to rebuild (Snakemake's incomplete
-        marks) that are missing now, clears their marks, and drops the snapshot. Returns None
-        when there is nothing to do (no snapshot, or its run is still alive).
+        marks) that are missing now, clears their marks, removes the temporaries its killed
+        jobs left, and drops the snapshot. Returns None when there is nothing to do (no
+        snapshot, or its run is still alive). The temporaries go here, not only at the next
+        run's start: once everything is put back the next run may have nothing to do, and
+        starts nothing. No other run can have written them: the dead run still holds
+        Snakemake's lock on the folder.
         """
         if not self.folder.is_dir():
             return None
@@ -248,7 +253,8 @@ class Snapshot:
                     for mark in marks.get(output, []):
                         mark.unlink(missing_ok=True)
             self.drop()
-            return Recovery(restored=tuple(restored))
+            removed = remove_stale_temporaries(self.workdir / self.results)
+            return Recovery(restored=tuple(restored), removed=tuple(removed))
         except OSError as err:
             aside = self.folder.with_name(f"{SNAPSHOT}-broken-{time.strftime('%Y%m%dT%H%M%S')}")
             try:

@@ -59,6 +59,8 @@ def recover_killed_run():
             f"had removed: {', '.join(map(str, recovery.restored))}",
             file=sys.stderr,
         )
+    for path in recovery.removed:
+        print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
     if recovery.error:
         print(
             f"mjtrial: the snapshot a killed run left could not be used ({recovery.error}); "
