@@ -277,3 +277,33 @@ def test_hidden_temporaries_are_not_kept_and_stale_ones_are_removed(workdir):
     assert remove_stale_temporaries(workdir / RESULTS) == sorted([temp_dir, temp_file])
     assert not temp_file.exists() and not temp_dir.exists()
     assert (workdir / RESULTS / "table.parquet").exists()
+
+
+def test_a_temporary_that_cannot_be_removed_stays_unreported_and_the_recovery_goes_on(
+    workdir, monkeypatch
+):
+    """Removing temporaries is best effort: one the filesystem refuses (a read-only folder
+    for another user) stays for the next try and is not said to be removed, and the killed
+    run's outputs still come back."""
+    stuck = workdir / RESULTS / ".manifest.json.tmp-7-ef.json"
+    gone = workdir / RESULTS / ".summary.json.tmp-7-01.json"
+    write(stuck, "half")
+    write(gone, "half")
+    snap = snapshot(workdir)
+    snap.take()
+    table = RESULTS / "table.parquet"
+    write(record_path(workdir, table, INCOMPLETE), "")
+    (workdir / table).unlink()
+    _killed(snap, workdir)
+    unlink = Path.unlink
+
+    def refuse(self, *args, **kwargs):
+        if self == stuck:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return unlink(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "unlink", refuse)
+    recovery = snapshot(workdir).recover()
+    assert recovery.removed == (gone,) and recovery.error == ""
+    assert recovery.restored == (table,) and (workdir / table).read_text() == "old table"
+    assert stuck.exists() and not gone.exists()

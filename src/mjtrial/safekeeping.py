@@ -269,7 +269,8 @@ class Snapshot:
 
 
 def remove_stale_temporaries(results: Path) -> list[Path]:
-    """Remove the hidden temporary files and folders that killed jobs left (`.name.tmp-*`)."""
+    """Remove the hidden temporary files and folders that killed jobs left (`.name.tmp-*`);
+    returns those removed. Best effort: one that cannot be removed stays, for the next try."""
     if not results.is_dir():
         return []
     stale = [
@@ -281,5 +282,8 @@ def remove_stale_temporaries(results: Path) -> list[Path]:
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
         else:
-            p.unlink(missing_ok=True)
-    return sorted(stale)
+            try:
+                p.unlink(missing_ok=True)
+            except OSError:
+                pass
+    return sorted(p for p in stale if not p.exists() and not p.is_symlink())

@@ -47,6 +47,11 @@ def run_script(script, input, output, params, wildcards, threads, log, rule_name
 SAFEKEEPING = Snapshot(LAYOUT.root, logs=LAYOUT.logs_dir, workdir=Path.cwd())
 
 
+def say_removed(temporaries):
+    for path in temporaries:
+        print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
+
+
 def recover_killed_run():
     """Whatever the run does next (even nothing), put back what a killed run had removed: in
     the main Snakemake process only, never in a cluster job's."""
@@ -59,8 +64,7 @@ def recover_killed_run():
             f"had removed: {', '.join(map(str, recovery.restored))}",
             file=sys.stderr,
         )
-    for path in recovery.removed:
-        print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
+    say_removed(recovery.removed)
     if recovery.error:
         print(
             f"mjtrial: the snapshot a killed run left could not be used ({recovery.error}); "
@@ -77,8 +81,7 @@ def on_start():
     """Clear what killed jobs left and take the snapshot before any job removes an output."""
     if "note_design_deviation" in globals():  # an experiment's run (common.smk)
         note_design_deviation()
-    for path in remove_stale_temporaries(LAYOUT.root):
-        print(f"mjtrial: removed {path}, left by a killed job", file=sys.stderr)
+    say_removed(remove_stale_temporaries(LAYOUT.root))
     try:
         SAFEKEEPING.take()
     except OSError as err:
