@@ -145,14 +145,20 @@ def _killed(snap: Snapshot, workdir: Path) -> None:
     owner.write_text(json.dumps(json.loads(owner.read_text()) | {"created": 0.0}))
 
 
-def test_a_killed_run_gets_back_what_it_had_started_to_rebuild(workdir):
+def _killed_rebuilding_the_table(workdir: Path) -> tuple[Snapshot, Path]:
+    """A run took its snapshot, started the table's job (marked incomplete, output removed)
+    and was killed. Returns the snapshot and the table's path."""
     snap = snapshot(workdir)
     snap.take()
     table = RESULTS / "table.parquet"
-    # The killed run had started the table's job: marked incomplete, output removed.
     write(record_path(workdir, table, INCOMPLETE), "")
     (workdir / table).unlink()
     _killed(snap, workdir)
+    return snap, table
+
+
+def test_a_killed_run_gets_back_what_it_had_started_to_rebuild(workdir):
+    snap, table = _killed_rebuilding_the_table(workdir)
     recovery = snapshot(workdir).recover()
     assert recovery.restored == (table,)
     assert (workdir / table).read_text() == "old table"
@@ -289,12 +295,7 @@ def test_a_temporary_that_cannot_be_removed_stays_unreported_and_the_recovery_go
     gone = workdir / RESULTS / ".summary.json.tmp-7-01.json"
     write(stuck, "half")
     write(gone, "half")
-    snap = snapshot(workdir)
-    snap.take()
-    table = RESULTS / "table.parquet"
-    write(record_path(workdir, table, INCOMPLETE), "")
-    (workdir / table).unlink()
-    _killed(snap, workdir)
+    _, table = _killed_rebuilding_the_table(workdir)
     unlink = Path.unlink
 
     def refuse(self, *args, **kwargs):
