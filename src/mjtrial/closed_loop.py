@@ -51,6 +51,7 @@ import numpy as np
 from mujoco import rollout
 
 from mjtrial.actuation import MOCAP_SPEC, Actuation, body_poses, initial_targets, qpos_of
+from mjtrial.low_level import MakeController, PlainEpisode, Stepper
 from mjtrial.physics import FULLPHYSICS
 
 # What mujoco.rollout's control columns hold: the actuators' ctrl, then every body's applied
@@ -182,6 +183,9 @@ class ClosedLoopBatch:
         (`failed_episodes`), or None for a policy that marks none.
       mocap: (n_episodes, n_controls, nmocap, 7) the mocap targets (pos, quat w-x-y-z) set at
         each instant, or None when the policy moves no mocap body.
+      applied: (n_episodes, n_steps, nu) the controls at each physics step when a low-level
+        controller computed them (`mjtrial.low_level`; `ctrl` then holds the policy's actions,
+        (n_episodes, n_controls, n_inputs)), else None: `ctrl` held over each control period.
     """
 
     physics: np.ndarray
@@ -190,6 +194,13 @@ class ClosedLoopBatch:
     warnings: np.ndarray | None = None
     failed_action: np.ndarray | None = None
     mocap: np.ndarray | None = None
+    applied: np.ndarray | None = None
+
+    def applied_controls(self, steps_per_control: int) -> np.ndarray:
+        """(n_episodes, n_steps, nu) the controls that acted at each physics step."""
+        if self.applied is not None:
+            return self.applied
+        return np.repeat(self.ctrl, steps_per_control, axis=1)
 
 
 def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
@@ -226,6 +237,7 @@ def run_batch(
     pushes: Pushes | None = None,
     check: bool = True,
     actuation: Actuation | None = None,
+    low_level: MakeController | None = None,
 ) -> ClosedLoopBatch:
     """Run a batch of closed-loop episodes in lockstep.
 
@@ -246,7 +258,15 @@ def run_batch(
       actuation: what the policy's output columns drive (default: every actuator's ctrl); one
         that moves mocap bodies has their targets sent to `mujoco.rollout` as controls, from
         each episode's start pose (its model's, `actuation.initial_targets`).
+      low_level: builds the low-level controller the policy's actions go to, run at every
+        physics step (`mjtrial.low_level`) on as many threads as `datas` has entries; None: the
+        actions drive the actuators (`actuation`) and `mujoco.rollout` steps the physics.
     """
+    if low_level is not None:
+        return _run_low_level(
+            models, initial, policy, observe, timing, low_level,
+            nthread=len(datas), pushes=pushes, check=check,
+        )
     n, nstate = initial.shape
     model = models[0]
     nu, nbody, s = model.nu, model.nbody, timing.steps_per_control
@@ -338,6 +358,63 @@ def run_batch(
     )
 
 
+def _run_low_level(
+    models: list[mujoco.MjModel],
+    initial: np.ndarray,
+    policy: BatchPolicy,
+    observe: Observe | Observer,
+    timing: Timing,
+    low_level: MakeController,
+    *,
+    nthread: int,
+    pushes: Pushes | None,
+    check: bool,
+) -> ClosedLoopBatch:
+    """`run_batch` with a low-level controller between the policy and the actuators: the policy
+    once per control instant on the whole batch, the physics a step at a time
+    (`low_level.Stepper`), each episode on its own `MjData` throughout."""
+    n, nstate = initial.shape
+    model = models[0]
+    s = timing.steps_per_control
+    observer = Observer.of(observe)
+    stepper = Stepper(models, initial, low_level, nthread=nthread, pushes=pushes)
+    n_inputs = stepper.slices[0].controller.n_inputs
+    physics = np.empty((n, timing.n_steps, nstate))
+    sensordata = np.empty((n, timing.n_steps, model.nsensordata))
+    applied = np.empty((n, timing.n_steps, model.nu))
+    actions = np.empty((n, timing.n_controls, n_inputs))
+    probe = mujoco.MjData(model) if observer.sensed else None
+    replayed = timing.n_controls if check else 0
+    observed: np.ndarray | None = None
+    policy.reset(n)
+    try:
+        for k in range(timing.n_controls):
+            j = timing.measured_step(k)
+            measured = initial if j == 0 else physics[:, j - 1]
+            sensors = None
+            if probe is not None:  # state j's sensors were computed in step j + 1, if it ran
+                sensors = sensordata[:, j] if j < k * s else sensors_at(models, measured, probe)
+            obs = np.asarray(observer.read(k, measured, sensors), dtype=np.float64)
+            if k < replayed:
+                if observed is None:
+                    observed = np.empty((n, replayed, *obs.shape[1:]))
+                observed[:, k] = obs
+            actions[:, k] = _checked_controls(policy(obs), n, n_inputs)
+            stepper.block(actions[:, k], k * s, s, physics, sensordata, applied)
+    finally:
+        stepper.close()
+    failed = failed_episodes(policy, n)
+    if observed is not None:
+        check_replayed(policy, observed, actions[:, :replayed])
+    return ClosedLoopBatch(
+        physics=physics,
+        sensordata=sensordata,
+        ctrl=actions,
+        failed_action=failed,
+        applied=applied,
+    )
+
+
 def reference_episode(
     model: mujoco.MjModel,
     initial: np.ndarray,
@@ -347,9 +424,14 @@ def reference_episode(
     *,
     pushes: Pushes | None = None,
     actuation: Actuation | None = None,
+    low_level: MakeController | None = None,
 ) -> ClosedLoopBatch:
     """One episode with plain `mj_step`, the policy called once per control step on a batch of
     one: what a user writes without the engine, and the engine's reference.
+
+    With a `low_level` controller the loop is `mj_step1`, the controller, `mj_step2` at every
+    physics step, the policy's latest action given to the controller (`low_level.PlainEpisode`),
+    on one `MjData` throughout: the warm start is carried from step to step.
 
     Like `mujoco.rollout`, it stops stepping at the first MuJoCo warning and repeats the frozen
     state. A sensed observation's sensors are computed at the measured state by `mj_setState`
@@ -359,6 +441,8 @@ def reference_episode(
     left them (`_pose_state`). Returns a batch of one episode.
     """
     observer = Observer.of(observe)
+    if low_level is not None:
+        return _reference_low_level(model, initial, policy, observer, timing, low_level, pushes)
     m = copy.copy(model)
     d = mujoco.MjData(m)
     probe = mujoco.MjData(m) if observer.sensed else None
@@ -411,6 +495,49 @@ def reference_episode(
         warnings=np.array([w.number for w in d.warning]),
         failed_action=failed_episodes(policy, 1),
         mocap=mocap_log[None] if actuation.moves_mocap else None,
+    )
+
+
+def _reference_low_level(
+    model: mujoco.MjModel,
+    initial: np.ndarray,
+    policy: BatchPolicy,
+    observer: Observer,
+    timing: Timing,
+    low_level: MakeController,
+    pushes: Pushes | None,
+) -> ClosedLoopBatch:
+    """`reference_episode` with a low-level controller (see there)."""
+    episode = PlainEpisode(model, initial, low_level())
+    probe = mujoco.MjData(episode.m) if observer.sensed else None
+    states = [np.asarray(initial, dtype=np.float64)]
+    sensors, applied = [], []
+    actions = np.empty((timing.n_controls, episode.controller.n_inputs))
+    policy.reset(1)
+    s = timing.steps_per_control
+    for k in range(timing.n_controls):
+        measured = states[timing.measured_step(k)][None]
+        sensed = sensors_at([episode.m], measured, probe) if probe is not None else None
+        obs = np.asarray(observer.read(k, measured, sensed))
+        actions[k] = _checked_controls(policy(obs), 1, actions.shape[1])[0]
+        for j in range(k * s, (k + 1) * s):
+            push = None
+            if pushes is not None:
+                on = pushes.start[0] <= j < pushes.stop[0]
+                push = pushes.wrench[0] if on else np.zeros(6)
+            row, sensordata, ctrl = episode.step(
+                actions[k], j == k * s, push, pushes.body if pushes else 0
+            )
+            states.append(row)
+            sensors.append(sensordata)
+            applied.append(ctrl)
+    return ClosedLoopBatch(
+        physics=np.stack(states[1:])[None],
+        sensordata=np.stack(sensors).reshape(1, len(sensors), episode.m.nsensordata),
+        ctrl=actions[None],
+        warnings=np.array([w.number for w in episode.d.warning]),
+        failed_action=failed_episodes(policy, 1),
+        applied=np.stack(applied)[None],
     )
 
 

@@ -1,5 +1,6 @@
-"""Controllers a task can use: LQR gains from MuJoCo's own linearization, and a linear feedback
-policy on encoder readings with velocities by finite differences.
+"""Controllers a task can use: LQR gains from MuJoCo's own linearization, a linear feedback
+policy on encoder readings with velocities by finite differences, and low-level controllers run
+at every physics step (`mjtrial.low_level`): joint impedance with gravity compensation.
 
 The gains come from `mujoco.mjd_transitionFD` (the discrete-time transition Jacobians of the
 model at an operating point) and scipy's discrete algebraic Riccati solver, so the controller is
@@ -11,6 +12,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import scipy.linalg
+
+from mjtrial.low_level import PhysicsView, Reads
 
 
 def lqr_gain(
@@ -119,3 +122,55 @@ class StateFeedback:
         """One episode's controls at each of its instants (no memory: its rows as a batch), for
         the replay check (see `EncoderFeedback.alone`)."""
         return self(observations)
+
+
+class JointImpedance:
+    """A low-level controller (`mjtrial.low_level`): joint-space impedance with gravity and
+    Coriolis compensation, at every physics step,
+    tau = kp (q_goal - q) - kd qdot + qfrc_bias, ctrl = tau / gear clipped to the ctrlrange.
+
+    The action is a change of the arm's joint goals (`scale` radians per unit), applied once
+    when it arrives, from the joints' positions then (robosuite's JOINT_POSITION controller,
+    delta input, goal from the achieved position). Elementwise arithmetic, row by row, so an
+    episode's controls do not depend on its batch.
+
+    Args:
+      model: the nominal model (element ids; each episode's own ranges and gears are read at
+        `reset`).
+      actuators: the arm's actuators, each a motor on one hinge or slide joint.
+      kp: stiffness (N m / rad), kd: damping (N m s / rad), per actuator or one for all.
+      scale: goal change per unit of action.
+    """
+
+    reads = Reads(bias=True)
+
+    def __init__(self, model, actuators, *, kp, kd, scale: float) -> None:
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in actuators]
+        for name, i in zip(actuators, ids, strict=True):
+            if i < 0 or model.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_JOINT:
+                raise ValueError(f"JointImpedance: actuator {name!r}: expected one on a joint")
+        self.actuators = np.array(ids)
+        joints = model.actuator_trnid[self.actuators, 0]
+        self.qpos = model.jnt_qposadr[joints]
+        self.dofs = model.jnt_dofadr[joints]
+        self.kp = np.broadcast_to(np.asarray(kp, dtype=np.float64), len(ids)).copy()
+        self.kd = np.broadcast_to(np.asarray(kd, dtype=np.float64), len(ids)).copy()
+        self.scale = float(scale)
+        self.n_inputs = len(ids)
+        self.nu = model.nu
+
+    def reset(self, models) -> None:
+        a = self.actuators
+        self.gear = np.stack([m.actuator_gear[a, 0] for m in models])
+        self.low = np.stack([m.actuator_ctrlrange[a, 0] for m in models])
+        self.high = np.stack([m.actuator_ctrlrange[a, 1] for m in models])
+        self.goal = np.zeros((len(models), len(a)))
+
+    def __call__(self, view: PhysicsView, action: np.ndarray, new_action: bool) -> np.ndarray:
+        q, qdot = view.qpos[:, self.qpos], view.qvel[:, self.dofs]
+        if new_action:
+            self.goal = q + self.scale * action
+        tau = self.kp * (self.goal - q) - self.kd * qdot + view.bias[:, self.dofs]
+        ctrl = np.zeros((len(q), self.nu))
+        ctrl[:, self.actuators] = np.clip(tau / self.gear, self.low, self.high)
+        return ctrl

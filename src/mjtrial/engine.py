@@ -21,6 +21,7 @@ import numpy as np
 from mujoco import rollout
 
 from mjtrial import closed_loop, phases
+from mjtrial.low_level import ControllerError, MakeController
 from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 from mjtrial.task import (
     NONFINITE_ACTION,
@@ -127,6 +128,16 @@ def episode_steps(bound: BoundTask, condition: Mapping[str, float]) -> int:
     return call(task, "timing", controller.timing, model, params).n_steps
 
 
+def low_level_of(bound: BoundTask, params: Mapping[str, float]) -> MakeController | None:
+    """What builds the task's low-level controller for a condition (`ClosedLoop.low_level`, its
+    errors naming the task file), or None when the policy drives the actuators itself."""
+    controller = bound.task.controller
+    make = getattr(controller, "low_level", None)
+    if make is None:
+        return None
+    return lambda: call(bound.task, "low_level", make, bound.model, params)
+
+
 # A batch's episodes with model parameters each run on a copy of the model (one per batch slot,
 # reused batch after batch where the task's parameters allow: `BoundTask.reuses_models`),
 # textures included: dm_control's reacher is 11.8 MB with its skybox, so it gets 8 slots.
@@ -176,6 +187,7 @@ def iter_batches(
         assert isinstance(controller, ClosedLoop)
         timing = call(task, "timing", controller.timing, model, params)
         policy = call(task, "policy", controller.policy, model, params)
+        low_level = low_level_of(bound, params)
     episode_values = [p.name for p in task.state_parameters]
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
     # one copy of the model per batch slot, reused batch after batch where it can be
@@ -227,13 +239,14 @@ def iter_batches(
                             pushes=pushes,
                             actuation=bound.actuation,
                             check=replay_check,
+                            low_level=low_level,
                         )
-                except closed_loop.PolicyError as err:
+                except (closed_loop.PolicyError, ControllerError) as err:
                     where = controller.source or task.source or task.name
                     raise TaskError(f"{where}: {err}") from None
                 physics, sensordata = result.physics, result.sensordata
                 failed_action = result.failed_action
-                applied = np.repeat(result.ctrl, timing.steps_per_control, axis=1)
+                applied = result.applied_controls(timing.steps_per_control)
                 if result.mocap is not None:
                     mocap = np.repeat(result.mocap, timing.steps_per_control, axis=1)
             with phases.phase("measures + outcome"):
@@ -282,6 +295,7 @@ def iter_batches(
                                 timing,
                                 pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
                                 actuation=bound.actuation,
+                                low_level=low_level,
                             ).warnings
                         )
                 outcome = {

@@ -335,6 +335,11 @@ class ClosedLoop:
         (a policy file's contract): errors about them name it.
       actions: what the policy's output columns drive, in order (`Control`, `MocapAction`);
         empty: every actuator's ctrl, in order.
+      low_level: `low_level(model, params)` builds a controller run at every physics step
+        between the policy and the actuators (`mjtrial.low_level.LowLevelController`: an
+        operational-space controller, joint impedance, ...), called once per slice of a batch;
+        the policy's output columns are then its action. None: the columns drive the
+        actuators (`actions`) and hold over each control period.
     """
 
     policy: Callable[[mujoco.MjModel, Mapping[str, float]], BatchPolicy]
@@ -343,6 +348,7 @@ class ClosedLoop:
     pushes: Callable[[mujoco.MjModel, Mapping[str, np.ndarray]], Pushes] | None = None
     source: Path | None = None
     actions: tuple[Any, ...] = ()  # `Control`, `MocapAction` (mjtrial.task.actions)
+    low_level: Callable[[mujoco.MjModel, Mapping[str, float]], Any] | None = None
 
 
 SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
