@@ -13,7 +13,7 @@ from mujoco import rollout
 
 from mjtrial import closed_loop
 from mjtrial.controllers import JointImpedance
-from mjtrial.low_level import ControllerError, Reads
+from mjtrial.low_level import ControllerError, Reads, check_rows_alone
 from mjtrial.physics import FULLPHYSICS, load_model
 
 MANIPULATOR = Path(__file__).parent / "models" / "dm_manipulator" / "manipulator.xml"
@@ -159,3 +159,14 @@ def test_a_controller_reading_a_missing_site_is_named(model):
             datas=[mujoco.MjData(model)],
             low_level=lambda: Reader(model, ARM, kp=KP, kd=KD, scale=SCALE),
         )
+
+
+def test_a_controller_whose_rows_depend_on_the_batch_is_refused(model):
+    class Mixing(JointImpedance):
+        def __call__(self, view, action, new_action):
+            return super().__call__(view, action + action.mean(axis=0), new_action)
+
+    initial = initial_states(model, 1)[0]
+    check_rows_alone(make(model), model, initial)  # the honest one passes
+    with pytest.raises(ControllerError, match="row 0 alone gives other controls"):
+        check_rows_alone(lambda: Mixing(model, ARM, kp=KP, kd=KD, scale=SCALE), model, initial)

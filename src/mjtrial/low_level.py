@@ -108,6 +108,16 @@ class PhysicsView:
         )
 
 
+def view_rows(view: PhysicsView, rows: slice) -> PhysicsView:
+    """A copy of some rows of a view."""
+    return PhysicsView(
+        **{
+            name: None if value is None else value[rows].copy()
+            for name, value in vars(view).items()
+        }
+    )
+
+
 class LowLevelController(Protocol):
     """A controller called at every physics step on a batch of episodes. Row i of every array
     is episode i; each row must be computed from that row alone.
@@ -392,3 +402,41 @@ class PlainEpisode:
         row = np.empty(mujoco.mj_stateSize(m, FULLPHYSICS))
         mujoco.mj_getState(m, d, row, FULLPHYSICS)
         return row, d.sensordata.copy(), self.ctrl.copy()
+
+
+def check_rows_alone(
+    make: MakeController, model: mujoco.MjModel, initial: np.ndarray, *, n_rows: int = 3
+) -> None:
+    """Raise `ControllerError` unless the controller gives each row alone, from its reset, what
+    it gives that row in a batch, bit for bit, over a few steps: an episode's result must not
+    depend on its batch (`rollout.shard_size`). The rows are the state `initial` with other
+    velocities and actions, what MuJoCo computes there gathered as the engine does."""
+    rng = np.random.default_rng(0)
+    probe = make()
+    view = PhysicsView.empty(model, probe.reads, n_rows)
+    gather = _Gather(model, probe.reads, view)
+    data = mujoco.MjData(model)
+    for i in range(n_rows):
+        mujoco.mj_setState(model, data, initial, FULLPHYSICS)
+        data.qvel[:] += rng.normal(scale=0.1, size=model.nv)
+        mujoco.mj_step1(model, data)
+        gather.row(i, model, data)
+    actions = rng.uniform(-1.0, 1.0, size=(4, n_rows, probe.n_inputs))
+    probe.reset([model] * n_rows)
+    together = [
+        checked_controls(probe(view, a, k % 2 == 0), n_rows, model.nu)
+        for k, a in enumerate(actions)
+    ]
+    for i in range(n_rows):
+        alone = make()
+        alone.reset([model])
+        row = view_rows(view, slice(i, i + 1))
+        for k, a in enumerate(actions):
+            ctrl = checked_controls(alone(row, a[i : i + 1], k % 2 == 0), 1, model.nu)
+            if not np.array_equal(ctrl[0], together[k][i]):
+                diff = float(np.max(np.abs(ctrl[0] - together[k][i])))
+                raise ControllerError(
+                    f"low-level controller: row {i} alone gives other controls than in a batch "
+                    f"of {n_rows} at its call {k} (largest difference {diff:.3g}); compute each "
+                    "row from that row alone"
+                )

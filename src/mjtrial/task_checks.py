@@ -14,7 +14,8 @@ import mujoco
 import numpy as np
 
 from mjtrial.closed_loop import PolicyError, check_batch_independence
-from mjtrial.engine import iter_batches
+from mjtrial.engine import iter_batches, low_level_of
+from mjtrial.low_level import ControllerError, check_rows_alone
 from mjtrial.physics import simulated_sha256
 from mjtrial.task import (
     BoundTask,
@@ -105,6 +106,14 @@ def run_task_code(
                     f"{controller.source or _where(task)}: policy raised {type(err).__name__} on "
                     f"a batch of its observations, {sum(widths)} columns ({given}): {err}"
                 ) from None
+            make = low_level_of(bound, params)
+            if make is not None:
+                values = {k: v[0] for k, v in nominal_values(task).items()}
+                model, state = bound.episode(values, scratch=mujoco.MjData(bound.model))
+                try:
+                    check_rows_alone(make, model, state)
+                except ControllerError as err:
+                    raise TaskError(f"{_where(task)}: {err}") from None
         try:
             batch = next(
                 iter_batches(bound, nominal_values(task), condition, thresholds=thresholds)
