@@ -89,8 +89,12 @@ class Wiggle:
         )
 
 
-def _plain_loop(m: mujoco.MjModel, initial: np.ndarray, n_controls: int) -> np.ndarray:
-    """Fetch's step written out: the action, then 20 mj_steps (n_steps, nstate)."""
+def _plain_loop(
+    m: mujoco.MjModel, initial: np.ndarray, n_controls: int, *, carry: bool = False
+) -> np.ndarray:
+    """Fetch's step written out: the action, then 20 mj_steps (n_steps, nstate); the warm
+    start zeroed at each action (as `mujoco.rollout` starts each call), or carried (`carry`:
+    as the suite's own loop does)."""
     d = mujoco.MjData(m)
     mujoco.mj_setState(m, d, initial, FULLPHYSICS)
     mujoco.mj_forward(m, d)  # the suite's reset ends so
@@ -99,7 +103,8 @@ def _plain_loop(m: mujoco.MjModel, initial: np.ndarray, n_controls: int) -> np.n
     state = initial
     for _ in range(n_controls):
         action = np.clip(policy(_observe(state[None]))[0], -1.0, 1.0)
-        d.qacc_warmstart[:] = 0.0  # as mujoco.rollout starts each call (the module docstring)
+        if not carry:
+            d.qacc_warmstart[:] = 0.0  # as mujoco.rollout starts each call
         for i in range(m.nu):  # ctrl_set_action: a position servo's target relative to qpos
             d.ctrl[i] = d.qpos[m.jnt_qposadr[m.actuator_trnid[i, 0]]] + action[3]
         # mocap_set_action: reset_mocap2body_xpos, then the deltas added
@@ -113,7 +118,7 @@ def _plain_loop(m: mujoco.MjModel, initial: np.ndarray, n_controls: int) -> np.n
     return np.stack(rows)
 
 
-def _engine(episodes, timing, *, nthread: int, split: list[int]):
+def _engine(episodes, timing, *, nthread: int, split: list[int], carry: bool = False):
     actuation = bind_actions(NOMINAL, FETCH_ACTIONS)
     models = [m for m, _ in episodes]
     initial = np.stack([s for _, s in episodes])
@@ -131,6 +136,7 @@ def _engine(episodes, timing, *, nthread: int, split: list[int]):
                     runner=runner,
                     datas=datas,
                     actuation=actuation,
+                    carry_warmstart=carry,
                 )
             )
     return (
@@ -161,6 +167,30 @@ def test_fetch_through_the_engine_equals_a_plain_loop_setting_mocap_pos(episodes
     # the arm moves: the gripper's target wanders, and the fingers' servos follow their joints
     assert np.ptp(mocap[:, :, 0, :3], axis=1).min() > 0.01
     assert not np.array_equal(ctrl[:, :, 0], ctrl[:, :, 1])
+
+
+def test_a_carried_warm_start_equals_the_suites_own_loop(episodes):
+    """`carry_warmstart`: the engine's episodes equal the plain loop that never resets the warm
+    start, whatever the batch and threads, and differ from those of a zeroed one (the weld and
+    the contacts are active, so the solver's start matters)."""
+    physics, _, _ = _engine(episodes, TIMING, nthread=0, split=[], carry=True)
+    zeroed, _, _ = _engine(episodes, TIMING, nthread=0, split=[])
+    for i, (m, initial) in enumerate(episodes):
+        carried = _plain_loop(m, initial, TIMING.n_controls, carry=True)
+        np.testing.assert_array_equal(physics[i], carried)
+        ref = reference_episode(
+            m,
+            initial,
+            Wiggle(),
+            _observe,
+            TIMING,
+            actuation=bind_actions(NOMINAL, FETCH_ACTIONS),
+            carry_warmstart=True,
+        )
+        np.testing.assert_array_equal(physics[i], ref.physics[0])
+    assert not np.array_equal(physics, zeroed)
+    split, _, _ = _engine(episodes, TIMING, nthread=2, split=[2], carry=True)
+    np.testing.assert_array_equal(split, physics)
 
 
 def test_batches_and_threads_do_not_change_the_fetch_episodes(episodes):

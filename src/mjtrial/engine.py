@@ -240,6 +240,7 @@ def iter_batches(
                             actuation=bound.actuation,
                             check=replay_check,
                             low_level=low_level,
+                            carry_warmstart=controller.carry_warmstart,
                         )
                 except (closed_loop.PolicyError, ControllerError) as err:
                     where = controller.source or task.source or task.name
@@ -296,6 +297,7 @@ def iter_batches(
                                 pushes=pushes.rows(slice(i, i + 1)) if pushes else None,
                                 actuation=bound.actuation,
                                 low_level=low_level,
+                                carry_warmstart=controller.carry_warmstart,
                             ).warnings
                         )
                 outcome = {

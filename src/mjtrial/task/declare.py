@@ -340,6 +340,11 @@ class ClosedLoop:
         operational-space controller, joint impedance, ...), called once per slice of a batch;
         the policy's output columns are then its action. None: the columns drive the
         actuators (`actions`) and hold over each control period.
+      carry_warmstart: carry the solver's warm start across control instants, as a suite's
+        own `mj_step` loop does (Metaworld, gymnasium-robotics, robosuite); False: each control
+        period starts from a zero warm start, as `mujoco.rollout` does by default. With a
+        constraint active (a weld, a contact) the two differ in the last bits, and outcomes
+        near a threshold can flip. A low-level controller always carries it.
     """
 
     policy: Callable[[mujoco.MjModel, Mapping[str, float]], BatchPolicy]
@@ -349,6 +354,7 @@ class ClosedLoop:
     source: Path | None = None
     actions: tuple[Any, ...] = ()  # `Control`, `MocapAction` (mjtrial.task.actions)
     low_level: Callable[[mujoco.MjModel, Mapping[str, float]], Any] | None = None
+    carry_warmstart: bool = False
 
 
 SeriesRead = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
