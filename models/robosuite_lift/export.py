@@ -22,29 +22,15 @@ import rsenv  # noqa: E402
 rsenv.ensure()
 
 import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
 import robosuite  # noqa: E402
+from lift_env import make_env, same_model  # noqa: E402
 
 OUT = rsenv.HERE
 XML = OUT / "lift.xml"
-SEED = 0  # the env's seed: it draws the cube's size when the model is built
 ASSETS = Path(robosuite.__file__).resolve().parent / "models" / "assets"
 BEGIN, END = "<!-- sha256: written by export.py -->", "<!-- end sha256 -->"
 # an asset element with a file attribute: its tag and the path
 FILE = re.compile(r'<(mesh|texture)\b[^>]*?\bfile="([^"]+)"')
-
-
-def make_env():
-    """Lift as `suite.make` builds it by default; only the renderers are off (they add
-    nothing to the model)."""
-    return robosuite.make(
-        "Lift",
-        robots="Panda",
-        has_renderer=False,
-        has_offscreen_renderer=False,
-        use_camera_obs=False,
-        seed=SEED,
-    )
 
 
 def relative(tag: str, path: str) -> tuple[str, Path]:
@@ -75,25 +61,6 @@ def export() -> list[Path]:
     XML.write_text(FILE.sub(swap, xml), encoding="utf-8")
     same_model(env.sim.model._model, mujoco.MjModel.from_xml_path(str(XML)))
     return files
-
-
-def same_model(built: mujoco.MjModel, exported: mujoco.MjModel) -> None:
-    """Raise unless every numeric array and option of the two models is equal (the asset
-    paths aside: the model keeps them, and they are what the export changes)."""
-    for name in dir(built):
-        value = getattr(built, name, None)
-        if name.startswith("_") or callable(value) or "path" in name:
-            continue
-        if isinstance(value, np.ndarray) and not np.array_equal(
-            value, getattr(exported, name), equal_nan=True
-        ):
-            raise SystemExit(f"export: lift.xml's {name} differs from robosuite's model")
-    for group in ("opt", "vis", "stat"):
-        a, b = getattr(built, group), getattr(exported, group)
-        for name in dir(a):
-            if not name.startswith("_") and not callable(getattr(a, name)):
-                if not np.array_equal(np.asarray(getattr(a, name)), np.asarray(getattr(b, name))):
-                    raise SystemExit(f"export: lift.xml's {group}.{name} differs")
 
 
 def sha256_table(files: list[Path]) -> str:
