@@ -25,9 +25,14 @@ a few numpy calls per physics step instead of a few dozen per episode:
   0.2 toward the action's sign, clipped to [-1, 1], for the two fingers as [-c, c]; the fingers'
   position actuators get the middle of their ctrlrange plus c times its half width.
 
-The batched products and inverses are numpy's stacked `matmul`, `inv` and `pinv`, which treat
-each matrix of a stack alone: a row's result does not depend on the rows beside it (the config
-check runs a batch and each row alone: `low_level.check_rows_alone`).
+The batched products and inverses are numpy's stacked `matmul` and `inv`, which treat each
+matrix of a stack alone: a row's result does not depend on the rows beside it (the config check
+runs a batch and each row alone: `low_level.check_rows_alone`). robosuite inverts the
+operational-space inertias with `np.linalg.pinv` (an SVD, about 150 µs a matrix here, more than
+the physics step); for an invertible matrix that is its inverse, to rounding, and here they are
+inverted together in one `inv` call: the two differ only at a singular arm configuration, where
+`pinv` drops the singular directions. The position's and the orientation's inertias are the
+diagonal blocks of the full one, as robosuite computes them.
 """
 
 from __future__ import annotations
@@ -65,13 +70,12 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str]) -> np
 
 
 def orientation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """robosuite's `orientation_error` on stacks (n, 3, 3) of rotation matrices: half the sum of
-    the cross products of the current and the desired frames' columns."""
-    c, d = current, desired
-    return 0.5 * (
-        np.cross(c[:, :, 0], d[:, :, 0])
-        + np.cross(c[:, :, 1], d[:, :, 1])
-        + np.cross(c[:, :, 2], d[:, :, 2])
+    """robosuite's `orientation_error` on stacks (n, 3, 3) of rotation matrices: half the sum
+    of the cross products of the current and the desired frames' columns, sum_m c_m x d_m,
+    whose components are the antisymmetric part of P = C D^T (one product for the stack)."""
+    p = current @ np.swapaxes(desired, 1, 2)
+    return 0.5 * np.stack(
+        [p[:, 1, 2] - p[:, 2, 1], p[:, 2, 0] - p[:, 0, 2], p[:, 0, 1] - p[:, 1, 0]], axis=1
     )
 
 
@@ -149,6 +153,12 @@ class OperationalSpace:
         joints = model.actuator_trnid[self.arm, 0]
         self.qpos = model.jnt_qposadr[joints]
         self.dofs = model.jnt_dofadr[joints]
+        # the arm's dofs as a slice where they are contiguous (a view, not a copy)
+        contiguous = np.array_equal(self.dofs, np.arange(self.dofs[0], self.dofs[0] + len(joints)))
+        self.dof_block = (
+            slice(int(self.dofs[0]), int(self.dofs[0]) + len(joints)) if contiguous else self.dofs
+        )
+        self.eye = np.eye(len(joints))
         self.nu = model.nu
         self.kp = np.full(6, settings.kp)
         self.kd = 2 * np.sqrt(self.kp) * settings.damping_ratio
@@ -174,8 +184,7 @@ class OperationalSpace:
 
     def __call__(self, view: PhysicsView, action: np.ndarray, new_action: bool) -> np.ndarray:
         n = len(view.qpos)
-        dofs = self.dofs
-        joint_pos, joint_vel = view.qpos[:, self.qpos], view.qvel[:, dofs]
+        joint_pos, joint_vel = view.qpos[:, self.qpos], view.qvel[:, self.dof_block]
         if self.initial_joint is None:
             self.initial_joint = joint_pos.copy()
         ref_pos = view.site_xpos[:, 0]
@@ -208,28 +217,26 @@ class OperationalSpace:
         ori_error = orientation_error(origin_ori @ self.goal_ori, ref_ori)
         force = (desired_pos - ref_pos) * self.kp[:3] + -(ref_pos_vel - base_pos_vel) * self.kd[:3]
         torque = ori_error * self.kp[3:] + -(ref_ori_vel - base_ori_vel) * self.kd[3:]
-        mass = view.mass_matrix[:, dofs[:, None], dofs[None, :]]
-        j_pos, j_ori = jacp[:, :, dofs], jacr[:, :, dofs]
-        j_full = np.concatenate([j_pos, j_ori], axis=1)
+        mass = view.mass_matrix[:, self.dof_block, self.dof_block]
+        j_full = np.concatenate([jacp[:, :, self.dof_block], jacr[:, :, self.dof_block]], axis=1)
+        j_full_t = np.swapaxes(j_full, 1, 2)
         mass_inv = np.linalg.inv(mass)
-        lambda_full = np.linalg.pinv((j_full @ mass_inv) @ np.swapaxes(j_full, 1, 2))
-        lambda_pos = np.linalg.pinv((j_pos @ mass_inv) @ np.swapaxes(j_pos, 1, 2))
-        lambda_ori = np.linalg.pinv((j_ori @ mass_inv) @ np.swapaxes(j_ori, 1, 2))
-        j_bar = (mass_inv @ np.swapaxes(j_full, 1, 2)) @ lambda_full
-        nullspace = np.eye(len(dofs)) - j_bar @ j_full
-        wrench = np.concatenate(
-            [(lambda_pos @ force[:, :, None])[:, :, 0], (lambda_ori @ torque[:, :, None])[:, :, 0]],
-            axis=1,
+        m_inv_jt = mass_inv @ j_full_t  # (n, k, 6)
+        inertia_inv = j_full @ m_inv_jt  # (n, 6, 6): its 3x3 diagonal blocks are the position's
+        # and the orientation's own; all three inverted in one call, the blocks side by side
+        blocks = np.zeros((n, 2, 6, 6))
+        blocks[:, 0] = inertia_inv
+        blocks[:, 1, :3, :3] = inertia_inv[:, :3, :3]
+        blocks[:, 1, 3:, 3:] = inertia_inv[:, 3:, 3:]
+        inverses = np.linalg.inv(blocks)
+        lambda_full, lambda_split = inverses[:, 0], inverses[:, 1]
+        nullspace = self.eye - (m_inv_jt @ lambda_full) @ j_full
+        wrench = lambda_split @ np.concatenate([force, torque], axis=1)[:, :, None]
+        torques = (j_full_t @ wrench)[:, :, 0] + view.bias[:, self.dof_block]
+        posture = (
+            NULLSPACE_KP * (self.initial_joint - joint_pos) - np.sqrt(NULLSPACE_KP) * 2 * joint_vel
         )
-        torques = (np.swapaxes(j_full, 1, 2) @ wrench[:, :, None])[:, :, 0] + view.bias[:, dofs]
-        pose_torques = (
-            mass
-            @ (
-                NULLSPACE_KP * (self.initial_joint - joint_pos)
-                - np.sqrt(NULLSPACE_KP) * 2 * joint_vel
-            )[:, :, None]
-        )
-        torques = torques + (np.swapaxes(nullspace, 1, 2) @ pose_torques)[:, :, 0]
+        torques += (np.swapaxes(nullspace, 1, 2) @ (mass @ posture[:, :, None]))[:, :, 0]
         ctrl = np.zeros((n, self.nu))
         ctrl[:, self.arm] = np.clip(torques, self.arm_low, self.arm_high)
         grip = self.grip_bias + self.grip_weight * self.grip_command
