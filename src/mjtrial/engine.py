@@ -172,7 +172,7 @@ def iter_batches(
     task, model = bound.task, bound.model
     if batch_size is None:
         batch_size = batch_size_for(model, episode_steps(bound, condition))
-    if task.episode_setup or any(p.apply.stage == "model" for p in task.state_parameters):
+    if bound.setup_copies or any(p.apply.stage == "model" for p in task.state_parameters):
         # each batch slot holds a copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
     params = task.parameters(condition)

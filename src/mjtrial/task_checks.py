@@ -8,6 +8,7 @@ Also the course's cheap test of a policy: an observation without a real-world so
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 
 import mujoco
@@ -16,7 +17,7 @@ import numpy as np
 from mjtrial.closed_loop import PolicyError, check_batch_independence
 from mjtrial.engine import iter_batches, low_level_of
 from mjtrial.low_level import ControllerError, check_rows_alone
-from mjtrial.physics import simulated_sha256
+from mjtrial.physics import compiled_sha256, simulated_sha256
 from mjtrial.task import (
     BoundTask,
     ClosedLoop,
@@ -127,6 +128,25 @@ def run_task_code(
             ) from None
         _check_outcome(task, batch.episodes, thresholds)
     _check_parameters_applied(bound)
+    _check_setup_leaves_model(bound)
+
+
+def _check_setup_leaves_model(bound: BoundTask) -> None:
+    """A task that says its `episode_setup` sets data only (`setup_edits_model=False`) has its
+    episodes share the nominal model: refuse a setup that changes it, run on a copy."""
+    task = bound.task
+    if task.episode_setup is None or task.setup_edits_model:
+        return
+    copied = copy.copy(bound.model)
+    data = mujoco.MjData(copied)
+    values = {k: float(v[0]) for k, v in nominal_values(task).items()}
+    call(task, "episode_setup", task.episode_setup, copied, data, values)
+    if compiled_sha256(copied) != compiled_sha256(bound.model):
+        raise TaskError(
+            f"{_where(task)}: episode_setup changed the model, where the task says it sets the "
+            "episode's data only (setup_edits_model=False): every episode would run on the "
+            "changed nominal model; declare setup_edits_model=True"
+        )
 
 
 def _check_outcome(task: Task, episodes: Episodes, thresholds: Mapping[str, float]) -> None:

@@ -113,11 +113,16 @@ class BoundTask:
         applying the next episode's values and recomputing the constants gives the model a
         fresh copy would. A copy of a model with textures costs 16 ms (dm_control's reacher).
         A task's `episode_setup` may change any field, so its episodes get fresh copies."""
-        return self.task.episode_setup is None and all(
+        return not self.setup_copies and all(
             getattr(p.apply, "sets", False)
             for p in self.task.state_parameters
             if p.apply.stage == "model"
         )
+
+    @property
+    def setup_copies(self) -> bool:
+        """Whether each episode needs a model copy for the task's `episode_setup`."""
+        return self.task.episode_setup is not None and self.task.setup_edits_model
 
     def episode(
         self,
@@ -140,7 +145,7 @@ class BoundTask:
         model = self.model
         setup = self.task.episode_setup
         edits_model = any(p.apply.stage == "model" for p, _ in params)
-        if edits_model or setup is not None:
+        if edits_model or self.setup_copies:
             model = own if own is not None and self.reuses_models else copy.copy(self.model)
         if edits_model:
             for p, apply in params:

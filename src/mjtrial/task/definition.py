@@ -72,6 +72,10 @@ class Task:
     episode_setup: Callable[[mujoco.MjModel, mujoco.MjData, Mapping[str, float]], None] | None = (
         None
     )
+    # False: the setup sets the episode's data only (a reset pose, as robosuite's), so every
+    # episode runs on the nominal model, no copy each (robosuite's Lift is 64 MB of meshes).
+    # The config check runs the setup on a copy and refuses one that changed the model.
+    setup_edits_model: bool = True
     # `valid_state(values)`: (n,) True where a drawn state is allowed (values: state parameter
     # -> (n,)); the others are redrawn from the seed (`mjtrial.states.draw_states`).
     valid_state: Callable[[Mapping[str, np.ndarray]], np.ndarray] | None = None
