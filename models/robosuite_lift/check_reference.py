@@ -8,6 +8,11 @@ the same initial state (`mj_getState`/`mj_setState` of robosuite's data after it
 plain loop `mj_step1`, `osc_reference.ctrl`, `mj_step2` on `lift.xml`, both in this MuJoCo.
 It prints the largest difference of the controls at any physics step, and of the grip site's
 position (as each `mj_step1` computes it) and of the final state.
+
+`--fixture FILE` also writes the first episode's first `--fixture-actions` actions as robosuite
+ran them (`numpy.savez_compressed`): `actions`, and at every physics step the `qpos` and `qvel`
+that `mj_step1` started from and the `ctrl` robosuite's controllers wrote. With it,
+`tests/test_robosuite_model.py` checks `osc_reference` in another MuJoCo and numpy.
 """
 
 from __future__ import annotations
@@ -32,15 +37,17 @@ from lift_env import make_env, reset_to, same_model  # noqa: E402
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
-def robosuite_episode(env, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def robosuite_episode(env, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """robosuite's env stepped through `actions`: the controls and the grip site's position
-    at every physics step, and the final state."""
+    at every physics step, the final state, and the qpos, qvel and ctrl of every step."""
     sim = env.sim
     site = sim.model.site_name2id(osc_reference.GRIP_SITE)
-    ctrls, sites = [], []
+    ctrls, sites, qpos, qvel = [], [], [], []
     step1, step2 = sim.step1, sim.step2
 
     def recording_step1():
+        qpos.append(np.array(sim.data.qpos))
+        qvel.append(np.array(sim.data.qvel))
         step1()
         sites.append(np.array(sim.data.site_xpos[site]))
 
@@ -54,7 +61,9 @@ def robosuite_episode(env, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]
             env.step(action)
     finally:
         sim.step1, sim.step2 = step1, step2
-    return np.array(ctrls), np.array(sites), full_state(sim.model._model, sim.data._data)
+    recorded = {"qpos": np.array(qpos), "qvel": np.array(qvel), "ctrl": np.array(ctrls)}
+    final = full_state(sim.model._model, sim.data._data)
+    return np.array(ctrls), np.array(sites), final, recorded
 
 
 def full_state(model, data) -> np.ndarray:
@@ -84,6 +93,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=1.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, help="also write the figures here")
+    parser.add_argument("--fixture", type=Path, help="write robosuite's first episode here")
+    parser.add_argument("--fixture-actions", type=int, default=10)
     args = parser.parse_args()
     env = make_env(hard_reset=False)
     model = mujoco.MjModel.from_xml_path(str(HERE / "lift.xml"))
@@ -100,7 +111,7 @@ def main() -> None:
         )
         reset_to(env, x, y, yaw, noise)
         initial = full_state(env.sim.model._model, env.sim.data._data)
-        rs_ctrl, rs_site, rs_final = robosuite_episode(env, actions)
+        rs_ctrl, rs_site, rs_final, recorded = robosuite_episode(env, actions)
         ref_ctrl, ref_site, ref_final = plain_episode(model, initial, actions)
         arm = osc_reference.Ids.of(model).arm_actuators
         rows.append(
@@ -117,6 +128,13 @@ def main() -> None:
             }
         )
         print(json.dumps(rows[-1]))
+        if args.fixture and episode == 0:
+            n = args.fixture_actions * 25
+            np.savez_compressed(
+                args.fixture,
+                actions=actions[: args.fixture_actions],
+                **{k: v[:n] for k, v in recorded.items()},
+            )
     worst = {k: max(r[k] for r in rows) for k in rows[0] if k.startswith("max") or "final" in k}
     print(f"robosuite {rsenv.ROBOSUITE}, MuJoCo {mujoco.__version__}, numpy {np.__version__}: "
           f"{len(rows)} episodes of {args.seconds} s; worst: {json.dumps(worst)}")  # fmt: skip

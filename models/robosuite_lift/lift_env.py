@@ -40,7 +40,11 @@ def reset_to(env, cube_x: float, cube_y: float, cube_yaw: float, noise) -> dict:
     the arm at init_qpos + `noise` (the draw that robosuite scales by 0.02; given here as the
     radians themselves), the controllers made anew there (their nullspace target is that
     pose), the fingers at their initial opening, the cube at (x, y) relative to the table's
-    centre, yawed by `cube_yaw`, at the sampler's height. Returns the observation."""
+    centre, yawed by `cube_yaw`, at the sampler's height. Returns the observation.
+
+    The observables' sampling clocks are restarted as `env.reset` leaves them (one forced
+    update): robosuite samples an observation when its clock passes 1/control_freq, so an
+    extra forced update here would move every later sample one physics step earlier."""
     env.reset()
     robot = env.robots[0]
     magnitude = robot.initialization_noise["magnitude"]
@@ -55,6 +59,8 @@ def reset_to(env, cube_x: float, cube_y: float, cube_yaw: float, noise) -> dict:
     quat = np.array([np.cos(cube_yaw / 2), 0, 0, np.sin(cube_yaw / 2)])
     env.sim.data.set_joint_qpos(env.cube.joints[0], np.concatenate([pos, quat]))
     env.sim.forward()
+    for observable in env._observables.values():
+        observable.reset()
     return env._get_observations(force_update=True)
 
 
