@@ -172,8 +172,8 @@ def iter_batches(
     task, model = bound.task, bound.model
     if batch_size is None:
         batch_size = batch_size_for(model, episode_steps(bound, condition))
-    if bound.setup_copies or any(p.apply.stage == "model" for p in task.state_parameters):
-        # each batch slot holds a copy of the model, textures and all
+    copies = bound.setup_copies or any(p.apply.stage == "model" for p in task.state_parameters)
+    if copies:  # each batch slot holds a copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))
     params = task.parameters(condition)
     n = len(next(iter(values.values())))
@@ -191,7 +191,11 @@ def iter_batches(
     episode_values = [p.name for p in task.state_parameters]
     datas = [mujoco.MjData(model) for _ in range(max(1, nthread))]
     # one copy of the model per batch slot, reused batch after batch where it can be
-    slots = [copy.copy(model) for _ in range(min(batch_size, n))] if bound.reuses_models else []
+    slots = (
+        [copy.copy(model) for _ in range(min(batch_size, n))]
+        if copies and bound.reuses_models
+        else []
+    )
     with rollout.Rollout(nthread=nthread) as runner:
         for start in range(0, n, batch_size):
             rows = {k: np.asarray(v[start : start + batch_size]) for k, v in values.items()}
