@@ -7,6 +7,7 @@ qvel, act, ...), shape `(n_steps, nstate)`; a batch stacks episodes in front.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
 import os
@@ -64,6 +65,18 @@ def load_model(path: str | os.PathLike[str]) -> mujoco.MjModel:
         return mujoco.MjModel.from_xml_path(str(path.resolve()))
     except ValueError as err:
         raise ModelError(f"{path}: MuJoCo could not compile the model: {_one_line(err)}") from None
+
+
+def drop_asset_cache() -> None:
+    """Empty MuJoCo's asset cache and hand the freed pages back. MuJoCo keeps every mesh and
+    texture it decoded for the next compile in the process (up to 512 MB): worth it where
+    models are compiled again, 110 MB held for nothing in a job process that compiled its
+    model once (robosuite's Lift: a rollout job's memory 353 -> 243 MB after its model)."""
+    mujoco.mj_clearCache(mujoco.mj_getCache())
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: the cache is freed all the same
+        pass
 
 
 def compiled_sha256(model: mujoco.MjModel) -> str:

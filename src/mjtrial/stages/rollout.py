@@ -16,6 +16,7 @@ import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, atomic, engine, phases, provenance, recording
 from mjtrial.conditions import policy_path
+from mjtrial.physics import drop_asset_cache
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
 from mjtrial.stages.condition import condition_parameters, condition_task, thresholds_of
@@ -294,6 +295,7 @@ def _run_shard(
 ) -> pa.Table:
     with phases.phase("task + states"):
         bound = condition_task(condition_slice, model_file, repo_root=repo_root)
+        drop_asset_cache()  # a job process compiles its model once
         task = bound.task
         values = read_state_values(states_path, task, first=first, stop=stop)
     condition = condition_slice["condition"]
