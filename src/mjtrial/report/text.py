@@ -18,6 +18,7 @@ import numpy as np
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.conditions import condition_record
 from mjtrial.physics import load_model
+from mjtrial.report.actuators import actuator_lines
 from mjtrial.report.comparisons import (
     comparisons_section,
     metric_lines,
@@ -34,7 +35,6 @@ from mjtrial.report.labels import (
 )
 from mjtrial.report.model import (
     action_lines,
-    actuator_lines,
     contact_lines,
     equality_lines,
     joint_lines,
@@ -222,7 +222,7 @@ def _setup(
         f"- Model: `{m['path']}`, sha256 `{m['sha256']}` {model_files_text(m.get('files'))}.",
         f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
         f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
-        *actuator_lines(model),
+        *actuator_lines(model, keyframe=task.keyframe),
         *equality_lines(model),
         *_controller_lines(model, task),
         *joint_lines(model),
