@@ -41,6 +41,7 @@ from mjtrial.report.model import (
     model_files_text,
 )
 from mjtrial.report.registration import falsifier_clause, registration_lines
+from mjtrial.report.solver import solver_line
 from mjtrial.report.stopping import stopping_section
 from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
 from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
@@ -220,8 +221,7 @@ def _setup(
         f"- Simulator: MuJoCo {manifest['versions']['mujoco']}.",
         *_task_lines(manifest.get("task")),
         f"- Model: `{m['path']}`, sha256 `{m['sha256']}` {model_files_text(m.get('files'))}.",
-        f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
-        f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
+        solver_line(m, model, task.controller),
         *actuator_lines(model, keyframe=task.keyframe),
         *equality_lines(model),
         *_controller_lines(model, task),
