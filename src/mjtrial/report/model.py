@@ -145,18 +145,32 @@ def equality_lines(model: mujoco.MjModel) -> list[str]:
     return lines
 
 
-def action_lines(model: mujoco.MjModel, actuation: Actuation | None) -> list[str]:
+def action_lines(
+    model: mujoco.MjModel,
+    actuation: Actuation | None,
+    *,
+    title: str = "- The policy's output columns, in order:",
+) -> list[str]:
     """What each of a closed-loop policy's output columns drives (`mjtrial.actuation`), as bound
-    to the model; none when the outputs are every actuator's ctrl in order."""
+    to the model, under `title`; none when the outputs are every actuator's ctrl in order."""
     if actuation is None or actuation.passthrough:
         return []
-    lines = ["- The policy's output columns, in order:"]
+    lines = [title]
     for c in sorted([*actuation.controls, *actuation.mocaps], key=lambda c: c.column):
         if isinstance(c, ControlColumn):
-            names = ", ".join(f"`{_label(model, _OBJ.mjOBJ_ACTUATOR, a)}`" for a in c.actuators)
-            value = f"{c.scale:g} × the value"
-            rule = f"its joint's position + {value}" if c.qpos is not None else value
-            lines.append(f"  - column {c.column}: the ctrl of {names} = {rule}")
+            rules = []
+            for sign in (1, -1):
+                driven = [a for j, a in enumerate(c.actuators) if c.sign(j) == sign]
+                if not driven:
+                    continue
+                names = ", ".join(f"`{_label(model, _OBJ.mjOBJ_ACTUATOR, a)}`" for a in driven)
+                value = f"{c.scale:g} × the value"
+                if c.qpos is not None:
+                    rule = f"its joint's position {'+' if sign == 1 else '−'} {value}"
+                else:
+                    rule = value if sign == 1 else f"−{value}"
+                rules.append(f"the ctrl of {names} = {rule}")
+            lines.append(f"  - column {c.column}: {'; '.join(rules)}")
             continue
         body = int(np.flatnonzero(model.body_mocapid == c.mocap)[0])
         step = f"{c.scale:g} × the values"

@@ -16,8 +16,9 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.conditions import condition_record
+from mjtrial.conditions import condition_record, policy_path
 from mjtrial.physics import load_model
+from mjtrial.policy_file import read_contract
 from mjtrial.report.actuators import actuator_lines
 from mjtrial.report.comparisons import (
     comparisons_section,
@@ -44,7 +45,8 @@ from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.solver import solver_line
 from mjtrial.report.stopping import stopping_section
 from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
-from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
+from mjtrial.task import ClosedLoop, Control, Task, load_task
+from mjtrial.task.actions import bind_actions
 
 
 def _interval(low: float, high: float, *, signed: bool = False) -> str:
@@ -190,12 +192,45 @@ def _redrawn_text(redrawn: Mapping[str, int] | None) -> str:
     return f"draws rejected and redrawn: {', '.join(counts)}."
 
 
-def _controller_lines(model: mujoco.MjModel, task: Task) -> list[str]:
-    """What the policy's output columns drive, and how each episode starts when the task's
+_ACTION_SCALE = {
+    "ctrlrange": "a column in [-1, 1] mapped onto its actuators' ctrlrange, then clipped",
+    "raw": "a column is the ctrl, clipped to a limited actuator's ctrlrange",
+}
+
+
+def _condition_actions(
+    task: Task, condition: Mapping[str, Any], repo_root: Path
+) -> tuple[tuple[Any, ...], str]:
+    """The actions a condition's policy drives (its policy file's contract, else the task's)
+    and how its contract scales them ("" for the task's policy)."""
+    policy = policy_path(condition)
+    if policy is None:
+        return tuple(task.controller.actions), ""
+    contract = read_contract(Path(repo_root) / policy)
+    actions = contract.actions or tuple(Control(a) for a in contract.actuators)
+    where = provenance.path_in_repo(contract.source, repo_root) or contract.source
+    return actions, f"its contract `{where}`: {_ACTION_SCALE[contract.action_scale]}"
+
+
+def _controller_lines(
+    model: mujoco.MjModel, task: Task, conditions: Mapping[str, Any], repo_root: Path
+) -> list[str]:
+    """What the policy's output columns drive under each condition (a condition's policy file
+    maps them by its own contract), and how each episode starts when the task's
     `episode_setup` (a suite's own reset) prepares it."""
     lines = []
-    if isinstance(task.controller, ClosedLoop) and task.controller.actions:
-        lines += action_lines(model, BoundTask.of(task, model).actuation)
+    if isinstance(task.controller, ClosedLoop):
+        groups: dict[tuple[Any, str], list[str]] = {}
+        for name, condition in conditions.items():
+            groups.setdefault(_condition_actions(task, condition, repo_root), []).append(name)
+        for (actions, scaling), names in groups.items():
+            if not actions:
+                continue
+            which = "" if len(groups) == 1 else f" under {', '.join(f'`{n}`' for n in names)}"
+            title = f"- The policy's output columns{which}, in order" + (
+                f" ({scaling}):" if scaling else ":"
+            )
+            lines += action_lines(model, bind_actions(model, actions), title=title)
     if task.episode_setup is not None:
         doc = (task.episode_setup.__doc__ or "").strip().split("\n\n")[0]
         what = " ".join(doc.split()) or "(no docstring)"
@@ -211,6 +246,7 @@ def _setup(
     manifest: Mapping[str, Any],
     model: mujoco.MjModel,
     task: Task,
+    repo_root: Path,
 ) -> list[str]:
     m = manifest["model"]
     states = config["states"]
@@ -224,7 +260,7 @@ def _setup(
         solver_line(m, model, task.controller),
         *actuator_lines(model, keyframe=task.keyframe),
         *equality_lines(model),
-        *_controller_lines(model, task),
+        *_controller_lines(model, task, config["conditions"], repo_root),
         *joint_lines(model),
         *contact_lines(model),
         "",
@@ -543,7 +579,7 @@ def render_report(
     if design.get("hypothesis"):
         lines += [f"**Hypothesis.** {design['hypothesis']}", ""]
     sections = [
-        _setup(summary, config, manifest, model, task),
+        _setup(summary, config, manifest, model, task, Path(repo_root)),
         _metric(summary, manifest),
         _results(summary, figures, names, task),
         _failure_analysis(summary, config, figures, names, task),

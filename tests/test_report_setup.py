@@ -1,0 +1,55 @@
+"""The report's setup says what is true of each condition: the output columns of the policy
+each condition runs (a policy file's own contract, not the task's scripted order), the
+policy's rate."""
+
+from __future__ import annotations
+
+import mujoco
+from fetch_mocap import FETCH, FINGERS, fetch_task
+from policy_graphs import tanh_mlp, write
+
+from mjtrial.report.text import _controller_lines
+
+MOCAP = {"body": "robot0:mocap", "relative_to": "target", "scale": 0.01}
+
+
+def test_each_condition_is_said_with_its_own_policys_columns(tmp_path):
+    """The task's scripted policy puts the mocap first (columns 0-2) and the fingers last
+    (column 3); a behaviour clone's contract puts a signed gripper column first."""
+    write(
+        tmp_path / "policies",
+        "clone",
+        tanh_mlp([2, 8, 4]),
+        task="fetch_mocap",
+        observations=["object_x", "object_y"],
+        actuators=[{"actuators": list(FINGERS), "signs": [1, -1]}],
+        mocap=[MOCAP],
+        control_period=0.04,
+    )
+    model = mujoco.MjModel.from_xml_path(str(FETCH))
+    conditions = {"scripted": {}, "clone": {"policy": "policies/clone.onnx"}, "again": {}}
+    lines = _controller_lines(model, fetch_task(), conditions, tmp_path)
+    text = "\n".join(lines)
+    scripted = text.index("- The policy's output columns under `scripted`, `again`, in order:")
+    clone = text.index(
+        "- The policy's output columns under `clone`, in order (its contract "
+        "`policies/clone.yaml`: a column in [-1, 1] mapped onto its actuators' ctrlrange, "
+        "then clipped):"
+    )
+    scripted_part = text[scripted:clone] if scripted < clone else text[scripted:]
+    clone_part = text[clone:scripted] if clone < scripted else text[clone:]
+    assert "  - columns 0-2: the target position of mocap body `robot0:mocap`" in scripted_part
+    assert (
+        f"  - column 3: the ctrl of `{FINGERS[0]}`, `{FINGERS[1]}` = its joint's" in scripted_part
+    )
+    assert (
+        f"  - column 0: the ctrl of `{FINGERS[0]}` = 1 × the value; the ctrl of `{FINGERS[1]}` "
+        "= −1 × the value" in clone_part
+    )
+    assert (
+        "  - columns 1-3: the target position of mocap body `robot0:mocap` = the previous "
+        "target + 0.01 × the values" in clone_part
+    )
+    # one mapping for every condition: no names
+    alone = "\n".join(_controller_lines(model, fetch_task(), {"a": {}, "b": {}}, tmp_path))
+    assert "- The policy's output columns, in order:" in alone
