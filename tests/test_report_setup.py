@@ -53,3 +53,26 @@ def test_each_condition_is_said_with_its_own_policys_columns(tmp_path):
     # one mapping for every condition: no names
     alone = "\n".join(_controller_lines(model, fetch_task(), {"a": {}, "b": {}}, tmp_path))
     assert "- The policy's output columns, in order:" in alone
+
+
+def test_the_initial_states_say_each_parameters_distribution():
+    from gantry_lift.task import TASK
+
+    from mjtrial.report.text import _initial_states_lines
+
+    states = {
+        "n": 10,
+        "seed": 3,
+        "ranges": {"dx": [-0.02, 0.02], "dy": [-0.01, 0.01], "yaw": [-0.6, 0.6], "mass": [0.05, 1]},
+    }
+    uniform = "\n".join(_initial_states_lines(states, TASK, "PCG64"))
+    assert "one uniform draw of n values per parameter in the order dx, dy, yaw, mass:" in uniform
+    assert "| mass | 0.05 | 1 | kg |" in uniform
+    states["distributions"] = {
+        "dx": {"kind": "normal", "mean": 0, "std": 0.005},
+        "mass": {"kind": "truncated_normal", "mean": 0.3, "std": 0.1},
+    }
+    text = "\n".join(_initial_states_lines(states, TASK, "PCG64"))
+    assert "| dx | normal, mean 0, std 0.005 (not truncated) | m |" in text
+    assert "| dy | uniform in [-0.01, 0.01] | m |" in text
+    assert "| mass | normal, mean 0.3, std 0.1, truncated to [0.05, 1] | kg |" in text

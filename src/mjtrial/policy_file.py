@@ -120,10 +120,7 @@ class Contract:
         if not self.mocap and all(isinstance(a, str) for a in self.actuators):
             return ()
         return (
-            *(
-                Control(a, signs=self.signs_of(k) or None)
-                for k, a in enumerate(self.actuators)
-            ),
+            *(Control(a, signs=self.signs_of(k) or None) for k, a in enumerate(self.actuators)),
             *(
                 MocapAction(**{k: tuple(v) if isinstance(v, list) else v for k, v in m.items()})
                 for m in self.mocap

@@ -45,6 +45,7 @@ from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.solver import solver_line
 from mjtrial.report.stopping import stopping_section
 from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
+from mjtrial.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
 from mjtrial.task import ClosedLoop, Control, Task, load_task
 from mjtrial.task.actions import bind_actions
 
@@ -212,6 +213,40 @@ def _condition_actions(
     return actions, f"its contract `{where}`: {_ACTION_SCALE[contract.action_scale]}"
 
 
+def _initial_states_lines(states: Mapping[str, Any], task: Task, bitgen: str) -> list[str]:
+    """How the initial states were drawn: the generator, then each parameter's distribution
+    (uniform in its range unless `states.distributions` says otherwise)."""
+    parameters = [p for p in task.state_columns[1:] if p in states["ranges"]]
+    drawn = {p: distribution(p, states["ranges"], states.get("distributions")) for p in parameters}
+    head = (
+        f"Initial states: n = {states['n']}, drawn with numpy's `default_rng({states['seed']})` "
+        f"({bitgen}), one "
+    )
+    order = f"draw of n values per parameter in the order {', '.join(task.state_columns[1:])}"
+    if all(d["kind"] == UNIFORM for d in drawn.values()):
+        rows = [[p, f"{d['low']:g}", f"{d['high']:g}", task.unit_of(p)] for p, d in drawn.items()]
+        return [
+            f"{head}uniform {order}:",
+            "",
+            *markdown_table(["parameter", "low", "high", "unit"], rows),
+        ]
+    words = {
+        UNIFORM: lambda d: f"uniform in [{d['low']:g}, {d['high']:g}]",
+        NORMAL: lambda d: f"normal, mean {d['mean']:g}, std {d['std']:g} (not truncated)",
+        TRUNCATED_NORMAL: lambda d: (
+            f"normal, mean {d['mean']:g}, std {d['std']:g}, truncated to "
+            f"[{d['low']:g}, {d['high']:g}]"
+        ),
+    }
+    rows = [[p, words[d["kind"]](d), task.unit_of(p)] for p, d in drawn.items()]
+    return [
+        f"{head}{order} (a normal by numpy's `normal`, a truncated normal by scipy's "
+        "`truncnorm.ppf` at one `uniform` draw):",
+        "",
+        *markdown_table(["parameter", "distribution", "unit"], rows),
+    ]
+
+
 def _controller_lines(
     model: mujoco.MjModel, task: Task, conditions: Mapping[str, Any], repo_root: Path
 ) -> list[str]:
@@ -274,18 +309,7 @@ def _setup(
             ],
         ),
         "",
-        f"Initial states: n = {states['n']}, drawn with numpy's `default_rng({states['seed']})` "
-        f"({bitgen}), one uniform draw of n values per parameter in the order "
-        f"{', '.join(task.state_columns[1:])}:",
-        "",
-        *markdown_table(
-            ["parameter", "low", "high", "unit"],
-            [
-                [p, f"{states['ranges'][p][0]:g}", f"{states['ranges'][p][1]:g}", task.unit_of(p)]
-                for p in task.state_columns[1:]
-                if p in states["ranges"]
-            ],
-        ),
+        *_initial_states_lines(states, task, bitgen),
         *(
             [
                 "",
