@@ -459,14 +459,19 @@ def figure_sample_traces(
     label = series.name.replace("_", " ").capitalize()
     axes[0].set_ylabel(f"{label} ({unit})" if unit else label)
     axes[0].set_xlim(0, end)
-    intervals = sorted({round(t.log_interval * 1e3, 6) for t in traces.values()})
-    logged = " or ".join(f"{ms:g}" for ms in intervals)
-    fig.suptitle(
-        f"{series.name.replace('_', ' ').capitalize()} in sample episodes (lowest state ids), "
-        f"as recorded every {logged} ms",
-        fontsize=9,
-    )
+    fig.suptitle(_traces_title(series.name, traces), fontsize=9)
     return fig
+
+
+def _traces_title(series: str, traces: Mapping[str, SampleTraces]) -> str:
+    """The traces figure's title: the recording interval of the episodes drawn, or that none
+    was drawn (no interval to state when nothing was recorded)."""
+    what = series.replace("_", " ").capitalize()
+    intervals = sorted({round(t.log_interval * 1e3, 6) for t in traces.values() if t.state_ids})
+    if not intervals:
+        return f"{what}: no sample episode was recorded"
+    logged = " or ".join(f"{ms:g}" for ms in intervals)
+    return f"{what} in sample episodes (lowest state ids), as recorded every {logged} ms"
 
 
 @_styled

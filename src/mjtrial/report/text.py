@@ -54,16 +54,31 @@ def _interval(low: float, high: float, *, signed: bool = False) -> str:
     return f"[{low:+.3f}, {high:+.3f}]" if signed else f"[{low:.3f}, {high:.3f}]"
 
 
+def _traces_caption(summary: Mapping[str, Any], config: Mapping[str, Any], task: Task) -> str:
+    """The traces figure's caption, true of what it draws: the lowest-id successes and
+    failures that were recorded (`recording.episodes`: all, failed or none)."""
+    series = (task.trace_series.name.replace("_", " ") if task.trace_series else "").capitalize()
+    kept = config.get("recording", {}).get("episodes", "all")
+    failed = sum(c["n"] - c["successes"] for c in summary["conditions"].values())
+    if kept == "all":
+        return f"{series} over time in sample episodes, from their recordings"
+    if kept == "failed" and failed:
+        return (
+            f"{series} over time in sample failed episodes, from their recordings "
+            "(`recording.episodes: failed`: successes are not recorded)"
+        )
+    why = "records no episode" if kept == "none" else "records failed episodes, and none failed"
+    return f"{series}: no sample episode drawn (`recording.episodes: {kept}` {why})"
+
+
 def _captions(summary: Mapping[str, Any], task: Task) -> dict[str, str]:
+    """The result figures' captions (the traces' is `_traces_caption`: it needs the config)."""
     band = next(iter(summary["bands"]), "")
-    series = task.trace_series.name.replace("_", " ") if task.trace_series else ""
     return {
         "success_by_condition": "Success rate per condition",
         "success_by_band": f"Success rate by {band_parameter(band, task)[0]} band",
         "paired_outcomes": "Paired outcomes of the same initial states",
         "failure_categories": "Failed episodes by category",
-        "sample_traces": f"{series.capitalize()} over time in sample episodes, from their "
-        "recordings",
     }
 
 
@@ -480,7 +495,11 @@ def _failure_analysis(
         ),
         "",
     ]
-    return lines + _figure_lines(_FAILURE_FIGURES, figures, _captions(summary, task))
+    return lines + _figure_lines(
+        _FAILURE_FIGURES,
+        figures,
+        {**_captions(summary, task), "sample_traces": _traces_caption(summary, config, task)},
+    )
 
 
 def _falsifier(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str]:
