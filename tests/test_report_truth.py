@@ -52,3 +52,43 @@ def test_the_interval_is_that_of_the_episodes_drawn():
     assert "in sample failed episodes, from their recordings" in failed
     every = _traces_caption(_summary(2), {"recording": {"episodes": "all"}}, TASK)
     assert every.endswith("over time in sample episodes, from their recordings")
+
+
+def test_a_degenerate_dose_response_comparison_is_said_in_words():
+    """The Sawyer run: every state succeeds at the reference and fails at the longest value
+    (-1, a one-point interval), one value equals the reference on every state (0, no
+    discordance), and the trend is steep: its odds ratio's lower bound is small, not 0.000."""
+    from mjtrial.report.studies import render_dose_response_section
+    from mjtrial.studies.dose_response import summarize_dose_response
+
+    n = 20
+    outcomes = {
+        0.1: np.ones(n, bool),
+        0.2: np.ones(n, bool),
+        0.4: np.arange(n) < 19,
+        0.8: np.arange(n) < 1,
+        1.6: np.zeros(n, bool),
+    }
+    tables = {v: {"state_id": np.arange(n), "success": s} for v, s in outcomes.items()}
+    summary = summarize_dose_response(
+        tables,
+        parameter="latency",
+        states={"state_id": np.arange(n), "mass": np.linspace(0.05, 0.6, n)},
+        band_parameter="mass",
+        band_edges=[0.05, 0.3, 0.6],
+        analysis={"confidence": 0.95, "n_resamples": 200, "seed": 3},
+        margin=0.05,
+        reference=0.1,
+        toward="larger",
+    )
+    text = render_dose_response_section(summary, figure="f.png")
+    assert "-1.000 [-1.000, -1.000]" not in text and "[+0.000, +0.000]" not in text
+    assert (
+        "| 1.6 | 0/20 0.000 [0.000, 0.161] | 0/9 0.000 [0.000, 0.299] | 0/11 0.000 [0.000, 0.259] "
+        "| -1.000 (all 20 states failed here and succeeded at the reference; the bootstrap "
+        "interval is that one point) |" in text
+    )
+    assert "| +0.000 (no discordant pair: each of the 20 states had one outcome at both" in text
+    low = summary["trend"]["odds_ratio_per_doubling_low"]
+    assert 0 < low < 0.0005  # what 0.000 hid
+    assert f"odds ratio per doubling 0.00272 [{low:.3g}, 0.045]" in text
