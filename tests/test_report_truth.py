@@ -92,3 +92,36 @@ def test_a_degenerate_dose_response_comparison_is_said_in_words():
     low = summary["trend"]["odds_ratio_per_doubling_low"]
     assert 0 < low < 0.0005  # what 0.000 hid
     assert f"odds ratio per doubling 0.00272 [{low:.3g}, 0.045]" in text
+
+
+def test_the_traces_figure_keeps_its_text_apart_at_five_conditions():
+    """The Sawyer run's five conditions: panels in rows of three, each legend below its own
+    axis label (one row of five put the legends over the labels)."""
+    from test_report import _text_problems
+
+    from mjtrial.report.figures import figure_sample_traces
+
+    names = ["scripted", "scripted_slow", "clone_a", "clone_b", "clone_c"]
+    time = np.arange(1, 101) * 0.02
+    values = np.vstack([0.15 + 0.15 * np.sin(time * (k + 1)) for k in range(6)])
+    traces = {
+        n: SampleTraces(
+            condition=n,
+            time=time,
+            values=values,
+            state_ids=(0, 1, 2, 3, 5, 8),
+            success=(True, True, True, False, False, False),
+            log_interval=0.02,
+            marks={"lift": 0.5, "hold": 1.2},
+        )
+        for n in names
+    }
+    summary = {"conditions": {n: {"n": 20, "successes": 10, "lift_time": 0.15} for n in names}}
+    for shown in (names, names[:2]):
+        fig = figure_sample_traces(
+            traces={n: traces[n] for n in shown},
+            summary={"conditions": {n: summary["conditions"][n] for n in shown}},
+            task=TASK,
+        )
+        assert _text_problems(fig) == []
+        assert sum(ax.get_visible() for ax in fig.axes) == len(shown)
