@@ -76,3 +76,33 @@ def test_the_initial_states_say_each_parameters_distribution():
     assert "| dx | normal, mean 0, std 0.005 (not truncated) | m |" in text
     assert "| dy | uniform in [-0.01, 0.01] | m |" in text
     assert "| mass | normal, mean 0.3, std 0.1, truncated to [0.05, 1] | kg |" in text
+
+
+def test_the_rates_are_the_physics_and_the_policys_under_each_condition():
+    """The cart-pole as its design record says: a 2 ms timestep, a 10 ms control period, 0 and
+    20 ms of sensing latency; the gantry's controls are open loop."""
+    import yaml
+    from conftest import REPO_ROOT
+
+    from mjtrial.physics import load_model
+    from mjtrial.report.text import _rate_lines
+    from mjtrial.task import load_task
+
+    config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
+    task = load_task(config["task"], repo_root=REPO_ROOT)
+    model_file = REPO_ROOT / config["model"]
+    lines = _rate_lines(load_model(model_file), task, config, model_file)
+    held = "between two actions the controls they set are held at every physics step."
+    assert lines == [
+        "- Rates under `no_latency`: the physics steps every 2 ms, 500 Hz; the policy acts "
+        f"every 5 physics steps (10 ms, 100 Hz); {held}",
+        "- Rates under `latency_20ms`: the physics steps every 2 ms, 500 Hz; the policy acts "
+        f"every 5 physics steps (10 ms, 100 Hz) on observations 10 physics steps (20 ms) old; "
+        f"{held}",
+    ]
+    gantry = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    model_file = REPO_ROOT / gantry["model"]
+    open_loop = _rate_lines(
+        load_model(model_file), load_task(gantry["task"], repo_root=REPO_ROOT), gantry, model_file
+    )
+    assert len(open_loop) == 1 and "the controls are an open-loop sequence" in open_loop[0]

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.conditions import condition_record, policy_path
+from mjtrial.conditions import condition_record, model_edits, policy_path
 from mjtrial.physics import load_model
 from mjtrial.policy_file import read_contract
 from mjtrial.report.actuators import actuator_lines
@@ -44,9 +44,10 @@ from mjtrial.report.model import (
 from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.solver import solver_line
 from mjtrial.report.stopping import stopping_section
-from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
+from mjtrial.stages.condition import condition_model
+from mjtrial.stages.stamping import DECLARED_STUDIES, config_slice, declared_studies
 from mjtrial.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
-from mjtrial.task import ClosedLoop, Control, Task, load_task
+from mjtrial.task import ClosedLoop, Control, Task, call, load_task
 from mjtrial.task.actions import bind_actions
 
 
@@ -262,6 +263,50 @@ def _initial_states_lines(states: Mapping[str, Any], task: Task, bitgen: str) ->
     ]
 
 
+def between_actions_text(task: Task, model: mujoco.MjModel) -> str:
+    """What acts between two of the policy's actions, for the setup's rates line. The hook for
+    a task's low-level controller at the physics rate (issue 41): its rate and what it reads
+    (the state, Jacobians, mass matrix, bias forces) go here. Without one: the held controls."""
+    del model  # a low-level controller's rate and inputs are read from it
+    if not isinstance(task.controller, ClosedLoop):
+        return "the controls are an open-loop sequence, one per physics step, fixed in advance"
+    return "between two actions the controls they set are held at every physics step"
+
+
+def _hz(period: float) -> str:
+    return f"{period * 1e3:.4g} ms, {1.0 / period:.4g} Hz"
+
+
+def _rate_lines(
+    model: mujoco.MjModel, task: Task, config: Mapping[str, Any], model_file: Path
+) -> list[str]:
+    """The physics' and the policy's rates under each condition (its own model where it edits
+    it: another timestep), the sensing latency, and what acts between two actions."""
+    controller = task.controller
+    groups: dict[tuple[float, int, int], list[str]] = {}
+    for name, condition in config["conditions"].items():
+        own = model
+        if model_edits(condition):
+            own = condition_model(config_slice("rollout", config, condition=name), model_file)
+        step, latency = 1, 0
+        if isinstance(controller, ClosedLoop):
+            timing = call(task, "timing", controller.timing, own, task.parameters(condition))
+            step, latency = timing.steps_per_control, timing.latency_steps
+        groups.setdefault((float(own.opt.timestep), step, latency), []).append(name)
+    lines = []
+    for (dt, step, latency), names in groups.items():
+        which = "" if len(groups) == 1 else f" under {', '.join(f'`{n}`' for n in names)}"
+        text = f"- Rates{which}: the physics steps every {_hz(dt)}"
+        if isinstance(controller, ClosedLoop):
+            text += f"; the policy acts every {step} physics steps ({_hz(step * dt)})"
+            if latency:
+                text += (
+                    f" on observations {latency} physics steps ({latency * dt * 1e3:.4g} ms) old"
+                )
+        lines.append(f"{text}; {between_actions_text(task, model)}.")
+    return lines
+
+
 def _controller_lines(
     model: mujoco.MjModel, task: Task, conditions: Mapping[str, Any], repo_root: Path
 ) -> list[str]:
@@ -310,6 +355,7 @@ def _setup(
         solver_line(m, model, task.controller),
         *actuator_lines(model, keyframe=task.keyframe),
         *equality_lines(model),
+        *_rate_lines(model, task, config, repo_root / m["path"]),
         *_controller_lines(model, task, config["conditions"], repo_root),
         *joint_lines(model),
         *contact_lines(model),
