@@ -36,7 +36,8 @@ SCHEMA_CASES = [
     (
         "misspelled nested key",
         lambda c: c["states"].update(seeed=1),
-        "states.seeed: unknown key; expected one of ['development_seed', 'n', 'ranges', 'seed']",
+        "states.seeed: unknown key; expected one of ['development_seed', 'distributions', 'n', "
+        "'ranges', 'seed']",
     ),
     (
         "wrong type",
@@ -44,6 +45,14 @@ SCHEMA_CASES = [
         "states.n: expected integer, got 'many'",
     ),
     ("below minimum", lambda c: c["states"].update(n=0), "states.n: expected >= 1, got 0"),
+    (
+        "an unknown distribution",
+        lambda c: c["states"].update(
+            distributions={"dx": {"kind": "laplace", "mean": 0, "std": 1}}
+        ),
+        "states.distributions.dx.kind: expected one of ['normal', 'truncated_normal'], got "
+        "'laplace'",
+    ),
     (
         "at exclusive minimum",
         lambda c: c["analysis"].update(confidence=0),
@@ -142,6 +151,21 @@ SEMANTIC_CASES = [
         lambda c: c.update(task="tasks/cartpole_latency/task.py"),
         "task: its model is tasks/cartpole_latency/cartpole.xml; expected the config's model "
         "models/gantry_gripper/scene.xml",
+    ),
+    (
+        "a distribution of no state parameter",
+        lambda c: c["states"].update(
+            distributions={"roll": {"kind": "normal", "mean": 0, "std": 1}}
+        ),
+        "states.distributions.roll: not a state parameter of the task; expected one of "
+        "['dx', 'dy', 'yaw', 'mass']",
+    ),
+    (
+        "a normal mass",
+        lambda c: c["states"].update(
+            distributions={"mass": {"kind": "normal", "mean": 0.3, "std": 0.1}}
+        ),
+        "states.distributions.mass: a normal draws masses at or below 0; expected truncated_normal",
     ),
     (
         "missing model file",

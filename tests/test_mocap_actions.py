@@ -19,6 +19,7 @@ The welded body's pose is read as the suite reads it: `data.xpos` as the last `m
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -354,3 +355,102 @@ def test_a_contract_column_over_actuators_of_different_ranges_is_refused(tmp_pat
     assert isinstance(err.value, PolicyFileError)
     assert str(err.value).startswith(f"{path.with_suffix('.yaml')}: actuators: ")
     assert "different ctrlranges" in str(err.value)
+
+
+SIGNED = {"actuators": list(FINGERS), "signs": [1, -1]}
+
+
+def _mirrored_fetch(folder) -> Path:
+    """The Fetch with its right finger's servo range mirrored to [-0.2, 0], as robosuite's
+    Panda gripper declares its two fingers ([0, 0.04] and [-0.04, 0], one command [a, -a])."""
+    import shutil
+
+    shutil.copytree(FETCH.parents[1], folder / "assets")
+    scene = folder / "assets" / "fetch" / FETCH.name
+    text = scene.read_text()
+    right = 'ctrlrange="0 0.2" joint="robot0:r_gripper_finger_joint"'
+    assert right in text
+    scene.write_text(text.replace(right, right.replace('"0 0.2"', '"-0.2 0"')))
+    return scene
+
+
+def test_one_column_drives_two_fingers_with_opposite_signs(tmp_path):
+    import dataclasses
+
+    from fetch_mocap import fetch_task
+    from policy_graphs import tanh_mlp, write
+
+    from mjtrial.engine import iter_batches
+    from mjtrial.policy_file import load_policy_file, policy_task
+    from mjtrial.task import BoundTask
+
+    task = fetch_task(model=_mirrored_fetch(tmp_path))
+    path = write(
+        tmp_path,
+        "fetch",
+        tanh_mlp([2, 16, 4], seed=3),
+        task="fetch_mocap",
+        observations=["object_x", "object_y"],
+        actuators=[SIGNED],
+        mocap=[MOCAP_ENTRY],
+        control_period=0.04,
+    )
+    policy_file = load_policy_file(path, task)
+    values = {
+        "state_id": np.arange(3),
+        "object_dx": np.array([0.0, 0.05, -0.08]),
+        "object_dy": np.array([0.03, -0.06, 0.0]),
+    }
+    run = lambda t: next(iter_batches(BoundTask.of(t), values, {}, thresholds={}, nthread=1))  # noqa: E731
+    by_file = run(policy_task(task, policy_file)).episodes
+
+    # by hand, without signs: the column onto [0, 0.2] (SessionPolicy), then a second column
+    # of its negation for the right finger
+    class Mirrored(SessionPolicy):
+        def __call__(self, obs: np.ndarray) -> np.ndarray:
+            action = super().__call__(obs)
+            return np.concatenate([action[:, :1], -action[:, :1], action[:, 1:]], axis=1)
+
+    by_hand_actions = (
+        Control(FINGERS[0]),
+        Control(FINGERS[1]),
+        MocapAction(**{k: tuple(v) if isinstance(v, list) else v for k, v in MOCAP_ENTRY.items()}),
+    )
+    controller = dataclasses.replace(
+        task.controller,
+        policy=lambda model, params: Mirrored(policy_file.session),
+        actions=by_hand_actions,
+    )
+    by_hand = run(dataclasses.replace(task, controller=controller)).episodes
+    np.testing.assert_array_equal(by_file.physics, by_hand.physics)
+    left, right = by_file.ctrl[..., 0], by_file.ctrl[..., 1]
+    np.testing.assert_array_equal(right, -left)
+    assert left.min() > 0 and left.max() <= 0.2 and np.ptp(left) > 0.001
+
+
+def test_a_signed_column_must_share_one_range_and_give_a_sign_per_actuator(tmp_path):
+    from fetch_mocap import fetch_task
+    from policy_graphs import tanh_mlp, write
+
+    from mjtrial.policy_file import PolicyFileError, load_policy_file
+
+    task = fetch_task()  # both fingers [0, 0.2]: times (1, -1) they are two ranges
+    kwargs = dict(
+        task="fetch_mocap",
+        observations=["object_x", "object_y"],
+        mocap=[MOCAP_ENTRY],
+        control_period=0.04,
+    )
+    path = write(tmp_path, "fetch", tanh_mlp([2, 4, 4]), actuators=[SIGNED], **kwargs)
+    with pytest.raises(PolicyFileError, match="different ctrlranges times their signs"):
+        load_policy_file(path, task).policy(NOMINAL, {})
+    odd = {**SIGNED, "signs": [-1]}
+    path = write(tmp_path, "odd", tanh_mlp([2, 4, 4]), actuators=[odd], **kwargs)
+    with pytest.raises(PolicyFileError) as err:
+        load_policy_file(path, task)
+    assert str(err.value) == (
+        f"{path.with_suffix('.yaml')}: actuators.0.signs: [-1]; expected one sign (1 or -1) "
+        "for each of its 2 actuators"
+    )
+    with pytest.raises(TaskError, match=r"actions\[0\]: signs: expected \+1 or -1 for each"):
+        bind_actions(NOMINAL, (Control(FINGERS, signs=(1, 2)),))

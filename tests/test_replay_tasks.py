@@ -129,3 +129,48 @@ def test_what_a_task_prints_is_in_its_jobs_log(cartpole_run):
     # On the console only what Snakemake printed before any job: the preflight's episodes.
     console = (cartpole_run / "console.txt").read_text()
     assert console.count(PRINTED) == (cartpole_run / "dry_console.txt").read_text().count(PRINTED)
+
+
+def test_replay_during_a_run_says_what_is_missing_before_any_work(tmp_path, monkeypatch, capsys):
+    """A run still going: states drawn, one of the condition's three shards written, no
+    gathered table. The replay says so in words, before checking the config (which runs
+    episodes of its own) or simulating anything."""
+    from conftest import copy_workflow, edit_config
+
+    import mjtrial.replay as replay
+
+    workdir = copy_workflow(tmp_path)
+    edit_config(workdir, lambda c: (c["states"].update(n=12), c["rollout"].update(shard_size=5)))
+    results = workdir / "results" / "research_mode"
+    never = lambda *a, **k: pytest.fail("worked before checking its inputs")  # noqa: E731
+    monkeypatch.setattr(replay, "check_config", never)
+    monkeypatch.setattr(replay, "condition_batches", never)
+    with pytest.raises(replay.NotYetWritten) as err:
+        replay.replay_episode(condition="fast", state_id=3, repo_root=workdir)
+    assert str(err.value) == (
+        f"{results / 'states.parquet'}: not written; the run has not drawn its initial states "
+        "yet (run `snakemake -c2`, or wait for the run going on)"
+    )
+    (results / "rollouts" / "fast").mkdir(parents=True)
+    (results / "states.parquet").touch()
+    (results / "rollouts" / "fast" / "shard-00000.parquet").touch()
+    with pytest.raises(replay.NotYetWritten) as err:
+        replay.replay_episode(condition="fast", state_id=3, repo_root=workdir)
+    assert str(err.value) == (
+        f"{results / 'rollouts' / 'fast.parquet'}: not written yet; a condition's episodes are "
+        "gathered into it once all its shards have run, and 1 of its 3 shards have run. Replay "
+        "reads that table: wait for the run to finish (or finish it with `snakemake -c2`), "
+        "then replay"
+    )
+    # the command: one line in words, the manifest's absence said too
+    monkeypatch.chdir(workdir)
+    args = ["replay", str(results), "--condition", "fast", "--state", "3", "--no-viewer"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"mjtrial replay: {results / 'manifest.json'}: not written yet (a run writes it last: "
+        "it is going on, or stopped); give the experiment's --config"
+    )
+    assert main([*args, "--config", "config/config.yaml"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "1 of its 3 shards have run" in err

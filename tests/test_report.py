@@ -465,3 +465,10 @@ def test_the_dose_response_annotation_stays_clear_of_other_text(shortest_index):
 
     fig = figure_dose_response(dose_response=_dose_response(shortest_index))
     assert _text_problems(fig) == []
+
+
+def test_the_manifest_records_each_state_parameters_distribution(experiment):
+    ranges = experiment["config"]["states"]["ranges"]
+    assert experiment["manifest"]["state_distributions"] == {
+        name: {"kind": "uniform", "low": low, "high": high} for name, (low, high) in ranges.items()
+    }

@@ -8,9 +8,8 @@ from pathlib import Path
 import mujoco
 import pytest
 
+from mjtrial.report.actuators import actuator_force_limit, actuator_lines
 from mjtrial.report.model import (
-    actuator_force_limit,
-    actuator_lines,
     collision_pairs,
     contact_lines,
     joint_lines,
@@ -245,19 +244,6 @@ def test_actuator_limits_in_the_units_of_what_they_drive():
     )
     assert "`spinner` on joint `shoulder`: velocity servo, target [-2, 2] rad/s" in lines
     assert "`free_motor` on joint `rail`: force unbounded (no forcerange, no control" in lines
-
-
-def test_the_fetchs_finger_servos_are_bounded_by_their_target_range():
-    model = mujoco.MjModel.from_xml_path(str(FETCH))
-    lines = actuator_lines(model)
-    assert len(lines) == 1 + model.nu == 3
-    for side in ("l", "r"):
-        name = f"robot0:{side}_gripper_finger_joint"
-        # <position ctrlrange="0 0.2" kp="30000" joint=...>: a slide joint, so metres
-        assert (
-            f"  - `{name}` on joint `{name}`: position servo, target [0, 0.2] m (ctrlrange), "
-            "kp 30000 N/m; force unbounded (no forcerange: kp × the error, however large)"
-        ) in lines
 
 
 def test_joint_damping_armature_and_frictionloss_are_listed():

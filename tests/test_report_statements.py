@@ -16,7 +16,8 @@ from test_report_model import FETCH, _documented_pairs
 
 from mjtrial.analysis import summarize
 from mjtrial.physics import load_model
-from mjtrial.report.model import actuator_lines, collision_pairs, contact_lines
+from mjtrial.report.actuators import actuator_lines
+from mjtrial.report.model import collision_pairs, contact_lines
 from mjtrial.report.text import _mistakes, _results, _scope_limits
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stats import newcombe_paired_interval
@@ -39,7 +40,8 @@ def _models() -> list[tuple[str, Path]]:
 def _check_actuator_line(model: mujoco.MjModel, i: int, line: str) -> None:
     """The line says what the compiled model says of actuator `i`, worked out here from its
     fields: a servo's target = ctrlrange / gear, a bound force = forcerange x gear or, for a
-    motor, ctrlrange x gain x gear."""
+    motor, ctrlrange x gain x gear, for a position servo on a limited joint kp x (ctrlrange -
+    gear x joint range) x gear."""
     name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
     assert line.startswith(f"  - `{name}` on ")
     gear = model.actuator_gear[i, 0]
@@ -51,11 +53,22 @@ def _check_actuator_line(model: mujoco.MjModel, i: int, line: str) -> None:
         if model.actuator_ctrllimited[i]:
             low, high = sorted(model.actuator_ctrlrange[i] / gear)
             assert f"target [{low:g}, {high:g}]" in line
+    joint = model.actuator_trnid[i, 0]
+    on_limited_joint = (
+        model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT and model.jnt_limited[joint]
+    )
+    bounds = []
     if model.actuator_forcelimited[i]:
-        low, high = sorted(model.actuator_forcerange[i] * gear)
-        if not position and model.actuator_ctrllimited[i] and not affine:
-            motor = sorted(model.actuator_ctrlrange[i] * gain * gear)
-            low, high = max(low, motor[0]), min(high, motor[1])
+        bounds.append(model.actuator_forcerange[i])
+    if not affine and model.actuator_ctrllimited[i]:
+        bounds.append(model.actuator_ctrlrange[i] * gain)
+    if position and not bias[2] and model.actuator_ctrllimited[i] and on_limited_joint:
+        ctrl, q = model.actuator_ctrlrange[i], model.jnt_range[joint] * gear
+        bounds.append([gain * (ctrl[0] - q[1]), gain * (ctrl[1] - q[0])])
+    if bounds:
+        low = max(min(b) for b in bounds)
+        high = min(max(b) for b in bounds)
+        low, high = sorted((low * gear, high * gear))
         assert f"force [{low + 0.0:g}, {high + 0.0:g}]" in line
     elif position or affine:
         assert "force unbounded" in line

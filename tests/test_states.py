@@ -92,3 +92,82 @@ def test_the_task_declares_the_parameters_and_their_draw_order():
     assert table.equals(
         generate_initial_states(seed=2026, n=50, ranges=RANGES, parameters=STATE_PARAMETERS)
     )
+
+
+def test_a_normal_and_a_truncated_normal_are_one_draw_each_in_order():
+    """Against a generator driven here call by call: uniform parameters keep the values a
+    config without distributions draws, bit for bit; a normal is numpy's `normal`; a truncated
+    normal is one `uniform` draw through scipy's inverse CDF."""
+    from scipy import stats
+
+    distributions = {
+        "dy": {"kind": "normal", "mean": 0.0, "std": 0.005},
+        "yaw": {"kind": "truncated_normal", "mean": 0.2, "std": 0.4},
+    }
+    table = generate_initial_states(
+        seed=2026, n=400, ranges=RANGES, parameters=STATE_PARAMETERS, distributions=distributions
+    )
+    rng = np.random.default_rng(2026)
+    expected = {
+        "dx": rng.uniform(-0.018, 0.018, 400),
+        "dy": rng.normal(0.0, 0.005, 400),
+        "yaw": stats.truncnorm.ppf(rng.uniform(size=400), -2.0, 1.0, loc=0.2, scale=0.4),
+        "mass": rng.uniform(0.05, 0.6, 400),
+    }
+    for name, values in expected.items():
+        np.testing.assert_array_equal(table.column(name).to_numpy(), values)
+    plain = generate_initial_states(seed=2026, n=400, ranges=RANGES, parameters=STATE_PARAMETERS)
+    np.testing.assert_array_equal(table.column("dx").to_numpy(), plain.column("dx").to_numpy())
+    # the truncated normal stays in its range and is the distribution it says (a KS test)
+    yaw = table.column("yaw").to_numpy()
+    assert yaw.min() >= -0.6 and yaw.max() <= 0.6
+    assert stats.kstest(yaw, stats.truncnorm(-2.0, 1.0, loc=0.2, scale=0.4).cdf).pvalue > 0.05
+    assert stats.kstest(table.column("dy").to_numpy(), stats.norm(0, 0.005).cdf).pvalue > 0.05
+
+
+def test_valid_states_are_redrawn_from_the_same_distributions():
+    from mjtrial.states import draw_valid_states
+
+    distributions = {"dx": {"kind": "normal", "mean": 0.0, "std": 0.01}}
+    table, rejected = draw_valid_states(
+        seed=7,
+        n=50,
+        ranges=RANGES,
+        parameters=STATE_PARAMETERS,
+        valid=lambda v: v["dx"] > 0,
+        distributions=distributions,
+    )
+    first = (
+        generate_initial_states(
+            seed=7, n=50, ranges=RANGES, parameters=STATE_PARAMETERS, distributions=distributions
+        )
+        .column("dx")
+        .to_numpy()
+    )
+    kept = first[first > 0]
+    np.testing.assert_array_equal(table.column("dx").to_numpy()[: len(kept)], kept)
+    assert rejected > 0
+
+
+def test_the_states_stage_draws_the_configs_distributions():
+    from conftest import REPO_ROOT
+
+    from mjtrial.stages.states import draw_states
+
+    distributions = {"yaw": {"kind": "truncated_normal", "mean": 0.0, "std": 0.3}}
+    states_slice = {
+        "seed": 5,
+        "development_seed": 6,
+        "n": 30,
+        "ranges": RANGES,
+        "distributions": distributions,
+        "task": "tasks/gantry_lift/task.py",
+    }
+    table, _ = draw_states(states_slice, repo_root=REPO_ROOT)
+    expected = generate_initial_states(
+        seed=5, n=30, ranges=RANGES, parameters=STATE_PARAMETERS, distributions=distributions
+    )
+    assert table.equals(expected)
+    assert not table.equals(
+        generate_initial_states(seed=5, n=30, ranges=RANGES, parameters=STATE_PARAMETERS)
+    )

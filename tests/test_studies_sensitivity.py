@@ -131,3 +131,32 @@ def test_summary_counts_verdicts_without_the_nominal_row():
     assert summary["n_variants"] == 3
     assert summary["verdicts"] == {"survives": 1, "refuted": 1, "invalid": 1}
     assert summary["survives_in"] == 1
+
+
+def test_the_study_reads_every_condition_under_every_variant(tmp_path):
+    """Snakemake's own plan: with a third condition, its variant tables are the sensitivity
+    job's inputs (a condition that collapses under a variant is counted, not left out)."""
+    import re
+
+    from conftest import copy_workflow, edit_config, run_snakemake
+
+    from mjtrial.conditions import sensitivity_conditions
+
+    workdir = copy_workflow(tmp_path)
+
+    def three(config):
+        config["conditions"]["medium"] = {"lift_time": 0.5}
+        config["variants"] = {"rk4": {"option": {"integrator": "RK4"}}}
+
+    edit_config(workdir, three)
+    out = run_snakemake(workdir, "-n", "--forceall", "sensitivity").stdout
+    block = re.search(r"^(?:local)?rule study_sensitivity:(.*?)(?:\n\n|\Z)", out, re.M | re.S)[1]
+    inputs = re.search(r"^    input: (.*)$", block, re.M)[1].split(", ")
+    for condition in ("slow", "fast", "medium"):
+        assert f"results/research_mode/variants/rk4/rollouts/{condition}.parquet" in inputs
+        assert f"results/research_mode/rollouts/{condition}.parquet" in inputs
+    config = {
+        "design": {"falsifier": {"treatment": "b", "baseline": "c"}},
+        "conditions": {"a": {}, "b": {}, "c": {}},
+    }
+    assert sensitivity_conditions(config) == ["b", "c", "a"]

@@ -366,3 +366,26 @@ def test_the_old_state_qpos_import_still_works_with_a_deprecation_warning():
     assert STATE_QPOS == mjtrial.physics.STATE_QPOS
     with pytest.raises(AttributeError, match="NO_SUCH_NAME"):
         mjtrial.task.NO_SUCH_NAME  # noqa: B018
+
+
+def test_a_task_file_imports_a_module_beside_it_as_the_guide_says(tmp_path):
+    """docs/guide/task.md: an `__init__.py` in the task's folder, then `from .module import`;
+    the module is an input of the task like the task file."""
+    from mjtrial.task import load_task, task_files
+
+    folder = tmp_path / "tasks" / "my_task"
+    folder.mkdir(parents=True)
+    (folder / "__init__.py").write_text("")
+    (folder / "protocol.py").write_text('TASK_NAME = "my_balance"\n')
+    source = (REPO_ROOT / "tasks/cartpole_latency/task.py").read_text()
+    model = REPO_ROOT / "tasks/cartpole_latency/cartpole.xml"
+    source = source.replace('model="cartpole.xml"', f'model="{model}"')
+    source = source.replace('name="cartpole_latency"', "name=TASK_NAME")
+    source = source.replace(
+        "from __future__ import annotations\n",
+        "from __future__ import annotations\n\nfrom .protocol import TASK_NAME\n",
+    )
+    (folder / "task.py").write_text(source)
+    task = load_task("tasks/my_task/task.py", repo_root=tmp_path)
+    assert task.name == "my_balance"
+    assert folder / "protocol.py" in task_files(folder / "task.py")

@@ -25,13 +25,18 @@ RELATIVE_TO = ("absolute", "target", "body")
 
 @dataclass(frozen=True)
 class ControlColumn:
-    """One output column driving one or more actuators: ctrl = scale * value (+ the joint
-    position of each actuator's joint, `qpos` addresses, when relative)."""
+    """One output column driving one or more actuators: ctrl = sign * scale * value (+ the
+    joint position of each actuator's joint, `qpos` addresses, when relative)."""
 
     column: int
     actuators: np.ndarray  # (k,) actuator indices
     qpos: np.ndarray | None  # (k,) qpos address of each actuator's joint, or None (absolute)
     scale: float
+    signs: tuple[int, ...] = ()  # (k,) +1 or -1 per actuator (a gripper's [a, -a]); (): all +1
+
+    def sign(self, j: int) -> int:
+        """The sign of the column's j-th actuator."""
+        return self.signs[j] if self.signs else 1
 
 
 @dataclass(frozen=True)
@@ -107,7 +112,8 @@ class Actuation:
         for c in self.controls:
             value = c.scale * outputs[:, c.column]
             for j, actuator in enumerate(c.actuators):
-                ctrl[:, actuator] = value if c.qpos is None else qpos[:, c.qpos[j]] + value
+                signed = value if c.sign(j) == 1 else -value  # a negation is exact
+                ctrl[:, actuator] = signed if c.qpos is None else qpos[:, c.qpos[j]] + signed
         if not self.mocaps:  # actuators alone (a column driving several): no target moves
             return ctrl, targets
         new = targets.copy()

@@ -128,9 +128,14 @@ def _replay(args: argparse.Namespace) -> int:
     if results_dir is not None and config_path is None:  # the config file the run recorded
         recorded = _recorded_config_file(results_dir, default=None)
         if recorded is None:
+            manifest = results_dir / "manifest.json"
+            why = (
+                "no config file recorded (rerun.config_file)"
+                if manifest.is_file()
+                else "not written yet (a run writes it last: it is going on, or stopped)"
+            )
             print(
-                f"mjtrial replay: {results_dir / 'manifest.json'}: no config file recorded "
-                "(rerun.config_file); give the experiment's --config",
+                f"mjtrial replay: {manifest}: {why}; give the experiment's --config",
                 file=sys.stderr,
             )
             return 2

@@ -73,6 +73,15 @@ def all_conditions(config: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def sensitivity_conditions(config: Mapping[str, Any]) -> list[str]:
+    """The conditions the sensitivity study reads under every variant: the falsifier's two
+    first, then the design's others, so that every condition's rates and flipped outcomes are
+    counted (a condition that collapses under a variant is said, not left out)."""
+    falsifier = config["design"]["falsifier"]
+    pair = [falsifier["treatment"], falsifier["baseline"]]
+    return pair + [c for c in config["conditions"] if c not in pair]
+
+
 def variant_names(config: Mapping[str, Any]) -> list[str]:
     """The simulator variants of the sensitivity study, in config order."""
     return list(config.get("variants") or {})

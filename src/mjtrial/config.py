@@ -282,6 +282,15 @@ def _check_task_states(
         low = ranges[p.name][0]
         if isinstance(p.apply, BodyMass) and not low > 0:
             fail(f"states.ranges.{p.name}[0]", f"expected > 0, got {low}")
+    distributions = config["states"].get("distributions") or {}
+    for name, given in distributions.items():
+        key = f"states.distributions.{name}"
+        if name not in names:
+            fail(key, f"not a state parameter of the task; expected one of {names}")
+        elif given["kind"] == "normal" and isinstance(
+            task.state_parameters[names.index(name)].apply, BodyMass
+        ):
+            fail(key, "a normal draws masses at or below 0; expected truncated_normal")
 
 
 def pilot_states(config: Mapping[str, Any]) -> int:

@@ -103,6 +103,11 @@ class Contract:
     recurrent: tuple[Recurrent, ...] = ()
     producer: str = ""
     mocap: tuple[Mapping[str, Any], ...] = ()  # `MocapAction` arguments, 3 columns each
+    signs: tuple[tuple[int, ...], ...] = ()  # per actuators entry: its actuators' signs, or ()
+
+    def signs_of(self, k: int) -> tuple[int, ...]:
+        """The signs of the k-th actuators entry's actuators; () when it gives none (all +1)."""
+        return self.signs[k] if self.signs else ()
 
     @property
     def n_outputs(self) -> int:
@@ -115,7 +120,7 @@ class Contract:
         if not self.mocap and all(isinstance(a, str) for a in self.actuators):
             return ()
         return (
-            *(Control(a) for a in self.actuators),
+            *(Control(a, signs=self.signs_of(k) or None) for k, a in enumerate(self.actuators)),
             *(
                 MocapAction(**{k: tuple(v) if isinstance(v, list) else v for k, v in m.items()})
                 for m in self.mocap
@@ -208,13 +213,19 @@ def read_contract(onnx_file: Path) -> Contract:
         bad = [v for v in values if not math.isfinite(v)]
         if bad:
             raise PolicyFileError(f"{path}: {key}: {bad[0]}; expected finite numbers")
+    for k, entry in enumerate(raw["actuators"]):
+        if isinstance(entry, dict) and len(entry["signs"]) != len(entry["actuators"]):
+            raise PolicyFileError(
+                f"{path}: actuators.{k}.signs: {entry['signs']}; expected one sign (1 or -1) "
+                f"for each of its {len(entry['actuators'])} actuators"
+            )
     return Contract(
         source=path,
         task=raw["task"],
         observations=tuple(raw["observations"]),
         input=raw["input"],
         output=raw["output"],
-        actuators=tuple(a if isinstance(a, str) else tuple(a) for a in raw["actuators"]),
+        actuators=tuple(_actuators_entry(a) for a in raw["actuators"]),
         action_scale=raw["action_scale"],
         control_period=float(raw["control_period"]),
         mean=None if norm is None else np.asarray(norm["mean"], dtype=np.float64),
@@ -222,7 +233,15 @@ def read_contract(onnx_file: Path) -> Contract:
         recurrent=tuple(Recurrent(**r) for r in raw.get("recurrent") or ()),
         producer=raw.get("producer", ""),
         mocap=tuple(raw.get("mocap") or ()),
+        signs=tuple(tuple(a["signs"]) if isinstance(a, dict) else () for a in raw["actuators"]),
     )
+
+
+def _actuators_entry(entry: str | list[str] | Mapping[str, Any]) -> str | tuple[str, ...]:
+    """An `actuators` entry's names: a name, or those of a list or a signed column."""
+    if isinstance(entry, str):
+        return entry
+    return tuple(entry["actuators"] if isinstance(entry, dict) else entry)
 
 
 def runtime_settings() -> dict[str, Any]:
@@ -507,7 +526,7 @@ class PolicyFile:
                 f"task's, {period:g} s, under this condition"
             )
         columns, ranges = [], []
-        for entry in self.contract.actuators:
+        for k, entry in enumerate(self.contract.actuators):
             names = (entry,) if isinstance(entry, str) else entry
             indices = []
             for name in names:
@@ -530,10 +549,15 @@ class PolicyFile:
             # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as is)
             limited = model.actuator_ctrllimited[indices].astype(bool)[:, None]
             own = np.where(limited, model.actuator_ctrlrange[indices], [-np.inf, np.inf])
+            # the column's range: each actuator's divided by its sign ([a, -a] fingers whose
+            # ranges are [0, 0.04] and [-0.04, 0] share [0, 0.04])
+            signs = np.array(self.contract.signs_of(k) or [1] * len(indices))[:, None]
+            own = np.sort(own * signs, axis=1)
             if not (own == own[0]).all():
+                signed = " times their signs" if self.contract.signs_of(k) else ""
                 raise PolicyFileError(
                     f"{where}: actuators: {list(names)} driven by one column have different "
-                    "ctrlranges; expected one range for the column"
+                    f"ctrlranges{signed}; expected one range for the column"
                 )
             columns.append(indices[0])
             ranges.append(own[0])

@@ -10,6 +10,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,8 +20,8 @@ import pyarrow.parquet as pq
 
 from mjtrial import engine, provenance, recording
 from mjtrial.conditions import all_conditions, variant_names
-from mjtrial.config import load_config
-from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
+from mjtrial.config import check_config, read_config_file
+from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout, shard_ids
 from mjtrial.recording import write_episode_recording
 from mjtrial.stages.rollout import (
     condition_batches,
@@ -36,7 +37,7 @@ from mjtrial.stages.rollout import (
 from mjtrial.stages.stamping import config_slice, model_inputs, task_inputs
 from mjtrial.task import Measure
 
-__all__ = ["ReplayMismatch", "Replay", "read_episode", "replay_episode"]
+__all__ = ["NotYetWritten", "ReplayMismatch", "Replay", "read_episode", "replay_episode"]
 
 # Compared exactly, every column of the rollout table: the engine is deterministic for a given
 # MuJoCo build and CPU.
@@ -143,6 +144,36 @@ def check_output(output: Path, *, results: Path, force: bool) -> None:
         )
 
 
+class NotYetWritten(FileNotFoundError):
+    """An input of the replay that the run has not written (yet)."""
+
+
+def check_inputs(layout: Layout, config: Mapping[str, Any], condition: str, variant: str) -> None:
+    """Refuse, in words and before any work, a replay whose inputs the run has not written:
+    the states, and the condition's gathered table (written once all its shards have run; a
+    run still going has shard tables and no gathered table)."""
+    if not layout.states.is_file():
+        raise NotYetWritten(
+            f"{layout.states}: not written; the run has not drawn its initial states yet "
+            "(run `snakemake -c2`, or wait for the run going on)"
+        )
+    table = layout.rollout_table(condition, variant)
+    if table.is_file():
+        return
+    shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+    written = sum(layout.shard_table(condition, s, variant).is_file() for s in shards)
+    ran = (
+        f"{written} of its {len(shards)} shards have run"
+        if written
+        else f"none of its {len(shards)} shards has run"
+    )
+    raise NotYetWritten(
+        f"{table}: not written yet; a condition's episodes are gathered into it once all its "
+        f"shards have run, and {ran}. Replay reads that table: wait for the run to finish "
+        "(or finish it with `snakemake -c2`), then replay"
+    )
+
+
 def replay_episode(
     *,
     condition: str,
@@ -171,8 +202,16 @@ def replay_episode(
     """
     repo_root = Path.cwd() if repo_root is None else repo_root
     config_path = config_path or repo_root / CONFIG_FILE
-    config = load_config(config_path, repo_root=repo_root)
-    conditions = all_conditions(config)
+    # what the inputs are named by is read first; the config's check (its model, task and
+    # policy files, episodes of its own) only once the inputs are known to be there
+    config = read_config_file(config_path)
+    try:
+        conditions = all_conditions(config)
+        shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+        str(config["experiment"])
+    except (KeyError, TypeError, AttributeError):  # a malformed config: its check says where
+        check_config(config, source=str(config_path), repo_root=repo_root)
+        raise
     if condition not in conditions:
         raise KeyError(
             f"condition {condition!r}: expected one of {sorted(conditions)}, the conditions of "
@@ -190,6 +229,8 @@ def replay_episode(
         layout = Layout(results_dir)
     output = output or layout.replay(condition, state_id, variant)
     check_output(output, results=layout.root, force=force)
+    check_inputs(layout, config, condition, variant)
+    check_config(config, source=str(config_path), repo_root=repo_root)
     table_path = layout.rollout_table(condition, variant)
     recorded = _recorded_row(table_path, state_id)
     recorded_stamp = provenance.read_stamp(table_path)

@@ -27,7 +27,7 @@ from uv import find_uv_bin
 
 from mjtrial import REPO_ROOT
 from mjtrial.atomic import write_text_atomic
-from mjtrial.conditions import variant_names
+from mjtrial.conditions import sensitivity_conditions, variant_names
 from mjtrial.layout import NOMINAL, Layout, shard_ids
 
 ENVS = Path("envs")  # in the working folder (git ignores it)
@@ -173,18 +173,17 @@ def version_recordings(
     config: Mapping[str, Any], layout: Layout
 ) -> dict[str, dict[str, list[Path]]]:
     """The shard folders of recordings a sensitivity study reads, per variant (`NOMINAL`
-    first) and condition: the falsifier's two conditions under the nominal model and under each
+    first) and condition: every condition the study reads under the nominal model and under each
     variant that names another MuJoCo version, whose flipped episodes' trajectories are
     compared; none when there is no such variant or nothing is recorded."""
     versions = [v for v in variant_names(config) if variant_version(config["variants"][v])]
     if not versions or config["recording"]["episodes"] == "none":
         return {}
-    falsifier = config["design"]["falsifier"]
     shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
     return {
         v: {
             c: [layout.shard_recordings(c, s, v) for s in shards]
-            for c in (falsifier["treatment"], falsifier["baseline"])
+            for c in sensitivity_conditions(config)
         }
         for v in [NOMINAL, *versions]
     }

@@ -1,11 +1,56 @@
-"""Initial states: drawn once from a seeded generator and shared by every condition."""
+"""Initial states: drawn once from a seeded generator and shared by every condition.
+
+Each state parameter is drawn uniformly in its range (config `states.ranges`), unless
+`states.distributions` names it: a normal (`normal`: mean, std; robosuite's initial joint
+noise), or a normal truncated to the range (`truncated_normal`, by the inverse of its CDF at
+one uniform draw). Either way one draw of n values per parameter, in the task's order, from
+one generator: a uniform parameter's values are those of a config without distributions, bit
+for bit.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from scipy.stats import truncnorm
+
+UNIFORM, NORMAL, TRUNCATED_NORMAL = "uniform", "normal", "truncated_normal"
+Distributions = Mapping[str, Mapping[str, Any]] | None
+
+
+def distribution(
+    name: str, ranges: Mapping[str, Sequence[float]], distributions: Distributions = None
+) -> dict[str, Any]:
+    """How parameter `name` is drawn, as the manifest records it: {"kind": "uniform", "low",
+    "high"}, {"kind": "normal", "mean", "std"}, or {"kind": "truncated_normal", "mean", "std",
+    "low", "high"}."""
+    low, high = (float(v) for v in ranges[name])
+    given = (distributions or {}).get(name)
+    if given is None:
+        return {"kind": UNIFORM, "low": low, "high": high}
+    out = {"kind": given["kind"], "mean": float(given["mean"]), "std": float(given["std"])}
+    return out | ({"low": low, "high": high} if given["kind"] == TRUNCATED_NORMAL else {})
+
+
+def draw_parameter(
+    rng: np.random.Generator,
+    name: str,
+    ranges: Mapping[str, Sequence[float]],
+    distributions: Distributions,
+    n: int,
+) -> np.ndarray:
+    """n values of parameter `name` from `rng`: one generator call each (`uniform`, `normal`,
+    or `uniform` through the truncated normal's inverse CDF, scipy's `truncnorm.ppf`)."""
+    d = distribution(name, ranges, distributions)
+    if d["kind"] == UNIFORM:
+        return rng.uniform(d["low"], d["high"], n)
+    if d["kind"] == NORMAL:
+        return rng.normal(d["mean"], d["std"], n)
+    a, b = ((d[k] - d["mean"]) / d["std"] for k in ("low", "high"))
+    return truncnorm.ppf(rng.uniform(0.0, 1.0, n), a, b, loc=d["mean"], scale=d["std"])
 
 
 def generate_initial_states(
@@ -14,13 +59,17 @@ def generate_initial_states(
     n: int,
     ranges: Mapping[str, Sequence[float]],
     parameters: Sequence[str],
+    distributions: Distributions = None,
 ) -> pa.Table:
-    """N initial states: `default_rng(seed)`, then one `uniform` draw of n values per parameter.
+    """N initial states: `default_rng(seed)`, then one draw of n values per parameter
+    (`draw_parameter`: uniform unless `distributions` says otherwise).
 
     Args:
       seed: generator seed.
       n: number of states (>= 1).
       ranges: [low, high] of each parameter.
+      distributions: config `states.distributions`: a normal or truncated normal per parameter
+        named (None: every parameter uniform).
       parameters: the parameters in draw order (a task's `state_parameters`, in the order it
         declares them: the order is part of the experiment's definition, changing it changes
         every state).
@@ -38,7 +87,7 @@ def generate_initial_states(
         low, high = ranges[name]
         if not low < high:
             raise ValueError(f"ranges.{name}: expected low < high, got [{low}, {high}]")
-        columns[name] = rng.uniform(low, high, n)
+        columns[name] = draw_parameter(rng, name, ranges, distributions, n)
     return pa.table(columns)
 
 
@@ -59,6 +108,7 @@ def draw_valid_states(
     ranges: Mapping[str, Sequence[float]],
     parameters: Sequence[str],
     valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
+    distributions: Distributions = None,
 ) -> tuple[pa.Table, int]:
     """N initial states that satisfy a constraint, and how many drawn states it rejected.
 
@@ -75,7 +125,13 @@ def draw_valid_states(
     """
     if n < 1:
         raise ValueError(f"n: expected at least 1 state, got {n}")
-    probe = generate_initial_states(seed=seed, n=PROBE_DRAWS, ranges=ranges, parameters=parameters)
+    probe = generate_initial_states(
+        seed=seed,
+        n=PROBE_DRAWS,
+        ranges=ranges,
+        parameters=parameters,
+        distributions=distributions,
+    )
     rate = float(np.mean(_valid_rows(valid, probe, parameters)))
     if rate < MIN_ACCEPTANCE:
         raise ConstraintError(
@@ -86,7 +142,9 @@ def draw_valid_states(
     kept: list[np.ndarray] = []  # per round, its valid rows (k, n_parameters)
     count = rejected = 0
     while count < n:
-        block = np.column_stack([rng.uniform(*ranges[p], n) for p in parameters])
+        block = np.column_stack(
+            [draw_parameter(rng, p, ranges, distributions, n) for p in parameters]
+        )
         ok = _valid_rows(valid, _table(block, parameters), parameters)
         rows = np.flatnonzero(ok)
         needed = rows[: n - count]

@@ -6,6 +6,7 @@ from mjtrial.config import pilot_states
 from mjtrial.conditions import (
     all_conditions,
     policy_path,
+    sensitivity_conditions,
     sweep_conditions,
     variant_names,
 )
@@ -268,13 +269,11 @@ def one_of(names):
 
 def sensitivity_tables():
     """(variant, condition) -> rollout table: the nominal model's first, then each variant's,
-    for the falsifier's two conditions."""
-    falsifier = config["design"]["falsifier"]
-    conditions = [falsifier["treatment"], falsifier["baseline"]]
+    for every condition the study reads (mjtrial.conditions.sensitivity_conditions)."""
     return {
         (variant, c): LAYOUT.rollout_table(c, variant)
         for variant in [NOMINAL, *VARIANTS]
-        for c in conditions
+        for c in sensitivity_conditions(config)
     }
 
 

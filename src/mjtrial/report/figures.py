@@ -16,6 +16,7 @@ import matplotlib
 import numpy as np
 from matplotlib.colors import LinearSegmentedColormap
 from matplotlib.figure import Figure
+from matplotlib.transforms import offset_copy
 
 from mjtrial import provenance
 from mjtrial.layout import BENCHMARK_FIGURES, FIGURES
@@ -39,6 +40,8 @@ _SHADE = "#E4E4E4"
 
 SINGLE_COLUMN = 3.5  # inches: one column of a two-column paper
 DOUBLE_COLUMN = 7.0
+# Panels per row of the traces figure: a narrower panel cannot hold its marks and legend.
+TRACE_COLUMNS = 3
 FIGURE_DPI = 200
 
 # Fixed style: a bundled font (same glyphs on every machine), >= 8 pt, and a fixed SVG hash
@@ -373,10 +376,23 @@ def figure_sample_traces(
     series = task.trace_series
     names = [c for c in summary["conditions"] if c in traces]
     colors = condition_colors(names)
-    fig = _figure(DOUBLE_COLUMN, 2.9)
-    axes = fig.subplots(1, len(names), sharex=True, sharey=True, squeeze=False)[0]
+    columns = min(len(names), TRACE_COLUMNS)
+    rows = -(-len(names) // columns)
+    fig = _figure(DOUBLE_COLUMN, 2.9 * rows)
+    grid = fig.subplots(rows, columns, sharex=True, sharey=True, squeeze=False)
+    axes = grid.ravel()[: len(names)]
+    for ax in grid.ravel()[len(names) :]:  # the last row's empty places
+        ax.set_visible(False)
+    for ax in axes:  # each panel has its legend below it: its own time axis too
+        ax.xaxis.set_tick_params(labelbottom=True)
     end = max(float(t.time[-1]) for t in traces.values())
-    panel = fig.bbox.width / len(names) * 0.95  # pixels each condition's panel may use
+    panel = fig.bbox.width / columns * 0.95  # pixels each condition's panel may use
+    # the legend goes below the tick labels and the axis label, whatever the axes' height
+    below = -(
+        sum(matplotlib.rcParams[k] for k in ("xtick.major.size", "xtick.major.pad"))
+        + matplotlib.rcParams["axes.labelpad"]
+        + 2.4 * matplotlib.rcParams["font.size"]
+    )
     # Marks closer than a line of text share one label: "start / stop".
     line = matplotlib.rcParams["font.size"] * fig.dpi / 72 * 1.3
     min_gap = end * line / (0.8 * panel)
@@ -451,22 +467,29 @@ def figure_sample_traces(
             *ax.get_legend_handles_labels(),
             width=panel,
             loc="upper center",
-            bbox_to_anchor=(0.5, -0.22),
+            bbox_to_anchor=(0.5, 0.0),
+            bbox_transform=offset_copy(ax.transAxes, fig=fig, y=below, units="points"),
             handlelength=2.2,
         )
     # The plot's title ends with its unit: "block position, target (m)".
     unit = series.plot.rpartition("(")[2].rstrip(")") if series.plot.endswith(")") else ""
     label = series.name.replace("_", " ").capitalize()
-    axes[0].set_ylabel(f"{label} ({unit})" if unit else label)
+    for ax in grid[:, 0]:
+        ax.set_ylabel(f"{label} ({unit})" if unit else label)
     axes[0].set_xlim(0, end)
-    intervals = sorted({round(t.log_interval * 1e3, 6) for t in traces.values()})
-    logged = " or ".join(f"{ms:g}" for ms in intervals)
-    fig.suptitle(
-        f"{series.name.replace('_', ' ').capitalize()} in sample episodes (lowest state ids), "
-        f"as recorded every {logged} ms",
-        fontsize=9,
-    )
+    fig.suptitle(_traces_title(series.name, traces), fontsize=9)
     return fig
+
+
+def _traces_title(series: str, traces: Mapping[str, SampleTraces]) -> str:
+    """The traces figure's title: the recording interval of the episodes drawn, or that none
+    was drawn (no interval to state when nothing was recorded)."""
+    what = series.replace("_", " ").capitalize()
+    intervals = sorted({round(t.log_interval * 1e3, 6) for t in traces.values() if t.state_ids})
+    if not intervals:
+        return f"{what}: no sample episode was recorded"
+    logged = " or ".join(f"{ms:g}" for ms in intervals)
+    return f"{what} in sample episodes (lowest state ids), as recorded every {logged} ms"
 
 
 @_styled

@@ -279,6 +279,30 @@ def flipped_table(name: str, flipped: Mapping[str, Any], *, limit: int = 50) -> 
     return lines
 
 
+def _versus_reference(c: Mapping[str, Any], parameter: str, n_states: int) -> str:
+    """A value's paired difference from the reference with its interval; where every pair has
+    the same difference the bootstrap interval is one point, and what the pairs were is said
+    instead ("every state failed here and succeeded at the reference")."""
+    if c["low"] < c["high"]:
+        return f"{c['estimate']:+.3f} [{c['low']:+.3f}, {c['high']:+.3f}]"
+    only_here, only_reference = c[f"only_{parameter}"], c["only_reference"]
+    if not only_here and not only_reference:
+        why = f"no discordant pair: each of the {n_states} states had one outcome at both values"
+    elif only_reference == n_states:
+        why = f"all {n_states} states failed here and succeeded at the reference"
+    elif only_here == n_states:
+        why = f"all {n_states} states succeeded here and failed at the reference"
+    else:  # every pair the same difference cannot be anything else; said as found
+        why = f"{only_here} pairs only here, {only_reference} only at the reference"
+    return f"{c['estimate']:+.3f} ({why}; the bootstrap interval is that one point)"
+
+
+def _odds(ratio: float) -> str:
+    """An odds ratio to 3 decimals, or under 0.01 to 3 significant figures: a steep trend's
+    2e-05 is not 0.000."""
+    return f"{ratio:.3f}" if 0.01 <= ratio < 1000 else f"{ratio:.3g}"
+
+
 def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: str) -> str:
     """The report's "Dose-response" section; `figure` is the curve's path for the link."""
     d = dose_response
@@ -304,7 +328,7 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
     for row in d["per_value"]:
         c = comparisons.get(row[parameter])
         versus = (
-            f"{c['estimate']:+.3f} [{c['low']:+.3f}, {c['high']:+.3f}] | {c['p_holm']:.3g}"
+            f"{_versus_reference(c, parameter, d['n_states'])} | {c['p_holm']:.3g}"
             if c
             else "reference | \u2013"
         )
@@ -323,7 +347,7 @@ def render_dose_response_section(dose_response: Mapping[str, Any], *, figure: st
         trend_line = (
             f"Trend: {slope:+.3f} log-odds per unit {'log ' if log else ''}{parameter} "
             f"[{t['low']:+.3f}, {t['high']:+.3f}] ({conf}; p = {t['p_value']:.3g}); odds ratio "
-            f"{per} {t[ratio]:.3f} [{t[ratio + '_low']:.3f}, {t[ratio + '_high']:.3f}]; "
+            f"{per} {_odds(t[ratio])} [{_odds(t[ratio + '_low'])}, {_odds(t[ratio + '_high'])}]; "
             f"{t['n_episodes']} episodes in {t['n_clusters']} state clusters; {t['method']}."
         )
     lines += [

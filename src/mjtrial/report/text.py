@@ -16,8 +16,10 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.conditions import condition_record
+from mjtrial.conditions import condition_record, model_edits, policy_path
 from mjtrial.physics import load_model
+from mjtrial.policy_file import read_contract
+from mjtrial.report.actuators import actuator_lines
 from mjtrial.report.comparisons import (
     comparisons_section,
     metric_lines,
@@ -34,32 +36,50 @@ from mjtrial.report.labels import (
 )
 from mjtrial.report.model import (
     action_lines,
-    actuator_lines,
     contact_lines,
     equality_lines,
     joint_lines,
     model_files_text,
 )
 from mjtrial.report.registration import falsifier_clause, registration_lines
+from mjtrial.report.solver import solver_line
 from mjtrial.report.stopping import stopping_section
-from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
-from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
+from mjtrial.stages.condition import condition_model
+from mjtrial.stages.stamping import DECLARED_STUDIES, config_slice, declared_studies
+from mjtrial.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
+from mjtrial.task import ClosedLoop, Control, Task, call, load_task
+from mjtrial.task.actions import bind_actions
 
 
 def _interval(low: float, high: float, *, signed: bool = False) -> str:
     return f"[{low:+.3f}, {high:+.3f}]" if signed else f"[{low:.3f}, {high:.3f}]"
 
 
+def _traces_caption(summary: Mapping[str, Any], config: Mapping[str, Any], task: Task) -> str:
+    """The traces figure's caption, true of what it draws: the lowest-id successes and
+    failures that were recorded (`recording.episodes`: all, failed or none)."""
+    series = (task.trace_series.name.replace("_", " ") if task.trace_series else "").capitalize()
+    kept = config.get("recording", {}).get("episodes", "all")
+    failed = sum(c["n"] - c["successes"] for c in summary["conditions"].values())
+    if kept == "all":
+        return f"{series} over time in sample episodes, from their recordings"
+    if kept == "failed" and failed:
+        return (
+            f"{series} over time in sample failed episodes, from their recordings "
+            "(`recording.episodes: failed`: successes are not recorded)"
+        )
+    why = "records no episode" if kept == "none" else "records failed episodes, and none failed"
+    return f"{series}: no sample episode drawn (`recording.episodes: {kept}` {why})"
+
+
 def _captions(summary: Mapping[str, Any], task: Task) -> dict[str, str]:
+    """The result figures' captions (the traces' is `_traces_caption`: it needs the config)."""
     band = next(iter(summary["bands"]), "")
-    series = task.trace_series.name.replace("_", " ") if task.trace_series else ""
     return {
         "success_by_condition": "Success rate per condition",
         "success_by_band": f"Success rate by {band_parameter(band, task)[0]} band",
         "paired_outcomes": "Paired outcomes of the same initial states",
         "failure_categories": "Failed episodes by category",
-        "sample_traces": f"{series.capitalize()} over time in sample episodes, from their "
-        "recordings",
     }
 
 
@@ -189,12 +209,123 @@ def _redrawn_text(redrawn: Mapping[str, int] | None) -> str:
     return f"draws rejected and redrawn: {', '.join(counts)}."
 
 
-def _controller_lines(model: mujoco.MjModel, task: Task) -> list[str]:
-    """What the policy's output columns drive, and how each episode starts when the task's
+_ACTION_SCALE = {
+    "ctrlrange": "a column in [-1, 1] mapped onto its actuators' ctrlrange, then clipped",
+    "raw": "a column is the ctrl, clipped to a limited actuator's ctrlrange",
+}
+
+
+def _condition_actions(
+    task: Task, condition: Mapping[str, Any], repo_root: Path
+) -> tuple[tuple[Any, ...], str]:
+    """The actions a condition's policy drives (its policy file's contract, else the task's)
+    and how its contract scales them ("" for the task's policy)."""
+    policy = policy_path(condition)
+    if policy is None:
+        return tuple(task.controller.actions), ""
+    contract = read_contract(Path(repo_root) / policy)
+    actions = contract.actions or tuple(Control(a) for a in contract.actuators)
+    where = provenance.path_in_repo(contract.source, repo_root) or contract.source
+    return actions, f"its contract `{where}`: {_ACTION_SCALE[contract.action_scale]}"
+
+
+def _initial_states_lines(states: Mapping[str, Any], task: Task, bitgen: str) -> list[str]:
+    """How the initial states were drawn: the generator, then each parameter's distribution
+    (uniform in its range unless `states.distributions` says otherwise)."""
+    parameters = [p for p in task.state_columns[1:] if p in states["ranges"]]
+    drawn = {p: distribution(p, states["ranges"], states.get("distributions")) for p in parameters}
+    head = (
+        f"Initial states: n = {states['n']}, drawn with numpy's `default_rng({states['seed']})` "
+        f"({bitgen}), one "
+    )
+    order = f"draw of n values per parameter in the order {', '.join(task.state_columns[1:])}"
+    if all(d["kind"] == UNIFORM for d in drawn.values()):
+        rows = [[p, f"{d['low']:g}", f"{d['high']:g}", task.unit_of(p)] for p, d in drawn.items()]
+        return [
+            f"{head}uniform {order}:",
+            "",
+            *markdown_table(["parameter", "low", "high", "unit"], rows),
+        ]
+    words = {
+        UNIFORM: lambda d: f"uniform in [{d['low']:g}, {d['high']:g}]",
+        NORMAL: lambda d: f"normal, mean {d['mean']:g}, std {d['std']:g} (not truncated)",
+        TRUNCATED_NORMAL: lambda d: (
+            f"normal, mean {d['mean']:g}, std {d['std']:g}, truncated to "
+            f"[{d['low']:g}, {d['high']:g}]"
+        ),
+    }
+    rows = [[p, words[d["kind"]](d), task.unit_of(p)] for p, d in drawn.items()]
+    return [
+        f"{head}{order} (a normal by numpy's `normal`, a truncated normal by scipy's "
+        "`truncnorm.ppf` at one `uniform` draw):",
+        "",
+        *markdown_table(["parameter", "distribution", "unit"], rows),
+    ]
+
+
+def between_actions_text(task: Task, model: mujoco.MjModel) -> str:
+    """What acts between two of the policy's actions, for the setup's rates line. The hook for
+    a task's low-level controller at the physics rate (issue 41): its rate and what it reads
+    (the state, Jacobians, mass matrix, bias forces) go here. Without one: the held controls."""
+    del model  # a low-level controller's rate and inputs are read from it
+    if not isinstance(task.controller, ClosedLoop):
+        return "the controls are an open-loop sequence, one per physics step, fixed in advance"
+    return "between two actions the controls they set are held at every physics step"
+
+
+def _hz(period: float) -> str:
+    return f"{period * 1e3:.4g} ms, {1.0 / period:.4g} Hz"
+
+
+def _rate_lines(
+    model: mujoco.MjModel, task: Task, config: Mapping[str, Any], model_file: Path
+) -> list[str]:
+    """The physics' and the policy's rates under each condition (its own model where it edits
+    it: another timestep), the sensing latency, and what acts between two actions."""
+    controller = task.controller
+    groups: dict[tuple[float, int, int], list[str]] = {}
+    for name, condition in config["conditions"].items():
+        own = model
+        if model_edits(condition):
+            own = condition_model(config_slice("rollout", config, condition=name), model_file)
+        step, latency = 1, 0
+        if isinstance(controller, ClosedLoop):
+            timing = call(task, "timing", controller.timing, own, task.parameters(condition))
+            step, latency = timing.steps_per_control, timing.latency_steps
+        groups.setdefault((float(own.opt.timestep), step, latency), []).append(name)
+    lines = []
+    for (dt, step, latency), names in groups.items():
+        which = "" if len(groups) == 1 else f" under {', '.join(f'`{n}`' for n in names)}"
+        text = f"- Rates{which}: the physics steps every {_hz(dt)}"
+        if isinstance(controller, ClosedLoop):
+            text += f"; the policy acts every {step} physics steps ({_hz(step * dt)})"
+            if latency:
+                text += (
+                    f" on observations {latency} physics steps ({latency * dt * 1e3:.4g} ms) old"
+                )
+        lines.append(f"{text}; {between_actions_text(task, model)}.")
+    return lines
+
+
+def _controller_lines(
+    model: mujoco.MjModel, task: Task, conditions: Mapping[str, Any], repo_root: Path
+) -> list[str]:
+    """What the policy's output columns drive under each condition (a condition's policy file
+    maps them by its own contract), and how each episode starts when the task's
     `episode_setup` (a suite's own reset) prepares it."""
     lines = []
-    if isinstance(task.controller, ClosedLoop) and task.controller.actions:
-        lines += action_lines(model, BoundTask.of(task, model).actuation)
+    if isinstance(task.controller, ClosedLoop):
+        groups: dict[tuple[Any, str], list[str]] = {}
+        for name, condition in conditions.items():
+            groups.setdefault(_condition_actions(task, condition, repo_root), []).append(name)
+        for (actions, scaling), names in groups.items():
+            if not actions:
+                continue
+            which = "" if len(groups) == 1 else f" under {', '.join(f'`{n}`' for n in names)}"
+            title = f"- The policy's output columns{which}, in order" + (
+                f" ({scaling}):" if scaling else ":"
+            )
+            lines += action_lines(model, bind_actions(model, actions), title=title)
     if task.episode_setup is not None:
         doc = (task.episode_setup.__doc__ or "").strip().split("\n\n")[0]
         what = " ".join(doc.split()) or "(no docstring)"
@@ -210,6 +341,7 @@ def _setup(
     manifest: Mapping[str, Any],
     model: mujoco.MjModel,
     task: Task,
+    repo_root: Path,
 ) -> list[str]:
     m = manifest["model"]
     states = config["states"]
@@ -220,11 +352,11 @@ def _setup(
         f"- Simulator: MuJoCo {manifest['versions']['mujoco']}.",
         *_task_lines(manifest.get("task")),
         f"- Model: `{m['path']}`, sha256 `{m['sha256']}` {model_files_text(m.get('files'))}.",
-        f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
-        f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
-        *actuator_lines(model),
+        solver_line(m, model, task.controller),
+        *actuator_lines(model, keyframe=task.keyframe),
         *equality_lines(model),
-        *_controller_lines(model, task),
+        *_rate_lines(model, task, config, repo_root / m["path"]),
+        *_controller_lines(model, task, config["conditions"], repo_root),
         *joint_lines(model),
         *contact_lines(model),
         "",
@@ -238,18 +370,7 @@ def _setup(
             ],
         ),
         "",
-        f"Initial states: n = {states['n']}, drawn with numpy's `default_rng({states['seed']})` "
-        f"({bitgen}), one uniform draw of n values per parameter in the order "
-        f"{', '.join(task.state_columns[1:])}:",
-        "",
-        *markdown_table(
-            ["parameter", "low", "high", "unit"],
-            [
-                [p, f"{states['ranges'][p][0]:g}", f"{states['ranges'][p][1]:g}", task.unit_of(p)]
-                for p in task.state_columns[1:]
-                if p in states["ranges"]
-            ],
-        ),
+        *_initial_states_lines(states, task, bitgen),
         *(
             [
                 "",
@@ -420,7 +541,11 @@ def _failure_analysis(
         ),
         "",
     ]
-    return lines + _figure_lines(_FAILURE_FIGURES, figures, _captions(summary, task))
+    return lines + _figure_lines(
+        _FAILURE_FIGURES,
+        figures,
+        {**_captions(summary, task), "sample_traces": _traces_caption(summary, config, task)},
+    )
 
 
 def _falsifier(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str]:
@@ -543,7 +668,7 @@ def render_report(
     if design.get("hypothesis"):
         lines += [f"**Hypothesis.** {design['hypothesis']}", ""]
     sections = [
-        _setup(summary, config, manifest, model, task),
+        _setup(summary, config, manifest, model, task, Path(repo_root)),
         _metric(summary, manifest),
         _results(summary, figures, names, task),
         _failure_analysis(summary, config, figures, names, task),

@@ -20,6 +20,7 @@ from mjtrial.registration import deviations_seen, manifest_section
 from mjtrial.registration import read as read_registration
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import EVALUATION_RULE, REDRAWN
+from mjtrial.states import distribution
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import load_task
 
@@ -131,6 +132,12 @@ def manifest_record(
         "task": task_record(config, repo_root=repo_root),
         "n_states": config["states"]["n"],
         "randomization_ranges": config["states"]["ranges"],
+        "state_distributions": {
+            name: distribution(
+                name, config["states"]["ranges"], config["states"].get("distributions")
+            )
+            for name in config["states"]["ranges"]
+        },
         "success_definition": load_task(config["task"], repo_root=repo_root).success_text
         or "the task's success test",
         "results": {

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, codehash, provenance
-from mjtrial.conditions import all_conditions
+from mjtrial.conditions import all_conditions, sensitivity_conditions
 from mjtrial.crate.description import crate_description
 from mjtrial.layout import CONDITION_STAGES, STAGES
 from mjtrial.simenv import VERSION_KEY, model_overrides, variant_version
@@ -61,7 +61,7 @@ def _slice(
         return condition_slice
     if stage == "sensitivity":
         return {
-            "conditions": {c: config["conditions"][c] for c in _falsifier_conditions(config)},
+            "conditions": {c: config["conditions"][c] for c in sensitivity_conditions(config)},
             "variants": dict(config["variants"]),
             "falsifier": dict(config["design"]["falsifier"]),
             "analysis": _analysis_settings(config),
@@ -138,11 +138,6 @@ def stopping_settings(config: Mapping[str, Any]) -> dict[str, Any]:
         "block": config["rollout"]["shard_size"],
         "max_n": config["states"]["n"],
     }
-
-
-def _falsifier_conditions(config: Mapping[str, Any]) -> list[str]:
-    falsifier = config["design"]["falsifier"]
-    return [falsifier["treatment"], falsifier["baseline"]]
 
 
 def _analysis_settings(config: Mapping[str, Any]) -> dict[str, Any]:

@@ -133,7 +133,12 @@ def draw_counted_states(
     parameters = [p.name for p in task.state_parameters]
     drawn = {}
     for key, kind in (("seed", "evaluation"), ("development_seed", "development")):
-        given = dict(seed=states_slice[key], n=states_slice["n"], parameters=parameters)
+        given = dict(
+            seed=states_slice[key],
+            n=states_slice["n"],
+            parameters=parameters,
+            distributions=states_slice.get("distributions"),
+        )
         if task.valid_state is None:
             drawn[kind] = (generate_initial_states(ranges=states_slice["ranges"], **given), 0)
             continue

@@ -21,12 +21,17 @@ from mjtrial.task.declare import TaskError, _element
 class Control:
     """One output column driving one or more actuators: ctrl = scale * value, or, `relative`,
     the position of each actuator's joint at the control instant plus scale * value
-    (gymnasium-robotics' Fetch drives two position servos of a hand so from one column)."""
+    (gymnasium-robotics' Fetch drives two position servos of a hand so from one column).
+
+    `signs`: +1 or -1 per actuator, multiplying the value for that actuator: robosuite's and
+    Metaworld's grippers drive two fingers with [a, -a] from one column, `signs=(1, -1)`.
+    """
 
     actuators: str | tuple[str, ...]
     _: KW_ONLY
     relative: bool = False
     scale: float = 1.0
+    signs: tuple[int, ...] | None = None
     size = 1
 
     def __post_init__(self) -> None:
@@ -34,10 +39,20 @@ class Control:
             object.__setattr__(self, "actuators", (self.actuators,))
         else:
             object.__setattr__(self, "actuators", tuple(self.actuators))
+        if self.signs is not None:
+            object.__setattr__(self, "signs", tuple(self.signs))
 
     def bind(self, model: mujoco.MjModel, column: int) -> ControlColumn:
         if not self.actuators:
             raise TaskError("expected at least one actuator")
+        signs = ()
+        if self.signs is not None:
+            if len(self.signs) != len(self.actuators) or any(s not in (1, -1) for s in self.signs):
+                raise TaskError(
+                    f"signs: expected +1 or -1 for each of the {len(self.actuators)} actuators, "
+                    f"got {list(self.signs)}"
+                )
+            signs = tuple(int(s) for s in self.signs)
         index = [_element(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in self.actuators]
         qpos = None
         if self.relative:
@@ -47,7 +62,7 @@ class Control:
                     raise TaskError(f"relative: expected actuator {a!r} to drive a joint")
                 qpos.append(int(model.jnt_qposadr[model.actuator_trnid[i, 0]]))
             qpos = np.array(qpos)
-        return ControlColumn(column, np.array(index), qpos, self.scale)
+        return ControlColumn(column, np.array(index), qpos, self.scale, signs)
 
 
 def _quat(name: str, value: Sequence[float] | None) -> np.ndarray | None:

@@ -32,7 +32,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import provenance
-from mjtrial.conditions import all_conditions, sweep_conditions, variant_names
+from mjtrial.conditions import (
+    all_conditions,
+    sensitivity_conditions,
+    sweep_conditions,
+    variant_names,
+)
 from mjtrial.config import pilot_states
 from mjtrial.crate.check import crate_differences
 from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
@@ -579,10 +584,8 @@ class _Checker:
             if study == "sensitivity":
                 if not variant_names(config):
                     continue
-                falsifier = config["design"]["falsifier"]
-                pair = [falsifier["treatment"], falsifier["baseline"]]
                 tables = {
-                    v: {c: layout.rollout_table(c, v) for c in pair}
+                    v: {c: layout.rollout_table(c, v) for c in sensitivity_conditions(config)}
                     for v in [NOMINAL, *variant_names(config)]
                 }
                 recordings = version_recordings(config, layout)
