@@ -27,6 +27,18 @@ def warm_start_rule(controller: Any, model: mujoco.MjModel) -> str:
             "warm start zero at each episode's start, then carried from step to step (one "
             "`mujoco.rollout` call per episode)"
         )
+    if getattr(controller, "low_level", None) is not None:
+        return (
+            "warm start zero at each episode's start, then carried from step to step (each "
+            "episode keeps its `MjData`, stepped by `mj_step1` and `mj_step2` around its "
+            "low-level controller), as a suite's own loop carries it"
+        )
+    if getattr(controller, "carry_warmstart", False):
+        return (
+            "warm start zero at each episode's start, then carried from step to step and "
+            "across control instants (`mujoco.rollout`'s `initial_warmstart`), as a suite's "
+            "own loop carries it"
+        )
     return (
         "warm start set to zero at each control instant (`mujoco.rollout` zeros it at each "
         "call, one call per control step) and carried between the physics steps of one; a "

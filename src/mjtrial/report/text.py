@@ -267,10 +267,35 @@ def between_actions_text(task: Task, model: mujoco.MjModel) -> str:
     """What acts between two of the policy's actions, for the setup's rates line. The hook for
     a task's low-level controller at the physics rate (issue 41): its rate and what it reads
     (the state, Jacobians, mass matrix, bias forces) go here. Without one: the held controls."""
-    del model  # a low-level controller's rate and inputs are read from it
     if not isinstance(task.controller, ClosedLoop):
         return "the controls are an open-loop sequence, one per physics step, fixed in advance"
-    return "between two actions the controls they set are held at every physics step"
+    make = task.controller.low_level
+    if make is None:
+        return "between two actions the controls they set are held at every physics step"
+    controller = call(task, "low_level", make, model, task.parameters({}))
+    return (
+        f"between two actions a low-level controller (`{type(controller).__name__}`) computes "
+        "the controls at every physics step, from the policy's latest action and what MuJoCo "
+        f"computes at that step's state: {low_level_reads_text(controller.reads)}"
+    )
+
+
+def low_level_reads_text(reads) -> str:
+    """What a low-level controller reads (`mjtrial.low_level.Reads`), in words."""
+    parts = ["the joint positions and velocities"]
+    if reads.sites:
+        parts.append(f"the pose and Jacobian of site {', '.join(f'`{s}`' for s in reads.sites)}")
+    if reads.bodies:
+        parts.append(
+            f"the pose and Jacobian of body {', '.join(f'`{b}`' for b in reads.bodies)}"
+        )
+    if reads.mass_matrix:
+        parts.append("the mass matrix")
+    if reads.bias:
+        parts.append("the bias forces (gravity, Coriolis, centrifugal)")
+    if reads.actuator_length:
+        parts.append("the actuators' lengths")
+    return ", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else parts[0]
 
 
 def _hz(period: float) -> str:
