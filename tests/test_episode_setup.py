@@ -237,3 +237,40 @@ def test_a_weld_reset_setup_equals_the_same_statements_written_by_hand():
     np.testing.assert_array_equal(model.body_pos[mocap], d.mocap_pos[0])  # kept for resets
     np.testing.assert_array_equal(model.body_quat[mocap], d.mocap_quat[0])
     assert not np.array_equal(model.body_pos[mocap], NOMINAL.body_pos[mocap])
+
+
+def _unseeded(model, data, values):
+    """The suite's setup with the object nudged by an unseeded generator."""
+    fetch_setup(model, data, values)
+    data.qpos[model.joint("object0:joint").qposadr[0]] += np.random.default_rng().normal(0, 1e-3)
+
+
+def _counted(model, data, values, calls=[]):  # noqa: B006 - module state, on purpose
+    """The suite's setup with the object moved by the number of earlier calls."""
+    fetch_setup(model, data, values)
+    calls.append(1)
+    data.qpos[model.joint("object0:joint").qposadr[0]] += 1e-3 * len(calls)
+
+
+@pytest.mark.parametrize("setup", [_unseeded, _counted])
+def test_the_preflight_refuses_a_setup_that_is_not_a_function_of_its_arguments(setup):
+    """Its episode differs between two setups of one state: the pairs' conditions would run
+    different episodes. One line naming the task file and the function (issue 42, item 11)."""
+    from mjtrial.task_checks import check_setup_is_a_function, run_task_code
+
+    task = fetch_task(setup=setup, source=Path("tasks/fetch/task.py"))
+    expected = (
+        "tasks/fetch/task.py: episode_setup: not a function of its arguments: the nominal "
+        "state's episode differed between two setups (another state's between them); expected "
+        "the same model and initial state for the same values (no unseeded randomness, module "
+        "state, call order or clock)"
+    )
+    with pytest.raises(TaskError) as err:
+        check_setup_is_a_function(BoundTask.of(task, NOMINAL))
+    assert str(err.value) == expected
+    allowed = {"object_x": "test", "object_y": "test"}
+    with pytest.raises(TaskError, match="episode_setup: not a function of its arguments"):
+        run_task_code(
+            BoundTask.of(task, NOMINAL), {"c": {}}, thresholds={}, allowed_privileged=allowed
+        )
+    check_setup_is_a_function(BoundTask.of(fetch_task(), NOMINAL))  # the suite's own: passes
