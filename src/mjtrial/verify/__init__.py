@@ -197,7 +197,7 @@ def _contracts_changed(stamps: Mapping[str, Any], *, repo_root: Path) -> dict[st
     changed: dict[str, str] = {}
     for path, stamp in stamps.items():
         inputs = stamp.get("inputs") if isinstance(stamp, Mapping) else None
-        for name, records in (inputs.items() if isinstance(inputs, Mapping) else ()):
+        for name, records in inputs.items() if isinstance(inputs, Mapping) else ():
             if name == "policy" or str(name).startswith("policy:"):
                 if isinstance(records, list) and (
                     why := contract_change(records, repo_root=repo_root)
@@ -364,7 +364,9 @@ def verify_results(
         except OSError:
             return None
 
-    def check(differs: Mapping[str, str] | None = None) -> VerifyReport:
+    def check(
+        differs: Mapping[str, str] | None = None, irreproducible: Mapping[str, str] | None = None
+    ) -> VerifyReport:
         return check_stamps(
             stamps,
             current=current,
@@ -387,6 +389,7 @@ def verify_results(
                 ]
             ],
             recomputed_differs=differs,
+            irreproducible=irreproducible,
             outdated={
                 **_crate_outdated(layout, stamps, repo_root),
                 **_contracts_changed(stamps, repo_root=repo_root),
@@ -410,8 +413,8 @@ def verify_results(
         or os.path.relpath(config_path, repo_root),
         stamps=stamps,
     )
-    if found.differs:
-        report = check(found.differs)
+    if found.differs or found.irreproducible:
+        report = check(found.differs, found.irreproducible)
     # Another CPU is a doubt until re-simulation here settles it: when every episode verify
     # re-simulated agrees bit for bit, it is a note.
     settled = found.resimulated > 0 and not found.differs

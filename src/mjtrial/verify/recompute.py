@@ -21,6 +21,7 @@ code or the model changed) a difference is expected, and the rebuild fixes it.
 from __future__ import annotations
 
 import functools
+import json
 import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -61,6 +62,8 @@ class Recomputation:
     """What the recomputation found: per output (repository-relative), why it differs."""
 
     differs: dict[str, str] = field(default_factory=dict)
+    # per output, why its re-simulation does not reproduce (two disagree): no sign of tampering
+    irreproducible: dict[str, str] = field(default_factory=dict)
     recomputed: int = 0
     resimulated: int = 0
     episodes: int = 0  # in the shards the stamps judged current
@@ -252,7 +255,12 @@ class _Checker:
             if again is None:
                 continue
             mujoco_version = version or provenance.library_versions()["mujoco"]
-            self.check(nominal, lambda p=nominal, f=again: json_difference(p, f(p)))
+            self.check(
+                nominal,
+                lambda p=nominal, f=again: self.reproduced(
+                    p, lambda: f(p), lambda recomputed: json_difference(p, recomputed)
+                ),
+            )
             for table, ids in samples.items():
                 self.check(
                     table,
@@ -411,15 +419,47 @@ class _Checker:
         missing = [i for i in ids if i not in rows]
         if missing:
             return f"no row for states {missing[:_SHOWN]}"
-        again = outcome()
         self.found.resimulated += len(ids)
         sampled = table.take(pa.array([rows[i] for i in ids]))
-        why = table_difference(
-            sampled,
-            {c: again.column(c).to_numpy(zero_copy_only=False) for c in again.column_names},
-            what="re-simulated episodes",
+        why = self.reproduced(
+            table_path,
+            outcome,
+            lambda again: table_difference(sampled, _columns(again), what="re-simulated episodes"),
         )
         return why and why + _platform_note(provenance.read_stamp(table_path), mujoco_version)
+
+    def reproduced(
+        self,
+        path: Path,
+        resimulate: Callable[[], Any],
+        difference: Callable[[Any], str | None],
+    ) -> str | None:
+        """Why `path` is not its re-simulation (`difference` of what `resimulate` gives), or
+        None. When it is not, the re-simulation runs once more: two that disagree say the
+        task's code is not a function of its arguments, and the output is recorded as
+        irreproducible (not tampered: its bytes may be what the run made)."""
+        first = resimulate()
+        why = difference(first)
+        if not why:
+            return None
+        second = resimulate()
+        if isinstance(first, pa.Table):
+            between = table_difference(first, _columns(second), what="re-simulations")
+        else:
+            same = json.dumps(first, sort_keys=True, default=str) == json.dumps(
+                second, sort_keys=True, default=str
+            )
+            between = None if same else "the nominal episode's two re-simulations differ"
+        if between:
+            self.found.irreproducible[self.rel(path)] = (
+                f"differs from its re-simulation ({why}), and re-simulated twice here the two "
+                f"disagree ({between}): the task's code is not a function of its arguments "
+                "(its episode_setup, policy or a Custom state parameter draws unseeded "
+                "randomness or reads module state, call order or the clock), so no run of it "
+                "can be reproduced; no sign of tampering"
+            )
+            return None
+        return why
 
     def pilot(self, resimulate: int) -> None:
         """The pilot's outputs under `development/`, checked as the evaluation's are: each
@@ -621,6 +661,10 @@ class _Checker:
                     p, study_report_text(s, f(), report=p, figures_dir=layout.figures_dir)
                 ),
             )
+
+
+def _columns(table: pa.Table) -> dict[str, np.ndarray]:
+    return {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
 
 
 def recompute(
