@@ -336,7 +336,7 @@ def test_a_deleted_mesh_store_is_named_with_the_command_that_rebuilds_it(folder,
     """Issue 42 item 14: the folder is the output Snakemake sees, so a deleted meshes.rrd is
     'Nothing to be done'; the folder's record names what is missing and how to rebuild it."""
     from mjtrial.cli import main
-    from mjtrial.recording.read import folder_problem
+    from mjtrial.provenance.recording_folders import folder_problem
 
     copy = tmp_path / "c"
     shutil.copytree(folder, copy)

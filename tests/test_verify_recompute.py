@@ -236,6 +236,31 @@ def test_an_outcome_that_is_not_reproducible_is_named_as_such_never_as_tampering
     assert " irreproducible (" in report.summary() and report.summary().startswith("NOT verified")
 
 
+def test_a_file_deleted_from_a_folder_of_recordings_is_named_with_its_rebuild(built, tmp_path):
+    """Issue 42 item 14: a folder of recordings is one output, so Snakemake saw a deleted file
+    in it (a mesh store, an episode's recording) as "Nothing to be done", and verify named the
+    whole folder. Now the workflow's load and verify name what is missing and the command that
+    rebuilds it, and that command does."""
+    workdir = copy_of(built, tmp_path)
+    folder = RESULTS / "rollouts" / "fast" / "shard-00000"
+    episodes = sorted((workdir / folder).glob("*.rrd"))
+    episodes[0].unlink()
+    problem = (
+        f"{folder.as_posix()}: 1 of its {len(episodes)} episodes' recordings missing "
+        f"(recordings.json records it); `snakemake -c2 -R {folder.as_posix()}` rebuilds its "
+        "folder and what was made from it"
+    )
+    report = verified(workdir, resimulate=0)
+    assert report[folder.as_posix()].reasons[0] == problem, report.format()
+    assert not report.ok
+    dry = run_snakemake(workdir, "-n")
+    assert f"mjtrial: {problem}" in dry.stderr.splitlines(), dry.stderr
+    run_snakemake(workdir, "-R", folder.as_posix())
+    assert episodes[0].is_file()
+    report = verified(workdir, resimulate=0)
+    assert report.ok, report.format()
+
+
 def nudge_final_x(shard: Path, *, row: int) -> None:
     """Add 1e-6 to one episode's final x in a shard table, under the table's own stamp: a
     forgery that no stamp, seal or recording shows (the recordings do not carry final x)."""

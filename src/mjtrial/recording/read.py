@@ -14,7 +14,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
-from mjtrial.provenance import RECORDING_FOLDER_STAMP, is_recording_folder, read_stamp
+from mjtrial.provenance import RECORDING_FOLDER_STAMP, read_stamp
+from mjtrial.provenance.recording_folders import rebuild_hint
 from mjtrial.recording.arrow import (
     QUATERNION,
     RECORDING_NAME,
@@ -55,15 +56,6 @@ def recording_files(path: str | os.PathLike[str]) -> list[Path]:
     return [path]
 
 
-def rebuild_hint(path: str | os.PathLike[str]) -> str:
-    """How to rebuild a file of a condition's folder of recordings (a folder written as one
-    output, which Snakemake does not look into): "" for a file elsewhere."""
-    folder = Path(path).parent
-    if not is_recording_folder(folder):
-        return ""
-    return f"; `snakemake -c2 -R {folder}` rebuilds its folder and what was made from it"
-
-
 def open_rrd(path: str | os.PathLike[str]) -> RrdReader:
     """rerun's reader of a .rrd file, with errors that name the file. rerun reads a file
     lazily, so its index is read here: a truncated or damaged file is one `ValueError` naming
@@ -86,30 +78,6 @@ def open_rrd(path: str | os.PathLike[str]) -> RrdReader:
             f"{path}: not a readable .rrd file (truncated or damaged: {why}){rebuild_hint(path)}"
         ) from exc
     return reader
-
-
-def folder_problem(folder: str | os.PathLike[str]) -> str | None:
-    """What a condition's folder of recordings lacks of what its `recordings.json` records
-    (its mesh store; its episodes' files), with the command that rebuilds it; None if
-    nothing. A deleted file there leaves the folder, which is the output Snakemake sees."""
-    folder = Path(folder)
-    try:
-        contents = json.loads((folder / RECORDING_FOLDER_STAMP).read_text())
-    except (OSError, ValueError):
-        return None  # no record: the folder's stamp check says so
-    missing = []
-    meshes = contents.get("meshes")
-    if isinstance(meshes, str) and not (folder / meshes).is_file():
-        missing.append(f"its mesh store {meshes}")
-    recorded, found = contents.get("recordings"), len(recording_files(folder))
-    if isinstance(recorded, int) and found < recorded:
-        missing.append(f"{recorded - found} of its {recorded} episodes' recordings")
-    if not missing:
-        return None
-    return (
-        f"{folder}: {' and '.join(missing)} missing ({RECORDING_FOLDER_STAMP} records "
-        f"{'them' if len(missing) > 1 else 'it'}){rebuild_hint(folder / RECORDING_FOLDER_STAMP)}"
-    )
 
 
 def raw_properties(reader: RrdReader, entry: StoreEntry) -> dict[str | None, dict[str, Any]]:

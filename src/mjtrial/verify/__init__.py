@@ -39,6 +39,7 @@ from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
+from mjtrial.provenance.recording_folders import folder_problem
 from mjtrial.stages.look import shards_run
 from mjtrial.stages.states import piloted_overlap
 from mjtrial.verify.chain import (
@@ -335,6 +336,7 @@ def verify_results(
     stamps: dict[str, dict[str, Any]] = {}
     unreadable: dict[str, str] = {}
     leftovers: list[Skipped] = []
+    damaged: dict[str, str] = {}  # a folder of recordings without a file its record names
     for file in _stamped_files(results_dir):
         rel = _relative(file, repo_root)
         if (_is_rollout_output(layout, file) and file not in ours) or file in unrecorded:
@@ -347,6 +349,8 @@ def verify_results(
         if _is_old_figure(layout, file):
             leftovers.append(Skipped(rel, "a figure no current report draws (an earlier layout)"))
             continue
+        if provenance.is_recording_folder(file) and (problem := folder_problem(file)):
+            damaged[rel] = problem.replace(str(file), rel)
         try:
             stamps[rel] = provenance.read_stamp(file)
         except FileNotFoundError:
@@ -388,7 +392,10 @@ def verify_results(
                     ),
                 ]
             ],
-            recomputed_differs=differs,
+            recomputed_differs={
+                p: "; ".join(w for w in (damaged.get(p), (differs or {}).get(p)) if w)
+                for p in {*damaged, *(differs or {})}
+            },
             irreproducible=irreproducible,
             outdated={
                 **_crate_outdated(layout, stamps, repo_root),
