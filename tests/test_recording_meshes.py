@@ -355,3 +355,19 @@ def test_a_deleted_mesh_store_is_named_with_the_command_that_rebuilds_it(folder,
         .err.strip()
         .endswith(f"(copy that file beside it, or open the episode with its folder); {hint}")
     )
+
+
+def test_view_counts_a_file_s_episodes_alike_in_every_message(folder, tmp_path, capsys):
+    """Issue 42 item 15: failures.rrd of 3 episodes (after its summary, with a mesh store) was
+    said to hold 4 recordings by one message and 5 by another; both now count its episodes."""
+    from mjtrial.cli import main
+
+    failures = tmp_path / "failures.rrd"
+    write_failures_rrd(failures, [folder], stamp=STAMP)
+    assert len(RrdReader(failures).recordings()) == N_EPISODES + 2  # summary, mesh store
+    output = str(tmp_path / "x.rrd")
+    assert main(["view", str(failures), "--output", output, "--no-viewer"]) == 1
+    assert f"holds {N_EPISODES} episodes' recordings, expected one;" in capsys.readouterr().err
+    argv = ["view", str(failures), "--condition", "c", "--state", "9", "--output", output]
+    assert main([*argv, "--no-viewer"]) == 1
+    assert capsys.readouterr().err.rstrip().endswith(f"among its {N_EPISODES} episodes' recordings")

@@ -26,10 +26,12 @@ from mjtrial.recording.arrow import (
     data_columns,
 )
 from mjtrial.recording.names import (
+    CLOSEST_CALLS_SUMMARY,
     EPISODE_COMPONENT,
     EPISODE_PROPERTY,
     FAILURE_PREFIX,
     FAILURES_PROPERTY,
+    FAILURES_SUMMARY,
     JSON_FIELD,
     MESH_STORE_FILE,
     MESH_STORE_PREFIX,
@@ -222,17 +224,31 @@ def recording_chunks(reader: RrdReader, entry: StoreEntry, path: Path) -> list[C
     return own + [c for c in meshes if c.entity_path != PROPERTIES]
 
 
+def episode_entries(reader: RrdReader) -> list[StoreEntry]:
+    """A file's episodes' recordings: its recordings but a mesh store and a summary (the
+    first recording of failures.rrd and closest_calls.rrd). What a message counts."""
+    return [
+        e
+        for e in reader.recordings()
+        if not is_mesh_store(e) and e.recording_id not in (FAILURES_SUMMARY, CLOSEST_CALLS_SUMMARY)
+    ]
+
+
+def _episodes(n: int) -> str:
+    return f"{n} episode's recording" if n == 1 else f"{n} episodes' recordings"
+
+
 def find_episode_entry(reader: RrdReader, path: Path, condition: str, state_id: int) -> StoreEntry:
     """The recording of one episode in an open file (its own, or its copy in failures.rrd)."""
     rid = episode_recording_id(condition, state_id)
     wanted = (rid, FAILURE_PREFIX + rid)
-    entries = reader.recordings()
+    entries = episode_entries(reader)
     for entry in entries:
         if entry.recording_id in wanted:
             return entry
     raise KeyError(
         f"{path}: no recording of condition {condition!r}, state {state_id} "
-        f"(recording id {rid!r}) among its {len(entries)} recording(s)"
+        f"(recording id {rid!r}) among its {_episodes(len(entries))}"
     )
 
 
@@ -286,11 +302,11 @@ def find_episode_file(
 def only_episode_entry(reader: RrdReader, path: Path) -> StoreEntry:
     """The one episode's recording of a file that holds one (a condition folder's file, a
     replay's), besides any mesh store."""
-    entries = [e for e in reader.recordings() if not is_mesh_store(e)]
+    entries = episode_entries(reader)
     if len(entries) != 1:
         raise ValueError(
-            f"{path}: holds {len(entries)} recordings, expected one episode's; give condition "
-            "and state_id to pick one"
+            f"{path}: holds {_episodes(len(entries))}, expected one; give condition and "
+            "state_id to pick one"
         )
     return entries[0]
 
