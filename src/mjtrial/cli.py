@@ -528,7 +528,11 @@ def main(argv: list[str] | None = None) -> int:
         help=f"a simulator variant of the config's variants (default: {NOMINAL}, the model as "
         "committed)",
     )
-    p.add_argument("--output", help="the .rrd to write (default: results/<exp>/replay/...)")
+    p.add_argument(
+        "--output",
+        help="the .rrd to write (default: replays/<exp>/<condition>_state<id>.rrd, outside the "
+        "sealed results folder)",
+    )
     p.add_argument(
         "--config",
         help="config file (default: the one the results folder's manifest records, else "
