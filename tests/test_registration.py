@@ -216,3 +216,13 @@ def test_plan_of_a_registered_design_reads_the_pilot(tmp_path, config, capsys):
     out = capsys.readouterr().out
     assert "0.250 (the pilot: 40 pairs" in out
     assert "pairs for a difference of +0.100" in out
+    assert "no results yet: `mjtrial register --again --reason TEXT` records this one)" in out
+    # Issue 42 item 15: once results exist, registering a new plan would be a design made
+    # after the data; the plan is said to be post hoc instead
+    shard = layout.rollouts_dir() / "slow" / "shard-00000.parquet"
+    shard.parent.mkdir(parents=True)
+    pq.write_table(pa.table({"success": [True]}), shard)
+    assert cli.main(["plan", str(layout.root), "--effect", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "register --again" not in out
+    assert f"results exist ({layout.rollouts_dir()}), so this plan comes after them" in out
