@@ -57,7 +57,7 @@ from mjtrial.verify.chain import (
 from mjtrial.verify.contracts import contract_change
 from mjtrial.verify.folder import placed_as_recorded, recorded_as
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
-from mjtrial.verify.registration import check_registration
+from mjtrial.verify.registration import check_deviations_kept, check_registration
 
 __all__ = [
     "STAMPED_SUFFIXES",
@@ -430,11 +430,15 @@ def verify_results(
     registered = check_registration(
         layout, config, path=_relative(layout.registration, repo_root), repo_root=repo_root
     )
+    kept = check_deviations_kept(
+        layout, path=_relative(layout.deviations, repo_root), repo_root=repo_root
+    )
     return dataclasses.replace(
         report,
         outputs=(
             *_piloted(layout, report.outputs, repo_root=repo_root),
             *([registered] if registered else []),
+            *([kept] if kept else []),
         ),
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *(w for w in report.warnings if w not in platform)),
