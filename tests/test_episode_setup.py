@@ -274,3 +274,32 @@ def test_the_preflight_refuses_a_setup_that_is_not_a_function_of_its_arguments(s
             BoundTask.of(task, NOMINAL), {"c": {}}, thresholds={}, allowed_privileged=allowed
         )
     check_setup_is_a_function(BoundTask.of(fetch_task(), NOMINAL))  # the suite's own: passes
+
+
+def test_the_report_gives_the_weld_as_the_setup_leaves_it():
+    """Issue 42 item 15: the report's weld line gave only the compiled model's solref; a
+    setup that resets the weld (Metaworld's Sawyer) and scales its torque sets what acts. The
+    line now gives the relative pose, anchor and torque scale of the nominal episode's model,
+    after the setup: the values the setup wrote."""
+    from mjtrial.report.model import equality_lines
+    from mjtrial.report.text import _nominal_start
+
+    def sawyer_like(model, data, values):
+        metaworld_setup(model, data, values)
+        model.eq_data[0, 3:6] = [0.01, 0.0, -0.02]  # relative position
+        model.eq_data[0, 10] = 0.5  # torque scale
+
+    task = fetch_task(setup=sawyer_like)
+    [head, line] = equality_lines(_nominal_start(NOMINAL, task), after_setup=True)
+    assert head == (
+        "- Equality constraints (the nominal episode's model, after the task's `episode_setup`):"
+    )
+    assert line == (
+        "  - weld 0 (robot0:mocap to robot0:gripper_link): active, solref 0.02, 1, relative "
+        "pose (0.01, 0, -0.02) m and (1, 0, 0, 0) (w, x, y, z), anchor (0, 0, 0) m, torque "
+        "scale 0.5"
+    )
+    # without a setup: the compiled model's, said so (Fetch's weld scales torque by 1)
+    [head, line] = equality_lines(_nominal_start(NOMINAL, fetch_task(setup=None)))
+    assert head == "- Equality constraints (from the compiled model):"
+    assert line.endswith(f"torque scale {NOMINAL.eq_data[0, 10]:g}")

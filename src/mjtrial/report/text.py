@@ -204,6 +204,16 @@ def _controller_lines(model: mujoco.MjModel, task: Task) -> list[str]:
     return lines
 
 
+def _nominal_start(model: mujoco.MjModel, task: Task) -> mujoco.MjModel:
+    """The nominal episode's own model as it starts: a task's `episode_setup` may edit it (a
+    weld's relative pose and torque scale), and that is what acts, not the compiled model."""
+    if task.episode_setup is None:
+        return model
+    values = {p.name: p.nominal_value for p in task.state_parameters}
+    start, _ = BoundTask.of(task, model).episode(values, scratch=mujoco.MjData(model))
+    return start
+
+
 def _setup(
     summary: Mapping[str, Any],
     config: Mapping[str, Any],
@@ -223,7 +233,7 @@ def _setup(
         f"- Solver: timestep {m['timestep']:g} s, integrator {m['integrator']}, "
         f"friction cone {m['cone']}, impratio {m['impratio']:g}.",
         *actuator_lines(model),
-        *equality_lines(model),
+        *equality_lines(_nominal_start(model, task), after_setup=task.episode_setup is not None),
         *_controller_lines(model, task),
         *joint_lines(model),
         *contact_lines(model),
