@@ -229,7 +229,7 @@ def test_an_outcome_that_is_not_reproducible_is_named_as_such_never_as_tampering
     assert report[shard].status is Status.IRREPRODUCIBLE, report.format()
     [reason] = report[shard].reasons
     assert reason.startswith("differs from its re-simulation (re-simulated episodes for states ")
-    assert "and re-simulated twice here the two disagree (re-simulations for states " in reason
+    assert "re-simulated twice here the two disagree (two re-simulations for states " in reason
     assert "the task's code is not a function of its arguments" in reason
     assert Status.TAMPERED not in {o.status for o in report.outputs}, report.format()
     assert not report.ok and report.exit_code == 1

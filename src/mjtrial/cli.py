@@ -50,20 +50,18 @@ def _registered_plan(args: argparse.Namespace) -> int:
     print(f"power of the design registered on {data['current']['registered_utc']}:")
     print("\n".join(plan_lines(plan)))
     if plan != data["current"]["plan"]:
+        # after results, a plan is post hoc: registering it would record it as the design's
         rollouts = layout.rollouts_dir()
-        if rollouts.is_dir() and any(rollouts.rglob("*.parquet")):
-            # a plan after the results is post hoc: registering it would put a design made
-            # after the data in the record as the design
-            print(
-                f"(the registration's own plan used: {data['current']['plan']['source']}; "
+        after = rollouts.is_dir() and any(rollouts.rglob("*.parquet"))
+        print(
+            f"(the registration's own plan used: {data['current']['plan']['source']}; "
+            + (
                 f"results exist ({rollouts}), so this plan comes after them: report it as a "
                 "post-hoc power analysis beside the registered plan, and do not register it)"
+                if after
+                else "no results yet: `mjtrial register --again --reason TEXT` records this one)"
             )
-        else:
-            print(
-                f"(the registration's own plan used: {data['current']['plan']['source']}; "
-                "no results yet: `mjtrial register --again --reason TEXT` records this one)"
-            )
+        )
     return 0
 
 

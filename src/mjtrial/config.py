@@ -597,7 +597,7 @@ def _check_variant_applies(
     of the condition sets), the runs' simulations are compared."""
     variant = config["variants"][name]
     overrides = model_overrides(variant)
-    # by the element each value reaches, whatever name or address each gave it (`cube`, `#6`)
+    # by the element each value reaches, whatever name or address each gave it (`floor`, `#0`)
     changed = resolved_values(model_file, overrides)
     for condition, spec in config["conditions"].items():
         edits = model_edits(spec)

@@ -220,7 +220,7 @@ def _index(spec: mujoco.MjSpec, kind: str, element: Any) -> int:
 
 def resolved_values(model_file: Path | str, edits: Mapping[str, Any]) -> dict[str, str]:
     """Each value `edits` set (`edited_values`), keyed by the element it reaches: an element's
-    value as `<kind>.#<index>.<attribute>` whatever name or address gave it (`cube`, `#6`,
+    value as `<kind>.#<index>.<attribute>` whatever name or address gave it (`floor`, `#0`,
     `on:...`), an option's or a class's as `edited_values` gives it; each mapped to the key
     the edits gave. Edits `apply_overrides` accepted."""
     spec = load_spec(model_file)

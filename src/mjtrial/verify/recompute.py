@@ -21,7 +21,6 @@ code or the model changed) a difference is expected, and the rebuild fixes it.
 from __future__ import annotations
 
 import functools
-import json
 import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -52,7 +51,13 @@ from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
 from mjtrial.verify.coverage import DEFAULT_RESIMULATE, coverage
 from mjtrial.verify.differences import SHOWN as _SHOWN
-from mjtrial.verify.differences import json_difference, markdown_difference, table_difference
+from mjtrial.verify.differences import (
+    columns,
+    json_difference,
+    markdown_difference,
+    recomputed_difference,
+    table_difference,
+)
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
 
@@ -424,7 +429,7 @@ class _Checker:
         why = self.reproduced(
             table_path,
             outcome,
-            lambda again: table_difference(sampled, _columns(again), what="re-simulated episodes"),
+            lambda again: table_difference(sampled, columns(again), what="re-simulated episodes"),
         )
         return why and why + _platform_note(provenance.read_stamp(table_path), mujoco_version)
 
@@ -435,28 +440,19 @@ class _Checker:
         difference: Callable[[Any], str | None],
     ) -> str | None:
         """Why `path` is not its re-simulation (`difference` of what `resimulate` gives), or
-        None. When it is not, the re-simulation runs once more: two that disagree say the
-        task's code is not a function of its arguments, and the output is recorded as
-        irreproducible (not tampered: its bytes may be what the run made)."""
+        None. If it is not, a second re-simulation that disagrees makes it irreproducible (the
+        task's code is no function of its arguments), not tampered: its bytes may be the run's."""
         first = resimulate()
-        why = difference(first)
-        if not why:
+        if not (why := difference(first)):
             return None
-        second = resimulate()
-        if isinstance(first, pa.Table):
-            between = table_difference(first, _columns(second), what="re-simulations")
-        else:
-            same = json.dumps(first, sort_keys=True, default=str) == json.dumps(
-                second, sort_keys=True, default=str
-            )
-            between = None if same else "the nominal episode's two re-simulations differ"
+        between = recomputed_difference(first, resimulate(), what="two re-simulations")
         if between:
             self.found.irreproducible[self.rel(path)] = (
                 f"differs from its re-simulation ({why}), and re-simulated twice here the two "
                 f"disagree ({between}): the task's code is not a function of its arguments "
                 "(its episode_setup, policy or a Custom state parameter draws unseeded "
-                "randomness or reads module state, call order or the clock), so no run of it "
-                "can be reproduced; no sign of tampering"
+                "randomness or reads module state, call order or the clock): no run of it can "
+                "be reproduced; no sign of tampering"
             )
             return None
         return why
@@ -661,10 +657,6 @@ class _Checker:
                     p, study_report_text(s, f(), report=p, figures_dir=layout.figures_dir)
                 ),
             )
-
-
-def _columns(table: pa.Table) -> dict[str, np.ndarray]:
-    return {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
 
 
 def recompute(
