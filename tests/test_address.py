@@ -108,6 +108,8 @@ def test_resolve_by_name_index_and_attachment(fetch):
     [
         ("equality", "#1", r"^expected '#<index>' with an index 0 to 0 among the model's 1 "),
         ("equality", "#x", "got '#x'"),
+        ("equality", "#²", r"^expected '#<index>' with an index 0 to 0 among the model's 1 .*'#²'"),
+        ("geom", "#٣", r"^expected '#<index>' with an index 0 to .*got '#٣'$"),  # Arabic-Indic 3
         ("equality", "on:robot0:base_link", "attached to an element named 'robot0:base_link'"),
         ("actuator", "gripper", "^expected an actuator named 'gripper' in the model$"),
         ("geom", "on:robot0:mocap", r"'on:robot0:mocap' is ambiguous: 4 geoms .*#1: geom 1 of"),

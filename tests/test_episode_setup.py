@@ -237,3 +237,69 @@ def test_a_weld_reset_setup_equals_the_same_statements_written_by_hand():
     np.testing.assert_array_equal(model.body_pos[mocap], d.mocap_pos[0])  # kept for resets
     np.testing.assert_array_equal(model.body_quat[mocap], d.mocap_quat[0])
     assert not np.array_equal(model.body_pos[mocap], NOMINAL.body_pos[mocap])
+
+
+def _unseeded(model, data, values):
+    """The suite's setup with the object nudged by an unseeded generator."""
+    fetch_setup(model, data, values)
+    data.qpos[model.joint("object0:joint").qposadr[0]] += np.random.default_rng().normal(0, 1e-3)
+
+
+def _counted(model, data, values, calls=[]):  # noqa: B006 - module state, on purpose
+    """The suite's setup with the object moved by the number of earlier calls."""
+    fetch_setup(model, data, values)
+    calls.append(1)
+    data.qpos[model.joint("object0:joint").qposadr[0]] += 1e-3 * len(calls)
+
+
+@pytest.mark.parametrize("setup", [_unseeded, _counted])
+def test_the_preflight_refuses_a_setup_that_is_not_a_function_of_its_arguments(setup):
+    """Its episode differs between two setups of one state: the pairs' conditions would run
+    different episodes. One line naming the task file and the function (issue 42, item 11)."""
+    from mjtrial.task_checks import check_setup_is_a_function, run_task_code
+
+    task = fetch_task(setup=setup, source=Path("tasks/fetch/task.py"))
+    expected = (
+        "tasks/fetch/task.py: episode_setup: not a function of its arguments: the nominal "
+        "state's episode differed between two setups (another state's between them); expected "
+        "the same model and initial state for the same values (no unseeded randomness, module "
+        "state, call order or clock)"
+    )
+    with pytest.raises(TaskError) as err:
+        check_setup_is_a_function(BoundTask.of(task, NOMINAL))
+    assert str(err.value) == expected
+    allowed = {"object_x": "test", "object_y": "test"}
+    with pytest.raises(TaskError, match="episode_setup: not a function of its arguments"):
+        run_task_code(
+            BoundTask.of(task, NOMINAL), {"c": {}}, thresholds={}, allowed_privileged=allowed
+        )
+    check_setup_is_a_function(BoundTask.of(fetch_task(), NOMINAL))  # the suite's own: passes
+
+
+def test_the_report_gives_the_weld_as_the_setup_leaves_it():
+    """Issue 42 item 15: the report's weld line gave only the compiled model's solref; a
+    setup that resets the weld (Metaworld's Sawyer) and scales its torque sets what acts. The
+    line now gives the relative pose, anchor and torque scale of the nominal episode's model,
+    after the setup: the values the setup wrote."""
+    from mjtrial.report.model import equality_lines
+    from mjtrial.report.text import _nominal_start
+
+    def sawyer_like(model, data, values):
+        metaworld_setup(model, data, values)
+        model.eq_data[0, 3:6] = [0.01, 0.0, -0.02]  # relative position
+        model.eq_data[0, 10] = 0.5  # torque scale
+
+    task = fetch_task(setup=sawyer_like)
+    [head, line] = equality_lines(_nominal_start(NOMINAL, task), after_setup=True)
+    assert head == (
+        "- Equality constraints (the nominal episode's model, after the task's `episode_setup`):"
+    )
+    assert line == (
+        "  - weld 0 (robot0:mocap to robot0:gripper_link): active, solref 0.02, 1, relative "
+        "pose (0.01, 0, -0.02) m and (1, 0, 0, 0) (w, x, y, z), anchor (0, 0, 0) m, torque "
+        "scale 0.5"
+    )
+    # without a setup: the compiled model's, said so (Fetch's weld scales torque by 1)
+    [head, line] = equality_lines(_nominal_start(NOMINAL, fetch_task(setup=None)))
+    assert head == "- Equality constraints (from the compiled model):"
+    assert line.endswith(f"torque scale {NOMINAL.eq_data[0, 10]:g}")

@@ -454,3 +454,106 @@ def test_a_signed_column_must_share_one_range_and_give_a_sign_per_actuator(tmp_p
     )
     with pytest.raises(TaskError, match=r"actions\[0\]: signs: expected \+1 or -1 for each"):
         bind_actions(NOMINAL, (Control(FINGERS, signs=(1, 2)),))
+
+
+class RawSessionPolicy(SessionPolicy):
+    """The graph run by hand, every column as given (a relative column is a step, not a ctrl)."""
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        [action] = self.session.run(["action"], {"observations": obs.astype(np.float32)})
+        return action.astype(np.float64)
+
+
+def test_a_contract_column_relative_to_its_joints_runs_as_the_task_s_relative_control(tmp_path):
+    """Issue 42 item 15: a contract marks the fingers' column relative to their joints (as
+    gymnasium-robotics' Fetch drives them, `Control(FINGERS, relative=True)`), so a policy
+    trained on the suite's action runs as trained: the same episodes as the task's own relative
+    control with the graph run by hand, the column given raw (no ctrlrange mapping, no clip)."""
+    import dataclasses
+
+    from fetch_mocap import fetch_task
+    from policy_graphs import tanh_mlp, write
+
+    from mjtrial.engine import iter_batches
+    from mjtrial.policy_file import load_policy_file, policy_task
+    from mjtrial.task import BoundTask
+
+    path = write(
+        tmp_path,
+        "fetch",
+        tanh_mlp([2, 16, 4], seed=5),
+        task="fetch_mocap",
+        observations=["object_x", "object_y"],
+        actuators=[{"actuators": list(FINGERS), "relative": True, "scale": 0.5}],
+        mocap=[MOCAP_ENTRY],
+        control_period=0.04,
+    )
+    task = fetch_task()
+    policy_file = load_policy_file(path, task)
+    values = {
+        "state_id": np.arange(3),
+        "object_dx": np.array([0.0, 0.05, -0.08]),
+        "object_dy": np.array([0.03, -0.06, 0.0]),
+    }
+    run = lambda t: next(iter_batches(BoundTask.of(t), values, {}, thresholds={}, nthread=1))  # noqa: E731
+    by_file = run(policy_task(task, policy_file)).episodes
+    by_hand_actions = (
+        Control(FINGERS, relative=True, scale=0.5),
+        MocapAction(
+            "robot0:mocap",
+            relative_to="body",
+            scale=0.05,
+            max_step=0.05,
+            orientation_offset=(1.0, 0.0, 1.0, 0.0),
+        ),
+    )
+    controller = dataclasses.replace(
+        task.controller,
+        policy=lambda model, params: RawSessionPolicy(policy_file.session),
+        actions=by_hand_actions,
+    )
+    by_hand = run(dataclasses.replace(task, controller=controller)).episodes
+    np.testing.assert_array_equal(by_file.physics, by_hand.physics)
+    np.testing.assert_array_equal(by_file.ctrl, by_hand.ctrl)
+    # relative: not the absolute column's ctrl (the fingers' range [0, 0.2] mapped and clipped)
+    absolute = dataclasses.replace(controller, actions=(Control(FINGERS), by_hand_actions[1]))
+    assert not np.array_equal(
+        run(dataclasses.replace(task, controller=absolute)).episodes.ctrl, by_file.ctrl
+    )
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        ({"mocap": [{**MOCAP_ENTRY, "scale": float("nan")}]}, "mocap.0.scale: nan"),
+        ({"mocap": [{**MOCAP_ENTRY, "max_step": float("inf")}]}, "mocap.0.max_step: inf"),
+        (
+            {"actuators": [{"actuators": list(FINGERS), "relative": True, "scale": float("nan")}]},
+            "actuators.0.scale: nan",
+        ),
+    ],
+)
+def test_a_non_finite_number_in_a_contract_s_actions_is_one_line(tmp_path, change, key):
+    """Issue 42 item 15: `scale: .nan` passed the schema (a NaN passes every bound) and
+    `policy check` after thousands of MuJoCo warnings; now one line naming the key."""
+    from fetch_mocap import fetch_task
+    from policy_graphs import tanh_mlp, write
+
+    from mjtrial.policy_file import PolicyFileError, load_policy_file
+
+    contract = {
+        "task": "fetch_mocap",
+        "observations": ["object_x", "object_y"],
+        "actuators": [list(FINGERS)],
+        "mocap": [MOCAP_ENTRY],
+        "control_period": 0.04,
+    }
+    path = write(tmp_path, "fetch", tanh_mlp([2, 4, 4]), **(contract | change))
+    with pytest.raises(PolicyFileError) as err:
+        load_policy_file(path, fetch_task())
+    assert str(err.value) == f"{path.with_suffix('.yaml')}: {key}; expected finite numbers"
+
+
+def test_a_non_finite_mocap_scale_in_a_task_is_one_line():
+    with pytest.raises(TaskError, match=r"^actions\[0\]: scale: expected finite numbers, got nan$"):
+        bind_actions(NOMINAL, (MocapAction("robot0:mocap", scale=float("nan")),))

@@ -298,3 +298,76 @@ def test_resimulated_episodes_in_one_file_share_one_mesh_store(model, episodes, 
     [entry] = [e for e in entries if e.recording_id == "calls-b-state-000001"]
     assert not _meshes(reader.store(store=entry).stream())
     assert sorted(_meshes(recording_chunks(reader, entry, path))) == sorted(_expected_meshes(model))
+
+
+def _cut(path, fraction=2 / 3) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * fraction)])
+
+
+@pytest.mark.parametrize("damaged", ["c-state-000000.rrd", MESH_STORE_FILE])
+def test_a_truncated_episode_or_mesh_store_is_one_line_naming_it(folder, tmp_path, capsys, damaged):
+    """Issue 42 item 14: `mjtrial view` and `read_episode` on a folder where the episode's
+    file or the mesh store was cut short: one line naming the file and the command that
+    rebuilds the folder, not a traceback."""
+    from mjtrial.cli import main
+    from mjtrial.replay import read_episode as read_any
+
+    copy = tmp_path / "c"
+    shutil.copytree(folder, copy)
+    _cut(copy / damaged)
+    expected = (
+        f"{copy / damaged}: not a readable .rrd file (truncated or damaged: Failed to decode "
+        "frame: "
+    )
+    hint = f"; `snakemake -c2 -R {copy}` rebuilds its folder and what was made from it"
+    argv = ["view", str(copy / "c-state-000000.rrd"), "--output", str(tmp_path / "ep.rrd")]
+    assert main([*argv, "--no-viewer"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"mjtrial view: {expected}") and err.endswith(hint + "\n"), err
+    assert err.count("\n") == 1
+    if damaged != MESH_STORE_FILE:  # an episode's series need no meshes
+        with pytest.raises(ValueError) as caught:
+            read_any(copy / damaged)
+        assert str(caught.value).startswith(expected) and str(caught.value).endswith(hint)
+
+
+def test_a_deleted_mesh_store_is_named_with_the_command_that_rebuilds_it(folder, tmp_path, capsys):
+    """Issue 42 item 14: the folder is the output Snakemake sees, so a deleted meshes.rrd is
+    'Nothing to be done'; the folder's record names what is missing and how to rebuild it."""
+    from mjtrial.cli import main
+    from mjtrial.provenance.recording_folders import folder_problem
+
+    copy = tmp_path / "c"
+    shutil.copytree(folder, copy)
+    assert folder_problem(copy) is None
+    (copy / MESH_STORE_FILE).unlink()
+    (copy / "c-state-000001.rrd").unlink()
+    hint = f"`snakemake -c2 -R {copy}` rebuilds its folder and what was made from it"
+    assert folder_problem(copy) == (
+        f"{copy}: its mesh store meshes.rrd and 1 of its 3 episodes' recordings missing "
+        f"(recordings.json records them); {hint}"
+    )
+    argv = ["view", str(copy / "c-state-000000.rrd"), "--output", str(tmp_path / "ep.rrd")]
+    assert main([*argv, "--no-viewer"]) == 1
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith(f"(copy that file beside it, or open the episode with its folder); {hint}")
+    )
+
+
+def test_view_counts_a_file_s_episodes_alike_in_every_message(folder, tmp_path, capsys):
+    """Issue 42 item 15: failures.rrd of 3 episodes (after its summary, with a mesh store) was
+    said to hold 4 recordings by one message and 5 by another; both now count its episodes."""
+    from mjtrial.cli import main
+
+    failures = tmp_path / "failures.rrd"
+    write_failures_rrd(failures, [folder], stamp=STAMP)
+    assert len(RrdReader(failures).recordings()) == N_EPISODES + 2  # summary, mesh store
+    output = str(tmp_path / "x.rrd")
+    assert main(["view", str(failures), "--output", output, "--no-viewer"]) == 1
+    assert f"holds {N_EPISODES} episodes' recordings, expected one;" in capsys.readouterr().err
+    argv = ["view", str(failures), "--condition", "c", "--state", "9", "--output", output]
+    assert main([*argv, "--no-viewer"]) == 1
+    assert capsys.readouterr().err.rstrip().endswith(f"among its {N_EPISODES} episodes' recordings")

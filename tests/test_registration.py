@@ -216,3 +216,57 @@ def test_plan_of_a_registered_design_reads_the_pilot(tmp_path, config, capsys):
     out = capsys.readouterr().out
     assert "0.250 (the pilot: 40 pairs" in out
     assert "pairs for a difference of +0.100" in out
+    assert "no results yet: `mjtrial register --again --reason TEXT` records this one)" in out
+    # Issue 42 item 15: once results exist, registering a new plan would be a design made
+    # after the data; the plan is said to be post hoc instead
+    shard = layout.rollouts_dir() / "slow" / "shard-00000.parquet"
+    shard.parent.mkdir(parents=True)
+    pq.write_table(pa.table({"success": [True]}), shard)
+    assert cli.main(["plan", str(layout.root), "--effect", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "register --again" not in out
+    assert f"results exist ({layout.rollouts_dir()}), so this plan comes after them" in out
+
+
+def test_a_deleted_record_of_deviations_is_named_with_how_to_restore_it(built, tmp_path):
+    """Issue 42 item 15: `deviations.json` is no rule's output, so deleting it was "Nothing to
+    be done", and verify called the manifest (which records the deviation noted) tampered
+    without saying why. Now the workflow's load and verify name the file, what it held and
+    how to restore it, and the command given does."""
+    work = tmp_path / "copy"
+    shutil.copytree(built, work, symlinks=True)
+    results = work / RESULTS
+
+    def threshold(config):
+        config["design"]["falsifier"]["threshold"] = 0.01
+
+    edit_config(work, threshold)
+    run_snakemake(work)
+    noted = json.loads((results / "manifest.json").read_text())["registration"]
+    first_run = noted["deviation_noted"]["first_run_utc"]
+
+    def check():
+        return verify_results(
+            results, config_path=work / "config" / "config.yaml", repo_root=work, resimulate=0
+        )
+
+    assert check().ok, check().format()
+    (results / "deviations.json").unlink()
+    lost = (
+        f"missing: {RESULTS}/manifest.json records the changed design's first run at "
+        f"{first_run} (registration.deviation_noted), a fact of that moment that no job can "
+        "rebuild; put the file back from a copy of the results folder, or `snakemake -c2 -R "
+    )
+    report = check()
+    verdict = report[f"{RESULTS}/deviations.json"]
+    assert verdict.status is Status.MISSING, report.format()
+    [reason] = verdict.reasons
+    assert reason.startswith(lost), reason
+    assert reason.endswith(
+        f"-R {RESULTS}/manifest.json` notes the deviation anew, as first run then"
+    )
+    dry = run_snakemake(work, "-n")
+    line = f"mjtrial: {RESULTS}/deviations.json: {lost}"
+    assert any(x.startswith(line) for x in dry.stderr.splitlines()), dry.stderr
+    run_snakemake(work, "-R", f"{RESULTS}/manifest.json")
+    assert check().ok, check().format()

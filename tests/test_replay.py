@@ -92,6 +92,20 @@ def test_replay_reproduces_recorded_failures(built, tmp_path):
         assert provenance.read_stamp(out)["rule"] == "replay"
 
 
+def test_a_replay_is_written_outside_the_sealed_results_folder_by_default(built, tmp_path):
+    """Issue 42 item 15: `mjtrial replay` wrote `results/<exp>/replay/...` by default, a file
+    in the sealed folder that no rule makes; now `replays/<exp>/` beside the results."""
+    workdir = tmp_path / "copy"
+    shutil.copytree(built, workdir)
+    results = workdir / "results" / "research_mode"
+    before = sorted(p.relative_to(results) for p in results.rglob("*"))
+    state_id = _rollouts(built, "slow").column("state_id")[2].as_py()
+    replay = replay_episode(condition="slow", state_id=state_id, repo_root=workdir)
+    expected = workdir / "replays" / "research_mode" / f"slow_state{state_id}.rrd"
+    assert replay.recording == expected and expected.is_file()
+    assert sorted(p.relative_to(results) for p in results.rglob("*")) == before
+
+
 def test_replay_reports_what_differs(built, tmp_path):
     workdir = tmp_path / "copy"
     shutil.copytree(built, workdir)

@@ -145,3 +145,72 @@ def test_a_magnitudes_band_edges_stay_non_negative():
     assert (
         str(err.value) == "config/config.yaml: analysis.bands.abs_dx[0]: expected >= 0, got -0.018"
     )
+
+
+# A constraint that is not a function of each state's values (issue 42, item 11): the states
+# would depend on more than the seed. Each is refused in one line naming the task file and
+# `valid_state`, in the states job, before any state is written.
+NOT_FUNCTIONS = {
+    # unseeded randomness: a third of the states, a fresh third at each call
+    "unseeded": (
+        "__import__('numpy').random.default_rng().random(len(values['dx'])) < 0.5",
+        "asked twice about the same 10,000 states",
+    ),
+    # the answer depends on the state's place in the batch
+    "place": (
+        "__import__('numpy').arange(len(values['dx'])) % 2 == 0",
+        "asked about the same 10,000 states in reverse order",
+    ),
+    # the answer depends on the batch's size
+    "size": (
+        "(values['dx'] > 0) == (len(values['dx']) > 500)",
+        "asked about the first 100 states alone",
+    ),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(NOT_FUNCTIONS))
+def test_a_constraint_that_is_not_a_function_of_the_state_is_refused_in_one_line(tmp_path, kind):
+    rule, how = NOT_FUNCTIONS[kind]
+    task = _task_file(tmp_path, rule)
+    with pytest.raises(TaskError) as err:
+        draw_counted_states({**GANTRY, "task": task}, repo_root=REPO_ROOT)
+    message = str(err.value)
+    assert message.startswith(
+        f"{task}: valid_state: not a function of each state's values: {how}, it answered "
+    )
+    assert "\n" not in message
+
+
+def test_a_constraint_that_calls_on_its_module_state_is_refused():
+    """A counter in the module: the second call answers otherwise than the first."""
+    calls = []
+
+    def by_call(values):
+        calls.append(1)
+        return np.full(len(values["a"]), len(calls) % 2 == 1) | (values["a"] > 0)
+
+    with pytest.raises(ValueError, match="asked twice about the same 10,000 states, it "):
+        draw_valid_states(seed=1, n=5, ranges=RANGES, parameters=["a", "b"], valid=by_call)
+
+
+def test_a_constraint_that_rejects_every_round_of_n_stops_in_one_line():
+    """A rule that answers the probe's batches (10,000 and 100 states) but rejects every
+    round of n = 7: the draw gives up after 20 times the rounds the probe's acceptance
+    expects, instead of looping for ever."""
+    asked = []
+
+    def batch_rule(values):
+        asked.append(len(values["a"]))
+        return np.full(len(values["a"]), len(values["a"]) != 7) & (values["a"] > 0)
+
+    with pytest.raises(ValueError) as err:
+        draw_valid_states(seed=1, n=7, ranges=RANGES, parameters=["a", "b"], valid=batch_rule)
+    rate = np.mean(np.random.default_rng(1).uniform(-1.0, 1.0, 10_000) > 0)  # the probe's
+    rounds = 20 * int(np.ceil(1 / rate))
+    assert str(err.value) == (
+        f"kept 0 of 7 states in {rounds:,} rounds of 7, where the {rate:.2%} it accepted of the "
+        f"first 10,000 drawn expects about {int(np.ceil(7 / rate)):,} draws; expected each "
+        "state's answer from its own values alone, not the batch's size"
+    )
+    assert asked.count(7) == rounds

@@ -202,6 +202,65 @@ def test_an_outcome_that_depends_on_its_batch_is_not_reconfirmed_in_its_batch(bu
     assert "differ in final_height" in " ".join(report[shard].reasons)
 
 
+def test_an_outcome_that_is_not_reproducible_is_named_as_such_never_as_tampering(
+    built, monkeypatch
+):
+    """Issue 42 item 11: a task whose code draws unseeded randomness (here its measure: each
+    re-simulation's final height its own) makes honest files differ from their re-simulation.
+    Verify re-simulates once more, finds the two disagree, and says the run cannot be
+    reproduced: not tampered, and not verified."""
+    real = resimulation.condition_task
+
+    def unseeded(*args, **kwargs):
+        bound = real(*args, **kwargs)
+        task = bound.task
+
+        def measure(episodes, own=task.measure):
+            measures = dict(own(episodes))
+            noise = np.random.default_rng().normal(0.0, 1e-3, len(episodes.physics))
+            measures["final_height"] = measures["final_height"] + noise
+            return measures
+
+        return dataclasses.replace(bound, task=dataclasses.replace(task, measure=measure))
+
+    monkeypatch.setattr(resimulation, "condition_task", unseeded)
+    report = verified(built, resimulate=2, seed=3)
+    shard = (RESULTS / "rollouts" / "fast" / "shard-00000.parquet").as_posix()
+    assert report[shard].status is Status.IRREPRODUCIBLE, report.format()
+    [reason] = report[shard].reasons
+    assert reason.startswith("differs from its re-simulation (re-simulated episodes for states ")
+    assert "re-simulated twice here the two disagree (two re-simulations for states " in reason
+    assert "the task's code is not a function of its arguments" in reason
+    assert Status.TAMPERED not in {o.status for o in report.outputs}, report.format()
+    assert not report.ok and report.exit_code == 1
+    assert " irreproducible (" in report.summary() and report.summary().startswith("NOT verified")
+
+
+def test_a_file_deleted_from_a_folder_of_recordings_is_named_with_its_rebuild(built, tmp_path):
+    """Issue 42 item 14: a folder of recordings is one output, so Snakemake saw a deleted file
+    in it (a mesh store, an episode's recording) as "Nothing to be done", and verify named the
+    whole folder. Now the workflow's load and verify name what is missing and the command that
+    rebuilds it, and that command does."""
+    workdir = copy_of(built, tmp_path)
+    folder = RESULTS / "rollouts" / "fast" / "shard-00000"
+    episodes = sorted((workdir / folder).glob("*.rrd"))
+    episodes[0].unlink()
+    problem = (
+        f"{folder.as_posix()}: 1 of its {len(episodes)} episodes' recordings missing "
+        f"(recordings.json records it); `snakemake -c2 -R {folder.as_posix()}` rebuilds its "
+        "folder and what was made from it"
+    )
+    report = verified(workdir, resimulate=0)
+    assert report[folder.as_posix()].reasons[0] == problem, report.format()
+    assert not report.ok
+    dry = run_snakemake(workdir, "-n")
+    assert f"mjtrial: {problem}" in dry.stderr.splitlines(), dry.stderr
+    run_snakemake(workdir, "-R", folder.as_posix())
+    assert episodes[0].is_file()
+    report = verified(workdir, resimulate=0)
+    assert report.ok, report.format()
+
+
 def nudge_final_x(shard: Path, *, row: int) -> None:
     """Add 1e-6 to one episode's final x in a shard table, under the table's own stamp: a
     forgery that no stamp, seal or recording shows (the recordings do not carry final x)."""

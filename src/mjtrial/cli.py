@@ -50,9 +50,17 @@ def _registered_plan(args: argparse.Namespace) -> int:
     print(f"power of the design registered on {data['current']['registered_utc']}:")
     print("\n".join(plan_lines(plan)))
     if plan != data["current"]["plan"]:
+        # after results, a plan is post hoc: registering it would record it as the design's
+        rollouts = layout.rollouts_dir()
+        after = rollouts.is_dir() and any(rollouts.rglob("*.parquet"))
         print(
             f"(the registration's own plan used: {data['current']['plan']['source']}; "
-            "`mjtrial register --again` records this one)"
+            + (
+                f"results exist ({rollouts}), so this plan comes after them: report it as a "
+                "post-hoc power analysis beside the registered plan, and do not register it)"
+                if after
+                else "no results yet: `mjtrial register --again --reason TEXT` records this one)"
+            )
         )
     return 0
 
@@ -533,7 +541,11 @@ def main(argv: list[str] | None = None) -> int:
         help=f"a simulator variant of the config's variants (default: {NOMINAL}, the model as "
         "committed)",
     )
-    p.add_argument("--output", help="the .rrd to write (default: results/<exp>/replay/...)")
+    p.add_argument(
+        "--output",
+        help="the .rrd to write (default: replays/<exp>/<condition>_state<id>.rrd, outside the "
+        "sealed results folder)",
+    )
     p.add_argument(
         "--config",
         help="config file (default: the one the results folder's manifest records, else "

@@ -39,7 +39,7 @@ from mjtrial.policy_file import PolicyFileError, contract_path, load_policy_file
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simenv import model_overrides, variant_version
-from mjtrial.studies.variants import edited_values, variant_model
+from mjtrial.studies.variants import resolved_values, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
 from mjtrial.task_checks import check_observations, nominal_episode_sha256, run_task_code
 
@@ -606,16 +606,17 @@ def _check_variant_applies(
     of the condition sets), the runs' simulations are compared."""
     variant = config["variants"][name]
     overrides = model_overrides(variant)
-    changed = set(edited_values(overrides))
+    # by the element each value reaches, whatever name or address each gave it (`floor`, `#0`)
+    changed = resolved_values(model_file, overrides)
     for condition, spec in config["conditions"].items():
         edits = model_edits(spec)
         if not edits:
             continue
         where = f"conditions.{condition}.model"
-        for value in edited_values(edits):
-            if value in changed:
+        for reached, value in resolved_values(model_file, edits).items():
+            if reached in changed:
                 fail(
-                    f"variants.{name}.{value}",
+                    f"variants.{name}.{changed[reached]}",
                     f"condition {condition!r} sets it too ({where}.{value}), and a condition's "
                     f"edits apply after a variant's: the variant's run of {condition!r} would "
                     "keep the condition's value, yet be counted as the variant's; expected a "

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 RESULTS_DIR = "results"
+# Where `mjtrial replay` writes by default: beside the results, never inside a sealed folder.
+REPLAYS_DIR = "replays"
 CRATE_FILE = "ro-crate-metadata.json"  # RO-Crate's name for a crate's metadata file
 CONFIG_FILE = "config/config.yaml"  # the design, relative to the repository root
 NOMINAL = "nominal"  # the variant that is the model as committed
@@ -214,10 +216,14 @@ class Layout:
         """Every failed episode's recording, gathered for the viewer."""
         return self.root / "replay" / "failures.rrd"
 
-    def replay(self, condition: str, state_id: int, variant: str = NOMINAL) -> Path:
-        """Where `mjtrial replay` writes one re-simulated episode by default."""
+    def replay(
+        self, condition: str, state_id: int, variant: str = NOMINAL, *, repo_root: Path
+    ) -> Path:
+        """Where `mjtrial replay` writes one re-simulated episode by default: outside the
+        results folder, whose files the seal records (`replays/<experiment folder>/` in the
+        repository, which git ignores)."""
         of = condition if variant == NOMINAL else f"{variant}_{condition}"
-        return self.root / "replay" / f"{of}_state{state_id}.rrd"
+        return Path(repo_root) / REPLAYS_DIR / self.root.name / f"{of}_state{state_id}.rrd"
 
     @property
     def summary(self) -> Path:

@@ -15,7 +15,7 @@ import jsonschema
 import numpy as np
 
 from mjtrial.engine import batch_size_for, episode_steps, iter_batches
-from mjtrial.policy_file import PolicyFile, load_policy_file, policy_task
+from mjtrial.policy_file import PolicyFile, RelativeColumn, load_policy_file, policy_task
 from mjtrial.task import BoundTask, Task, TaskError, load_task
 from mjtrial.task_checks import nominal_values
 
@@ -75,8 +75,11 @@ class PolicyCheck:
         ]
 
 
-def _actuator(entry: str | tuple[str, ...]) -> str:
-    """A contract's actuator entry as said: one name, or the names one column drives."""
+def _actuator(entry: str | tuple[str, ...] | RelativeColumn) -> str:
+    """A contract's actuator entry as said: one name, or the names one column drives (relative
+    to their joints: `relative [a, b] x 0.5`)."""
+    if isinstance(entry, RelativeColumn):
+        return f"relative {_actuator(entry.actuators)} x {entry.scale:g}"
     return entry if isinstance(entry, str) else f"[{', '.join(entry)}]"
 
 

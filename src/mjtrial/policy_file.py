@@ -87,6 +87,14 @@ class Recurrent:
 
 
 @dataclass(frozen=True)
+class RelativeColumn:
+    """A contract's column relative to its actuators' joints: `Control(relative=True)`."""
+
+    actuators: tuple[str, ...]
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
 class Contract:
     """A policy file's contract, as read (see the module's docstring)."""
 
@@ -95,7 +103,8 @@ class Contract:
     observations: tuple[str, ...]
     input: str
     output: str
-    actuators: tuple[str | tuple[str, ...], ...]  # per output column: one actuator or several
+    # per output column: one actuator or several, or a column relative to their joints
+    actuators: tuple[str | tuple[str, ...] | RelativeColumn, ...]
     action_scale: str
     control_period: float
     mean: np.ndarray | None = None  # (n_columns,) normalization, or None
@@ -120,7 +129,12 @@ class Contract:
         if not self.mocap and all(isinstance(a, str) for a in self.actuators):
             return ()
         return (
-            *(Control(a, signs=self.signs_of(k) or None) for k, a in enumerate(self.actuators)),
+            *(
+                Control(a.actuators, relative=True, scale=a.scale)
+                if isinstance(a, RelativeColumn)
+                else Control(a, signs=self.signs_of(k) or None)
+                for k, a in enumerate(self.actuators)
+            ),
             *(
                 MocapAction(**{k: tuple(v) if isinstance(v, list) else v for k, v in m.items()})
                 for m in self.mocap
@@ -209,12 +223,25 @@ def read_contract(onnx_file: Path) -> Contract:
     for key, values in [
         ("control_period", [raw["control_period"]]),
         *((f"normalization.{k}", norm[k]) for k in ("mean", "std") if norm),
+        *(
+            (f"mocap.{i}.{k}", v if isinstance(v, list) else [v])
+            for i, m in enumerate(raw.get("mocap") or ())
+            for k, v in m.items()
+            if k not in ("body", "relative_to")
+        ),
+        *(
+            (f"actuators.{i}.scale", [a["scale"]])
+            for i, a in enumerate(raw["actuators"])
+            if isinstance(a, dict) and "scale" in a
+        ),
     ]:
         bad = [v for v in values if not math.isfinite(v)]
         if bad:
             raise PolicyFileError(f"{path}: {key}: {bad[0]}; expected finite numbers")
     for k, entry in enumerate(raw["actuators"]):
-        if isinstance(entry, dict) and len(entry["signs"]) != len(entry["actuators"]):
+        if isinstance(entry, dict) and "signs" in entry and len(entry["signs"]) != len(
+            entry["actuators"]
+        ):
             raise PolicyFileError(
                 f"{path}: actuators.{k}.signs: {entry['signs']}; expected one sign (1 or -1) "
                 f"for each of its {len(entry['actuators'])} actuators"
@@ -225,7 +252,7 @@ def read_contract(onnx_file: Path) -> Contract:
         observations=tuple(raw["observations"]),
         input=raw["input"],
         output=raw["output"],
-        actuators=tuple(_actuators_entry(a) for a in raw["actuators"]),
+        actuators=tuple(_column(a) for a in raw["actuators"]),
         action_scale=raw["action_scale"],
         control_period=float(raw["control_period"]),
         mean=None if norm is None else np.asarray(norm["mean"], dtype=np.float64),
@@ -233,15 +260,24 @@ def read_contract(onnx_file: Path) -> Contract:
         recurrent=tuple(Recurrent(**r) for r in raw.get("recurrent") or ()),
         producer=raw.get("producer", ""),
         mocap=tuple(raw.get("mocap") or ()),
-        signs=tuple(tuple(a["signs"]) if isinstance(a, dict) else () for a in raw["actuators"]),
+        signs=tuple(
+            tuple(a["signs"]) if isinstance(a, dict) and "signs" in a else ()
+            for a in raw["actuators"]
+        ),
     )
 
 
-def _actuators_entry(entry: str | list[str] | Mapping[str, Any]) -> str | tuple[str, ...]:
-    """An `actuators` entry's names: a name, or those of a list or a signed column."""
-    if isinstance(entry, str):
-        return entry
-    return tuple(entry["actuators"] if isinstance(entry, dict) else entry)
+def _column(entry: Any) -> str | tuple[str, ...] | RelativeColumn:
+    """A contract's `actuators` entry (schema-checked) as `Contract.actuators` holds it: a
+    name, a tuple of names (a list, or a signed column's: its signs are `Contract.signs`), or
+    a column relative to the joints."""
+    if isinstance(entry, dict):
+        names = entry["actuators"]
+        names = (names,) if isinstance(names, str) else tuple(names)
+        if entry.get("relative"):
+            return RelativeColumn(names, float(entry.get("scale", 1.0)))
+        return names
+    return entry if isinstance(entry, str) else tuple(entry)
 
 
 def runtime_settings() -> dict[str, Any]:
@@ -391,6 +427,9 @@ class OnnxPolicy:
         self.columns = np.asarray(columns, dtype=np.int64)  # the ctrl column of each output
         self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
         self.half_span = (self.high - self.low) / 2.0
+        # a column relative to its joints is a step from their positions: given raw, and its
+        # ctrl clipped (by MuJoCo) only once the positions are added (`mjtrial.actuation`)
+        self.absolute = np.array([not isinstance(a, RelativeColumn) for a in contract.actuators])
         self.nu, self.n_mocap = nu, n_mocap
         self.outputs = [contract.output, *(r.output for r in contract.recurrent)]
         self.widths = [contract.n_outputs, *(r.size for r in contract.recurrent)]
@@ -430,10 +469,15 @@ class OnnxPolicy:
         action = raw.astype(np.float64)
         moved = action[:, action.shape[1] - self.n_mocap :]
         action = action[:, : action.shape[1] - self.n_mocap]
+        absolute = self.absolute
         if self.contract.action_scale == "ctrlrange":
-            action = self.low + (action + 1.0) * self.half_span
+            action[:, absolute] = (
+                self.low[absolute] + (action[:, absolute] + 1.0) * self.half_span[absolute]
+            )
         # clipped as MuJoCo clamps a ctrllimited actuator: the ctrl logged is the ctrl applied
-        action = np.minimum(np.maximum(action, self.low), self.high)
+        action[:, absolute] = np.minimum(
+            np.maximum(action[:, absolute], self.low[absolute]), self.high[absolute]
+        )
         ctrl = np.zeros((len(raw), self.nu))
         ctrl[:, self.columns] = action
         if self.n_mocap:
@@ -463,9 +507,7 @@ class OnnxPolicy:
         all k instants at once: per call, it cost 2.5 times the graph's own 11 µs
         (benchmarks/bench_policy_file.py)."""
         x = self._graph_input(observations)
-        state = {
-            r.input: np.zeros((1, r.size), dtype=np.float32) for r in self.contract.recurrent
-        }
+        state = {r.input: np.zeros((1, r.size), dtype=np.float32) for r in self.contract.recurrent}
         raw = np.empty((len(x), self.contract.n_outputs), dtype=np.float32)
         for k in range(len(x)):
             answers = self._run(x[k : k + 1].copy(), state)  # a row of its own, as a reset's
@@ -527,7 +569,8 @@ class PolicyFile:
             )
         columns, ranges = [], []
         for k, entry in enumerate(self.contract.actuators):
-            names = (entry,) if isinstance(entry, str) else entry
+            relative = isinstance(entry, RelativeColumn)
+            names = entry.actuators if relative else (entry,) if isinstance(entry, str) else entry
             indices = []
             for name in names:
                 try:  # a name, or an unnamed actuator's `#<index>` / `on:<joint>` (`address`)
@@ -539,6 +582,7 @@ class PolicyFile:
                     ) from None
                 if (
                     self.contract.action_scale == "ctrlrange"
+                    and not relative
                     and not model.actuator_ctrllimited[index]
                 ):
                     raise PolicyFileError(
@@ -547,7 +591,7 @@ class PolicyFile:
                     )
                 indices.append(index)
             # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as is)
-            limited = model.actuator_ctrllimited[indices].astype(bool)[:, None]
+            limited = model.actuator_ctrllimited[indices].astype(bool)[:, None] & (not relative)
             own = np.where(limited, model.actuator_ctrlrange[indices], [-np.inf, np.inf])
             # the column's range: each actuator's divided by its sign ([a, -a] fingers whose
             # ranges are [0, 0.04] and [-0.04, 0] share [0, 0.04])

@@ -394,3 +394,28 @@ def manifest_section(
         "deviation_noted": noted,
         "plan": current.get("plan"),
     }
+
+
+def lost_deviation_note(layout: Layout) -> str | None:
+    """Why the manifest's noted deviation (`deviation_noted`, read from `layout.deviations` when
+    it was built) is no longer in `layout.deviations` (missing, or without it), with how to
+    restore it; None if it is.
+    No rule makes the file, so Snakemake sees nothing to do when it is deleted."""
+    try:
+        manifest = json.loads(provenance.read_output_text(layout.manifest))
+        noted = manifest["registration"]["deviation_noted"]
+        seen = deviations_seen(layout)
+    except (OSError, ValueError, KeyError, TypeError, RegistrationError):
+        return None  # no manifest or no note; an unreadable record is said where it is read
+    if not isinstance(noted, Mapping):
+        return None
+    keys = ("design_sha256", "registered_sha256")
+    if any(all(e.get(k) == noted.get(k) for k in keys) for e in seen):
+        return None
+    state = "missing" if not layout.deviations.exists() else "without the manifest's deviation"
+    return (
+        f"{state}: {layout.manifest} records the changed design's first run "
+        f"at {noted.get('first_run_utc')} (registration.deviation_noted), a fact of that moment "
+        "that no job can rebuild; put the file back from a copy of the results folder, or "
+        f"`snakemake -c2 -R {layout.manifest}` notes the deviation anew, as first run then"
+    )

@@ -191,8 +191,10 @@ def replay_episode(
     rollouts), or the model as committed. `results_dir` is the experiment's folder (default:
     `results/<experiment>` of the config).
 
-    `output` is guarded (`check_output`) before any work: inside the results folder only a new
-    `.rrd`, and never over a file that an earlier replay did not write, unless `force`.
+    `output` (default: `replays/<experiment folder>/<condition>_state<id>.rrd` in the
+    repository, outside the sealed results folder) is guarded (`check_output`) before any work:
+    inside the results folder only a new `.rrd`, and never over a file that an earlier replay
+    did not write, unless `force`.
 
     Raises:
       ReplayMismatch: the outcome or final state differs from `rollouts/<condition>.parquet`;
@@ -227,7 +229,7 @@ def replay_episode(
         layout = Layout.of(config["experiment"], base=repo_root / RESULTS_DIR)
     else:
         layout = Layout(results_dir)
-    output = output or layout.replay(condition, state_id, variant)
+    output = output or layout.replay(condition, state_id, variant, repo_root=repo_root)
     check_output(output, results=layout.root, force=force)
     check_inputs(layout, config, condition, variant)
     check_config(config, source=str(config_path), repo_root=repo_root)

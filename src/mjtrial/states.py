@@ -95,6 +95,12 @@ def generate_initial_states(
 # would cost over 100 times the states' draw, and a constraint that tight is usually a mistake.
 PROBE_DRAWS = 10_000
 MIN_ACCEPTANCE = 0.01
+# The probe's states asked again alone, in a batch of another size.
+ALONE_DRAWS = 100
+# Rounds drawn per expected round (1 / the probe's acceptance) before the draw gives up: at an
+# acceptance the probe measured, n states kept in that many rounds fail with a chance under
+# e^-20 (a binomial of mean 20 n); a constraint that keeps fewer answers by the batch.
+ROUNDS_PER_EXPECTED = 20
 
 
 class ConstraintError(ValueError):
@@ -121,7 +127,10 @@ def draw_valid_states(
 
     Before that, the constraint is asked about `PROBE_DRAWS` states (a generator of the same
     seed, one draw of that many per parameter): under `MIN_ACCEPTANCE` valid is refused
-    (`ConstraintError`), as is an answer that is not (rows,) booleans.
+    (`ConstraintError`), as is an answer that is not (rows,) booleans, or one that is not a
+    function of each state's values (`check_state_function`). A draw that needs over
+    `ROUNDS_PER_EXPECTED` times the rounds the probe's acceptance expects is refused too: the
+    constraint answers rounds of n otherwise than the probe's batch.
     """
     if n < 1:
         raise ValueError(f"n: expected at least 1 state, got {n}")
@@ -132,16 +141,26 @@ def draw_valid_states(
         parameters=parameters,
         distributions=distributions,
     )
-    rate = float(np.mean(_valid_rows(valid, probe, parameters)))
+    answers = _valid_rows(valid, probe, parameters)
+    rate = float(np.mean(answers))
     if rate < MIN_ACCEPTANCE:
         raise ConstraintError(
             f"expected at least {MIN_ACCEPTANCE:.0%} of states valid, got {rate:.2%} of the "
             f"first {PROBE_DRAWS:,} drawn"
         )
+    check_state_function(valid, probe, parameters, answers)
     rng = np.random.default_rng(seed)
     kept: list[np.ndarray] = []  # per round, its valid rows (k, n_parameters)
     count = rejected = 0
+    most = ROUNDS_PER_EXPECTED * int(np.ceil(1 / rate))
     while count < n:
+        if len(kept) == most:
+            raise ConstraintError(
+                f"kept {count} of {n} states in {most:,} rounds of {n}, where the "
+                f"{rate:.2%} it accepted of the first {PROBE_DRAWS:,} drawn expects about "
+                f"{int(np.ceil(n / rate)):,} draws; expected each state's answer from its own "
+                "values alone, not the batch's size"
+            )
         block = np.column_stack(
             [draw_parameter(rng, p, ranges, distributions, n) for p in parameters]
         )
@@ -154,6 +173,34 @@ def draw_valid_states(
         kept.append(block[needed])
         count += len(needed)
     return _table(np.concatenate(kept), parameters), rejected
+
+
+def check_state_function(
+    valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
+    table: pa.Table,
+    parameters: Sequence[str],
+    answers: np.ndarray,
+) -> None:
+    """Refuse a constraint whose answer for a state is not a function of that state's values:
+    asked again about the same states (`answers` is its first answer on `table`), in reverse
+    order, and about the first `ALONE_DRAWS` alone, it must answer alike (`ConstraintError`).
+    Unseeded randomness, module state, call order, the clock or the batch would let the
+    states depend on more than the seed."""
+    n, alone = table.num_rows, min(table.num_rows, ALONE_DRAWS)
+    reverse = np.arange(n)[::-1]
+    asked = (
+        (f"asked twice about the same {n:,} states", table, answers),
+        (f"asked about the same {n:,} states in reverse order", table.take(reverse), answers[::-1]),
+        (f"asked about the first {alone:,} states alone", table.slice(0, alone), answers[:alone]),
+    )
+    for how, states, expected in asked:
+        differ = int((_valid_rows(valid, states, parameters) != expected).sum())
+        if differ:
+            raise ConstraintError(
+                f"not a function of each state's values: {how}, it answered {differ:,} of them "
+                "otherwise; expected each state's answer from its own values alone (no "
+                "unseeded randomness, module state, call order, clock or batch size)"
+            )
 
 
 def _table(rows: np.ndarray, parameters: Sequence[str]) -> pa.Table:

@@ -128,6 +128,7 @@ def run_task_code(
             ) from None
         _check_outcome(task, batch.episodes, thresholds)
     _check_parameters_applied(bound)
+    check_setup_is_a_function(bound)
     _check_setup_leaves_model(bound)
 
 
@@ -170,6 +171,30 @@ def nominal_episode_sha256(bound: BoundTask) -> str:
     values = {k: v[0] for k, v in nominal_values(bound.task).items()}
     model, state = bound.episode(values, scratch=mujoco.MjData(bound.model))
     return simulated_sha256(model, state)
+
+
+def check_setup_is_a_function(bound: BoundTask) -> None:
+    """Refuse an `episode_setup` whose episode depends on more than its arguments (unseeded
+    randomness, module state, call order, the clock): the nominal state's episode and the
+    low corner's (every parameter at its low value), each set up twice, in the order nominal,
+    low, nominal, low, must give the same model and initial state each time. Raises
+    `TaskError` (one line naming the task file and the function)."""
+    task = bound.task
+    if task.episode_setup is None:
+        return
+    scratch = mujoco.MjData(bound.model)
+    nominal = {k: v[0] for k, v in nominal_values(task).items()}
+    states = {"nominal": nominal, "low": {p.name: p.low for p in task.state_parameters}}
+    seen: dict[str, str] = {}
+    for name in (*states, *states):
+        sha = simulated_sha256(*bound.episode(states[name], scratch=scratch))
+        if seen.setdefault(name, sha) != sha:
+            raise TaskError(
+                f"{_where(task)}: episode_setup: not a function of its arguments: the {name} "
+                "state's episode differed between two setups (another state's between them); "
+                "expected the same model and initial state for the same values (no unseeded "
+                "randomness, module state, call order or clock)"
+            )
 
 
 def _check_parameters_applied(bound: BoundTask) -> None:

@@ -21,7 +21,12 @@ from mjtrial.layout import (
 )
 from mjtrial.policy_file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
-from mjtrial.registration import RegistrationError, ensure_registered, note_deviation
+from mjtrial.registration import (
+    RegistrationError,
+    ensure_registered,
+    lost_deviation_note,
+    note_deviation,
+)
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
@@ -150,6 +155,15 @@ def note_design_deviation():
 
 
 register_design()
+
+
+def say_lost_deviation_note():
+    """The deviations noted are no rule's output: a deleted record is named here."""
+    if workflow.is_main_process and (lost := lost_deviation_note(LAYOUT)):
+        print(f"mjtrial: {LAYOUT.deviations}: {lost}", file=sys.stderr)
+
+
+say_lost_deviation_note()
 
 
 def qualified(wildcards):

@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 from mjtrial.layout import script_path
+from mjtrial.provenance.recording_folders import damaged_folders
 from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.workflow_script import (
     cancel_scheduler_timers,
@@ -73,8 +74,16 @@ def recover_killed_run():
         )
 
 
+def say_damaged_folders():
+    """A folder of recordings is one output: Snakemake sees a file deleted inside it as
+    nothing to do, so each one is named here, with the command that rebuilds it."""
+    for problem in damaged_folders(LAYOUT.root):
+        print(f"mjtrial: {problem}", file=sys.stderr)
+
+
 if workflow.is_main_process:
     recover_killed_run()
+    say_damaged_folders()
 
 
 def on_start():

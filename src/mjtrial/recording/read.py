@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
 from mjtrial.provenance import RECORDING_FOLDER_STAMP, read_stamp
+from mjtrial.provenance.recording_folders import rebuild_hint
 from mjtrial.recording.arrow import (
     QUATERNION,
     RECORDING_NAME,
@@ -24,10 +26,12 @@ from mjtrial.recording.arrow import (
     data_columns,
 )
 from mjtrial.recording.names import (
+    CLOSEST_CALLS_SUMMARY,
     EPISODE_COMPONENT,
     EPISODE_PROPERTY,
     FAILURE_PREFIX,
     FAILURES_PROPERTY,
+    FAILURES_SUMMARY,
     JSON_FIELD,
     MESH_STORE_FILE,
     MESH_STORE_PREFIX,
@@ -55,14 +59,27 @@ def recording_files(path: str | os.PathLike[str]) -> list[Path]:
 
 
 def open_rrd(path: str | os.PathLike[str]) -> RrdReader:
-    """rerun's reader of a .rrd file, with errors that name the file."""
+    """rerun's reader of a .rrd file, with errors that name the file. rerun reads a file
+    lazily, so its index is read here: a truncated or damaged file is one `ValueError` naming
+    it, not a traceback from whichever read comes first."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such .rrd file")
+        raise FileNotFoundError(f"{path}: no such .rrd file{rebuild_hint(path)}")
     try:
-        return RrdReader(path)
+        # a file without its footer (cut short) is read by a whole-file scan, with a warning
+        # on the console, and then cannot give a store: every file mjtrial writes has one
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            reader = RrdReader(path)
+            reader.recordings()
+        if any("no footer" in str(w.message) for w in said):
+            raise ValueError("it has no footer, which every file written whole has")
     except (RuntimeError, ValueError, OSError) as exc:
-        raise ValueError(f"{path}: not a readable .rrd file: {exc}") from exc
+        why = " ".join(str(exc).split()).replace(f"Failed to read RRD file at {path}: ", "")
+        raise ValueError(
+            f"{path}: not a readable .rrd file (truncated or damaged: {why}){rebuild_hint(path)}"
+        ) from exc
+    return reader
 
 
 def raw_properties(reader: RrdReader, entry: StoreEntry) -> dict[str | None, dict[str, Any]]:
@@ -191,6 +208,7 @@ def find_mesh_store(
     raise FileNotFoundError(
         f"{path}: its meshes are in mesh store {wanted!r}, which is neither in the file nor in "
         f"{other} (copy that file beside it, or open the episode with its folder)"
+        f"{rebuild_hint(other)}"
     )
 
 
@@ -206,17 +224,31 @@ def recording_chunks(reader: RrdReader, entry: StoreEntry, path: Path) -> list[C
     return own + [c for c in meshes if c.entity_path != PROPERTIES]
 
 
+def episode_entries(reader: RrdReader) -> list[StoreEntry]:
+    """A file's episodes' recordings: its recordings but a mesh store and a summary (the
+    first recording of failures.rrd and closest_calls.rrd). What a message counts."""
+    return [
+        e
+        for e in reader.recordings()
+        if not is_mesh_store(e) and e.recording_id not in (FAILURES_SUMMARY, CLOSEST_CALLS_SUMMARY)
+    ]
+
+
+def _episodes(n: int) -> str:
+    return f"{n} episode's recording" if n == 1 else f"{n} episodes' recordings"
+
+
 def find_episode_entry(reader: RrdReader, path: Path, condition: str, state_id: int) -> StoreEntry:
     """The recording of one episode in an open file (its own, or its copy in failures.rrd)."""
     rid = episode_recording_id(condition, state_id)
     wanted = (rid, FAILURE_PREFIX + rid)
-    entries = reader.recordings()
+    entries = episode_entries(reader)
     for entry in entries:
         if entry.recording_id in wanted:
             return entry
     raise KeyError(
         f"{path}: no recording of condition {condition!r}, state {state_id} "
-        f"(recording id {rid!r}) among its {len(entries)} recording(s)"
+        f"(recording id {rid!r}) among its {_episodes(len(entries))}"
     )
 
 
@@ -270,11 +302,11 @@ def find_episode_file(
 def only_episode_entry(reader: RrdReader, path: Path) -> StoreEntry:
     """The one episode's recording of a file that holds one (a condition folder's file, a
     replay's), besides any mesh store."""
-    entries = [e for e in reader.recordings() if not is_mesh_store(e)]
+    entries = episode_entries(reader)
     if len(entries) != 1:
         raise ValueError(
-            f"{path}: holds {len(entries)} recordings, expected one episode's; give condition "
-            "and state_id to pick one"
+            f"{path}: holds {_episodes(len(entries))}, expected one; give condition and "
+            "state_id to pick one"
         )
     return entries[0]
 

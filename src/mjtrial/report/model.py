@@ -132,16 +132,27 @@ def model_files_text(files: dict[str, str] | None) -> str:
     )
 
 
-def equality_lines(model: mujoco.MjModel) -> list[str]:
+def equality_lines(model: mujoco.MjModel, *, after_setup: bool = False) -> list[str]:
     """One line per equality constraint (a mocap weld moves an arm): what it binds, whether it
-    is active at the start, and its solref (how stiff it is)."""
+    is active at the start, its solref (how stiff it is), and for a weld what it holds the two
+    bodies to: the relative pose (position, quaternion w, x, y, z), the anchor and the torque
+    scale (`eq_data`). `model` is what acts at the nominal episode's start: after the task's
+    `episode_setup` (`after_setup`), which may set them (Metaworld's Sawyer resets its weld)."""
     if model.neq == 0:
         return []
-    lines = ["- Equality constraints (from the compiled model):"]
+    of = "the nominal episode's model, after the task's `episode_setup`"
+    lines = [f"- Equality constraints ({of if after_setup else 'from the compiled model'}):"]
     for i in range(model.neq):
         state = "active" if model.eq_active0[i] else "inactive at the start"
         solref = ", ".join(f"{v:g}" for v in model.eq_solref[i])
-        lines.append(f"  - {_label(model, _OBJ.mjOBJ_EQUALITY, i)}: {state}, solref {solref}")
+        line = f"  - {_label(model, _OBJ.mjOBJ_EQUALITY, i)}: {state}, solref {solref}"
+        if model.eq_type[i] == mujoco.mjtEq.mjEQ_WELD:
+            data = model.eq_data[i]  # anchor (3), relative position (3), quaternion (4), scale
+            line += (
+                f", relative pose {_vec(data[3:6])} m and {_vec(data[6:10])} (w, x, y, z), "
+                f"anchor {_vec(data[0:3])} m, torque scale {data[10]:g}"
+            )
+        lines.append(line)
     return lines
 
 

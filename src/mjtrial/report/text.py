@@ -47,7 +47,7 @@ from mjtrial.report.stopping import stopping_section
 from mjtrial.stages.condition import condition_model
 from mjtrial.stages.stamping import DECLARED_STUDIES, config_slice, declared_studies
 from mjtrial.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
-from mjtrial.task import ClosedLoop, Control, Task, call, load_task
+from mjtrial.task import BoundTask, ClosedLoop, Control, Task, call, load_task
 from mjtrial.task.actions import bind_actions
 
 
@@ -360,6 +360,16 @@ def _controller_lines(
     return lines
 
 
+def _nominal_start(model: mujoco.MjModel, task: Task) -> mujoco.MjModel:
+    """The nominal episode's own model as it starts: a task's `episode_setup` may edit it (a
+    weld's relative pose and torque scale), and that is what acts, not the compiled model."""
+    if task.episode_setup is None:
+        return model
+    values = {p.name: p.nominal_value for p in task.state_parameters}
+    start, _ = BoundTask.of(task, model).episode(values, scratch=mujoco.MjData(model))
+    return start
+
+
 def _setup(
     summary: Mapping[str, Any],
     config: Mapping[str, Any],
@@ -379,7 +389,7 @@ def _setup(
         f"- Model: `{m['path']}`, sha256 `{m['sha256']}` {model_files_text(m.get('files'))}.",
         solver_line(m, model, task.controller),
         *actuator_lines(model, keyframe=task.keyframe),
-        *equality_lines(model),
+        *equality_lines(_nominal_start(model, task), after_setup=task.episode_setup is not None),
         *_rate_lines(model, task, config, repo_root / m["path"]),
         *_controller_lines(model, task, config["conditions"], repo_root),
         *joint_lines(model),

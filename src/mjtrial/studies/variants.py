@@ -213,6 +213,30 @@ def _spec_element(
     return getattr(spec, SPEC_ELEMENTS[kind])[index]
 
 
+def _index(spec: mujoco.MjSpec, kind: str, element: Any) -> int:
+    """The element's place in the spec's list of its kind: the compiled model's index."""
+    return next(i for i, e in enumerate(getattr(spec, SPEC_ELEMENTS[kind])) if e == element)
+
+
+def resolved_values(model_file: Path | str, edits: Mapping[str, Any]) -> dict[str, str]:
+    """Each value `edits` set (`edited_values`), keyed by the element it reaches: an element's
+    value as `<kind>.#<index>.<attribute>` whatever name or address gave it (`floor`, `#0`,
+    `on:...`), an option's or a class's as `edited_values` gives it; each mapped to the key
+    the edits gave. Edits `apply_overrides` accepted."""
+    spec = load_spec(model_file)
+    compiled: list[mujoco.MjModel] = []
+    found: dict[str, str] = {}
+    for kind, entries in edits.items():
+        if kind in ("option", "default"):
+            found |= {k: k for k in edited_values({kind: entries})}
+            continue
+        for ref, attributes in entries.items():
+            element = _spec_element(spec, kind, ref, f"{kind}.{ref}", compiled)
+            index = _index(spec, kind, element)
+            found |= {f"{kind}.#{index}.{a}": f"{kind}.{ref}.{a}" for a in attributes}
+    return found
+
+
 def apply_overrides(
     spec: mujoco.MjSpec, overrides: Mapping[str, Any], *, key_prefix: str = "overrides"
 ) -> None:
@@ -225,6 +249,7 @@ def apply_overrides(
     if not isinstance(overrides, Mapping):
         _fail(key_prefix, f"expected a mapping of {', '.join(OVERRIDE_KINDS)}")
     compiled: list[mujoco.MjModel] = []  # the spec compiled once, if an address needs it
+    edited: dict[tuple[str, int], str] = {}  # (kind, element's index) -> the name it was given
     for kind, entries in overrides.items():
         where = f"{key_prefix}.{kind}"
         if kind not in OVERRIDE_KINDS:
@@ -241,6 +266,13 @@ def apply_overrides(
             continue
         for element_name, attributes in entries.items():
             element = _spec_element(spec, kind, element_name, f"{where}.{element_name}", compiled)
+            first = edited.setdefault((kind, _index(spec, kind, element)), element_name)
+            if first != element_name:
+                _fail(
+                    f"{where}.{element_name}",
+                    f"the same {kind} as {where}.{first}; expected each element once, under one "
+                    "name (else the last edit would win)",
+                )
             if not isinstance(attributes, Mapping) or not attributes:
                 _fail(f"{where}.{element_name}", "expected a non-empty mapping of attributes")
             for name, value in attributes.items():

@@ -45,6 +45,8 @@ class Control:
     def bind(self, model: mujoco.MjModel, column: int) -> ControlColumn:
         if not self.actuators:
             raise TaskError("expected at least one actuator")
+        if not np.isfinite(self.scale):
+            raise TaskError(f"scale: expected a finite number, got {self.scale!r}")
         signs = ()
         if self.signs is not None:
             if len(self.signs) != len(self.actuators) or any(s not in (1, -1) for s in self.signs):
@@ -112,6 +114,10 @@ class MocapAction:
         mocap = int(model.body_mocapid[body])
         if mocap < 0:
             raise TaskError(f"expected body {self.body!r} to be a mocap body")
+        numbers = {"scale": self.scale, "max_step": self.max_step, "low": self.low}
+        for name, value in (*numbers.items(), ("high", self.high)):
+            if value is not None and not np.isfinite(np.asarray(value, dtype=float)).all():
+                raise TaskError(f"{name}: expected finite numbers, got {value!r}")
         if self.relative_to not in RELATIVE_TO:
             raise TaskError(
                 f"relative_to: expected one of {list(RELATIVE_TO)}, got {self.relative_to!r}"

@@ -128,7 +128,8 @@ def resolve(model: mujoco.MjModel, kind: str | mujoco.mjtObj, ref: str) -> int:
         raise AddressError(f"expected {_a(noun)} name, '#<index>' or 'on:<name>', got {ref!r}")
     if ref.startswith("#"):
         digits = ref[1:]
-        if not digits.isdigit() or int(digits) >= n:
+        # ASCII digits only: `str.isdigit` takes "²", which int() refuses
+        if not (digits.isascii() and digits.isdecimal()) or int(digits) >= n:
             raise AddressError(
                 f"expected '#<index>' with an index 0 to {n - 1} among the model's "
                 f"{_count(n, noun)}, got {ref!r}"

@@ -39,6 +39,7 @@ from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
 from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
+from mjtrial.provenance.recording_folders import folder_problem
 from mjtrial.stages.look import shards_run
 from mjtrial.stages.states import piloted_overlap
 from mjtrial.verify.chain import (
@@ -56,7 +57,7 @@ from mjtrial.verify.chain import (
 from mjtrial.verify.contracts import contract_change
 from mjtrial.verify.folder import placed_as_recorded, recorded_as
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE, recompute
-from mjtrial.verify.registration import check_registration
+from mjtrial.verify.registration import check_deviations_kept, check_registration
 
 __all__ = [
     "STAMPED_SUFFIXES",
@@ -197,7 +198,7 @@ def _contracts_changed(stamps: Mapping[str, Any], *, repo_root: Path) -> dict[st
     changed: dict[str, str] = {}
     for path, stamp in stamps.items():
         inputs = stamp.get("inputs") if isinstance(stamp, Mapping) else None
-        for name, records in (inputs.items() if isinstance(inputs, Mapping) else ()):
+        for name, records in inputs.items() if isinstance(inputs, Mapping) else ():
             if name == "policy" or str(name).startswith("policy:"):
                 if isinstance(records, list) and (
                     why := contract_change(records, repo_root=repo_root)
@@ -335,6 +336,7 @@ def verify_results(
     stamps: dict[str, dict[str, Any]] = {}
     unreadable: dict[str, str] = {}
     leftovers: list[Skipped] = []
+    damaged: dict[str, str] = {}  # a folder of recordings without a file its record names
     for file in _stamped_files(results_dir):
         rel = _relative(file, repo_root)
         if (_is_rollout_output(layout, file) and file not in ours) or file in unrecorded:
@@ -347,6 +349,8 @@ def verify_results(
         if _is_old_figure(layout, file):
             leftovers.append(Skipped(rel, "a figure no current report draws (an earlier layout)"))
             continue
+        if provenance.is_recording_folder(file) and (problem := folder_problem(file)):
+            damaged[rel] = problem.replace(str(file), rel)
         try:
             stamps[rel] = provenance.read_stamp(file)
         except FileNotFoundError:
@@ -364,7 +368,9 @@ def verify_results(
         except OSError:
             return None
 
-    def check(differs: Mapping[str, str] | None = None) -> VerifyReport:
+    def check(
+        differs: Mapping[str, str] | None = None, irreproducible: Mapping[str, str] | None = None
+    ) -> VerifyReport:
         return check_stamps(
             stamps,
             current=current,
@@ -386,7 +392,11 @@ def verify_results(
                     ),
                 ]
             ],
-            recomputed_differs=differs,
+            recomputed_differs={
+                p: "; ".join(w for w in (damaged.get(p), (differs or {}).get(p)) if w)
+                for p in {*damaged, *(differs or {})}
+            },
+            irreproducible=irreproducible,
             outdated={
                 **_crate_outdated(layout, stamps, repo_root),
                 **_contracts_changed(stamps, repo_root=repo_root),
@@ -410,8 +420,8 @@ def verify_results(
         or os.path.relpath(config_path, repo_root),
         stamps=stamps,
     )
-    if found.differs:
-        report = check(found.differs)
+    if found.differs or found.irreproducible:
+        report = check(found.differs, found.irreproducible)
     # Another CPU is a doubt until re-simulation here settles it: when every episode verify
     # re-simulated agrees bit for bit, it is a note.
     settled = found.resimulated > 0 and not found.differs
@@ -420,11 +430,15 @@ def verify_results(
     registered = check_registration(
         layout, config, path=_relative(layout.registration, repo_root), repo_root=repo_root
     )
+    kept = check_deviations_kept(
+        layout, path=_relative(layout.deviations, repo_root), repo_root=repo_root
+    )
     return dataclasses.replace(
         report,
         outputs=(
             *_piloted(layout, report.outputs, repo_root=repo_root),
             *([registered] if registered else []),
+            *([kept] if kept else []),
         ),
         skipped=(*report.skipped, *leftovers),
         warnings=(*config_warnings, *(w for w in report.warnings if w not in platform)),

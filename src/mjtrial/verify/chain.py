@@ -51,6 +51,9 @@ class Status(Enum):
     STALE = "stale"
     TAMPERED = "tampered"
     MISSING = "missing"
+    # differs from its re-simulation, and two re-simulations disagree: the task's code is not a
+    # function of its arguments, so the run cannot be reproduced (no sign of tampering)
+    IRREPRODUCIBLE = "irreproducible"
 
 
 @dataclass(frozen=True)
@@ -129,7 +132,9 @@ class VerifyReport:
 
     def summary(self) -> str:
         c = self.counts()
-        parts = ", ".join(f"{c[s]} {s.value}" for s in Status)
+        # irreproducible is said only when there is one: a rare verdict, the others always
+        shown = [s for s in Status if s is not Status.IRREPRODUCIBLE or c[s]]
+        parts = ", ".join(f"{c[s]} {s.value}" for s in shown)
         verdict = "verified" if self.ok else "NOT verified"
         return (
             f"{verdict}: {self.results_dir}: {len(self.outputs)} outputs: {parts} "
@@ -427,6 +432,7 @@ def check_stamps(
     outdated: Mapping[str, str] | None = None,
     development_prefix: str | None = None,
     sources: Iterable[str] = (),
+    irreproducible: Mapping[str, str] | None = None,
 ) -> VerifyReport:
     """Judge every output from stamps already read; no file access except ``current_sha256``.
 
@@ -440,6 +446,8 @@ def check_stamps(
     edit to any of them is seen there. ``expected_paths`` are further outputs that must be
     there (a study's summary beside its report). ``recomputed_differs`` maps outputs that
     differ from their recomputation (:mod:`mjtrial.verify.recompute`) to why: tampered.
+    ``irreproducible`` maps outputs that differ from a re-simulation which itself does not
+    reproduce (two disagree) to why: irreproducible, which fails as tampered does.
     ``outdated`` maps outputs that miss something built after them (a crate that does not
     cover a study sealed since) to why: stale. Outputs under ``development_prefix`` (the
     development states and the pilot) are read by no reported number: one that is stale or
@@ -487,6 +495,9 @@ def check_stamps(
         tampered[path].append(f"no readable stamp ({why})")
     for path, why in (recomputed_differs or {}).items():
         tampered[path].append(why)
+    unrepeatable: dict[str, list[str]] = defaultdict(list)
+    for path, why in (irreproducible or {}).items():
+        unrepeatable[path].append(why)
     for path, why in (outdated or {}).items():
         stale[path].append(why)
 
@@ -624,11 +635,13 @@ def check_stamps(
                 source_status = status.get(source)
                 if source_status is not None and source_status is not Status.OK:
                     bad[source_status].append(source)
-            for st in (Status.TAMPERED, Status.MISSING, Status.STALE):
+            for st in (Status.TAMPERED, Status.IRREPRODUCIBLE, Status.MISSING, Status.STALE):
                 if bad[st]:
                     stale[path].append(f"input {st.value}: {_names(bad[st], prefix)}")
         if tampered.get(path):
             status[path] = Status.TAMPERED
+        elif unrepeatable.get(path):
+            status[path] = Status.IRREPRODUCIBLE
         elif stale.get(path):
             status[path] = Status.STALE
         else:
@@ -637,7 +650,11 @@ def check_stamps(
     results, advisory = [], []
     for path, st in status.items():
         rule = pipeline_stamps[path].get("rule") if path in pipeline_stamps else None
-        reasons = () if st is Status.OK else (*tampered.get(path, ()), *stale.get(path, ()))
+        reasons = (
+            ()
+            if st is Status.OK
+            else (*tampered.get(path, ()), *unrepeatable.get(path, ()), *stale.get(path, ()))
+        )
         result = OutputResult(path, st, tuple(reasons), rule)
         if development and path.startswith(development) and st in (Status.STALE, Status.MISSING):
             advisory.append(

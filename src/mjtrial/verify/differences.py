@@ -82,3 +82,16 @@ def table_difference(
         f" and {len(ids) - SHOWN} more" if len(ids) > SHOWN else ""
     )
     return f"{what} for states {shown} differ in {', '.join(bad_columns)}"
+
+
+def columns(table: pa.Table) -> dict[str, np.ndarray]:
+    """A table's columns by name, as `table_difference` takes its expectation."""
+    return {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
+
+
+def recomputed_difference(first: Any, second: Any, *, what: str) -> str | None:
+    """Why two recomputations of one output (tables, or JSON records) differ, or None."""
+    if isinstance(first, pa.Table):
+        return table_difference(first, columns(second), what=what)
+    as_json = [json.dumps(x, sort_keys=True, default=str) for x in (first, second)]
+    return None if as_json[0] == as_json[1] else f"{what} of the nominal episode differ"

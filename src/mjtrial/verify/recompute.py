@@ -56,7 +56,13 @@ from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
 from mjtrial.verify.coverage import DEFAULT_RESIMULATE, coverage
 from mjtrial.verify.differences import SHOWN as _SHOWN
-from mjtrial.verify.differences import json_difference, markdown_difference, table_difference
+from mjtrial.verify.differences import (
+    columns,
+    json_difference,
+    markdown_difference,
+    recomputed_difference,
+    table_difference,
+)
 
 __all__ = ["DEFAULT_RESIMULATE", "Recomputation", "recompute"]
 
@@ -66,6 +72,8 @@ class Recomputation:
     """What the recomputation found: per output (repository-relative), why it differs."""
 
     differs: dict[str, str] = field(default_factory=dict)
+    # per output, why its re-simulation does not reproduce (two disagree): no sign of tampering
+    irreproducible: dict[str, str] = field(default_factory=dict)
     recomputed: int = 0
     resimulated: int = 0
     episodes: int = 0  # in the shards the stamps judged current
@@ -257,7 +265,12 @@ class _Checker:
             if again is None:
                 continue
             mujoco_version = version or provenance.library_versions()["mujoco"]
-            self.check(nominal, lambda p=nominal, f=again: json_difference(p, f(p)))
+            self.check(
+                nominal,
+                lambda p=nominal, f=again: self.reproduced(
+                    p, lambda: f(p), lambda recomputed: json_difference(p, recomputed)
+                ),
+            )
             for table, ids in samples.items():
                 self.check(
                     table,
@@ -416,15 +429,38 @@ class _Checker:
         missing = [i for i in ids if i not in rows]
         if missing:
             return f"no row for states {missing[:_SHOWN]}"
-        again = outcome()
         self.found.resimulated += len(ids)
         sampled = table.take(pa.array([rows[i] for i in ids]))
-        why = table_difference(
-            sampled,
-            {c: again.column(c).to_numpy(zero_copy_only=False) for c in again.column_names},
-            what="re-simulated episodes",
+        why = self.reproduced(
+            table_path,
+            outcome,
+            lambda again: table_difference(sampled, columns(again), what="re-simulated episodes"),
         )
         return why and why + _platform_note(provenance.read_stamp(table_path), mujoco_version)
+
+    def reproduced(
+        self,
+        path: Path,
+        resimulate: Callable[[], Any],
+        difference: Callable[[Any], str | None],
+    ) -> str | None:
+        """Why `path` is not its re-simulation (`difference` of what `resimulate` gives), or
+        None. If it is not, a second re-simulation that disagrees makes it irreproducible (the
+        task's code is no function of its arguments), not tampered: its bytes may be the run's."""
+        first = resimulate()
+        if not (why := difference(first)):
+            return None
+        between = recomputed_difference(first, resimulate(), what="two re-simulations")
+        if between:
+            self.found.irreproducible[self.rel(path)] = (
+                f"differs from its re-simulation ({why}), and re-simulated twice here the two "
+                f"disagree ({between}): the task's code is not a function of its arguments "
+                "(its episode_setup, policy or a Custom state parameter draws unseeded "
+                "randomness or reads module state, call order or the clock): no run of it can "
+                "be reproduced; no sign of tampering"
+            )
+            return None
+        return why
 
     def pilot(self, resimulate: int) -> None:
         """The pilot's outputs under `development/`, checked as the evaluation's are: each

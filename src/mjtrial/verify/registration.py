@@ -17,6 +17,7 @@ from mjtrial.registration import (
     design_record,
     deviations,
     deviations_seen,
+    lost_deviation_note,
     problems,
     read,
 )
@@ -112,3 +113,14 @@ def _of_config(found: Any) -> Any:
     return [
         c for c in found if not (isinstance(c, Mapping) and str(c.get("key", "")).startswith(code))
     ]
+
+
+def check_deviations_kept(layout: Layout, *, path: str, repo_root: Path) -> OutputResult | None:
+    """`deviations.json` (`path` as the report names it) missing, or without the deviation the
+    manifest recorded from it: named with how to restore it (`lost_deviation_note`); else None.
+    The manifest's recomputation then differs too, for that reason alone or not."""
+    lost = lost_deviation_note(layout)
+    if lost is None:
+        return None
+    status = Status.MISSING if not layout.deviations.exists() else Status.TAMPERED
+    return OutputResult(path, status, (lost.replace(f"{repo_root}/", ""),), RULE)
