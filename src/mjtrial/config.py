@@ -290,6 +290,32 @@ def pilot_states(config: Mapping[str, Any]) -> int:
     return int((config.get("pilot") or {}).get("n", config["states"]["n"]))
 
 
+def _check_stopping(config: Mapping[str, Any], *, fail: Callable[[str, str], None]) -> None:
+    """A stopping rule's settings that the schema cannot check: one error budget for the
+    falsifier, a null of no difference, and a look before the maximum N."""
+    falsifier, stopping = config["design"]["falsifier"], config["stopping"]
+    if falsifier["threshold"] != 0:  # the sequential test's null is McNemar's: no difference
+        fail(
+            "design.falsifier.threshold",
+            f"expected 0 with a stopping rule (its null is no paired difference), got "
+            f"{falsifier['threshold']}",
+        )
+    fixed = (1.0 - float(config["analysis"]["confidence"])) / 2
+    if stopping["alpha"] > fixed + 1e-12:
+        fail(
+            "stopping.alpha",
+            f"expected at most {fixed:g}, the one-sided error of the falsifier's verdict at "
+            f"analysis.confidence {config['analysis']['confidence']:g} (the stopping rule's "
+            f"test decides it), got {stopping['alpha']:g}",
+        )
+    if stopping["look_every"] >= config["states"]["n"]:
+        fail(
+            "stopping.look_every",
+            f"expected fewer than states.n ({config['states']['n']}) states between looks, or "
+            f"the rule cannot stop before N, got {stopping['look_every']}",
+        )
+
+
 def check_config(
     config: Mapping[str, Any],
     *,
@@ -337,13 +363,8 @@ def check_config(
             )
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
-    if "stopping" in config and falsifier["threshold"] != 0:
-        # the sequential test's null is McNemar's: no paired difference
-        fail(
-            "design.falsifier.threshold",
-            f"expected 0 with a stopping rule (its null is no paired difference), got "
-            f"{falsifier['threshold']}",
-        )
+    if "stopping" in config:
+        _check_stopping(config, fail=fail)
     wrong = comparisons_error(config["analysis"], falsifier, list(conditions))
     if wrong:
         fail(*wrong)

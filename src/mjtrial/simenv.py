@@ -28,7 +28,7 @@ from uv import find_uv_bin
 from mjtrial import REPO_ROOT
 from mjtrial.atomic import write_text_atomic
 from mjtrial.conditions import variant_names
-from mjtrial.layout import NOMINAL, Layout, shard_ids
+from mjtrial.layout import NOMINAL, Layout, evaluation_shard_size, shard_ids
 
 ENVS = Path("envs")  # in the working folder (git ignores it)
 VERSION_KEY = "mujoco"  # a variant's key naming its MuJoCo version
@@ -180,7 +180,7 @@ def version_recordings(
     if not versions or config["recording"]["episodes"] == "none":
         return {}
     falsifier = config["design"]["falsifier"]
-    shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+    shards = shard_ids(config["states"]["n"], evaluation_shard_size(config))
     return {
         v: {
             c: [layout.shard_recordings(c, s, v) for s in shards]
