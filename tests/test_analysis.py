@@ -448,18 +448,20 @@ def reported_interval_coverage(n: int, p1: float, p2: float, rho: float) -> floa
     keep = probability > 1e-12
     covered = 0.0
     plan = Comparison("slow", "fast", primary=True)
+    truth = cells[1] - cells[2]  # the rates' difference (a bound on it, to rounding, covers)
     for table, p in zip(tables[keep], probability[keep], strict=True):
         treatment, baseline = outcomes_of(table)
         paired = analysis.compare(treatment, baseline, comparison=plan, analysis=ANALYSIS)
-        covered += p * (paired["paired_difference"]["low"] <= p1 - p2)
-        covered -= p * (paired["paired_difference"]["high"] < p1 - p2)
+        low, high = paired["paired_difference"]["low"], paired["paired_difference"]["high"]
+        covered += p * (low <= truth + 1e-12 and high >= truth - 1e-12)
     return covered
 
 
 @pytest.mark.parametrize(("p1", "p2"), [(0.95, 0.90), (0.99, 0.97)])
 def test_the_reported_interval_covers_with_twenty_states_near_the_ceiling(p1, p2):
     """Where an early stop lands (20 states) and rates sit near 1, the percentile bootstrap
-    covered 0.85-0.92; the reported interval must cover at its 95 %."""
+    covered 0.90 (benchmarks/bench_intervals.py); the reported interval must cover at its
+    95 %."""
     assert reported_interval_coverage(20, p1, p2, 0.0) >= 0.95
 
 
