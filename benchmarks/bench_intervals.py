@@ -6,8 +6,8 @@ verdict's exact test, each summed over every paired table of n pairs (no simulat
    (0, 0.4, 0.8) and n = 20, 50, 100: the lowest coverage and where, the mean, and the lowest
    where both rates are 0.9 or more.
 2. The interval reported before (the percentile bootstrap over pairs, 2,000 resamples, or
-   Newcombe's where it was degenerate) against Newcombe's, near the ceiling (rates 0.95/0.90 and 0.99/0.97, independent outcomes)
-   at n = 20, 30 and 50.
+   Newcombe's where it was degenerate) against Newcombe's, near the ceiling (rates 0.95/0.90
+   and 0.99/0.97, independent outcomes) at n = 20, 30 and 50.
 
     python benchmarks/bench_intervals.py
 
