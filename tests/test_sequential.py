@@ -287,6 +287,12 @@ def test_a_stopping_section_passes_the_config_check():
             "the rule cannot stop before N, got 200",
         ),
         (
+            lambda c: (c["states"].update(n=8), c["stopping"].update(look_every=4)),
+            "stopping.look_every: expected a look before N at which the rule can stop: at the "
+            "last one (4 states) even every pair to slow gives an e-value of 6.2, under the "
+            "threshold 10.5 (N = 8, alpha 0.025), got 4",
+        ),
+        (
             lambda c: c["stopping"].update(alpha=0.05),
             "stopping.alpha: expected at most 0.025, the one-sided error of the falsifier's "
             "verdict at analysis.confidence 0.95 (the stopping rule's test decides it), got 0.05",

@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 import yaml
 
-from mjtrial import REPO_ROOT, budget
+from mjtrial import REPO_ROOT, budget, sequential
 from mjtrial.comparisons import comparisons_error
 from mjtrial.conditions import all_conditions, model_edits, policy_path, sweep_base
 from mjtrial.config_files import (  # noqa: F401 - read from here by the workflow and the CLI
@@ -308,11 +308,23 @@ def _check_stopping(config: Mapping[str, Any], *, fail: Callable[[str, str], Non
             f"analysis.confidence {config['analysis']['confidence']:g} (the stopping rule's "
             f"test decides it), got {stopping['alpha']:g}",
         )
-    if stopping["look_every"] >= config["states"]["n"]:
+    n, every = config["states"]["n"], stopping["look_every"]
+    if every >= n:
         fail(
             "stopping.look_every",
-            f"expected fewer than states.n ({config['states']['n']}) states between looks, or "
-            f"the rule cannot stop before N, got {stopping['look_every']}",
+            f"expected fewer than states.n ({n}) states between looks, or the rule cannot stop "
+            f"before N, got {every}",
+        )
+    # the best a look before N can see: every pair so far discordant to the treatment
+    last = (n - 1) // every * every
+    threshold = sequential.calibrated_threshold(n, float(stopping["alpha"]))["threshold"]
+    if sequential.e_value(last, last) < threshold:
+        fail(
+            "stopping.look_every",
+            f"expected a look before N at which the rule can stop: at the last one ({last} "
+            f"states) even every pair to {falsifier['treatment']} gives an e-value of "
+            f"{sequential.e_value(last, last):.3g}, under the threshold {threshold:.3g} "
+            f"(N = {n}, alpha {stopping['alpha']:g}), got {every}",
         )
 
 
