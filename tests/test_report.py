@@ -187,7 +187,9 @@ def test_report_quotes_the_summary(experiment):
     paired = summary["paired_difference"]
     assert f"**{paired['estimate']:+.3f}**" in text
     assert f"[{paired['low']:+.3f}, {paired['high']:+.3f}]" in text
-    assert f"{paired['n_resamples']} resamples, seed {paired['seed']}" in text
+    assert f"({paired['method']})" in text  # Newcombe's
+    bootstrap = paired["replaces"]  # kept beside it, named in the Metric section
+    assert f"{bootstrap['n_resamples']} resamples, seed {bootstrap['seed']}" in text
     falsifier = summary["falsifier"]
     assert f"Verdict: **{falsifier['verdict'].upper()}**" in text
     assert f"> {falsifier['reason']}" in text

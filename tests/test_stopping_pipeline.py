@@ -1,6 +1,7 @@
-"""Stopping early in the pipeline (config `stopping`): a look after each shard, a checkpoint; a
-stopped experiment's later shards never run, the summary, manifest and report hold the stop,
-and `mjtrial verify` recomputes it. Without the section the plan is the one it always was."""
+"""Stopping early in the pipeline (config `stopping`): a look after every `look_every` states
+(a shard), a checkpoint; a stopped experiment's later shards never run, the summary, manifest
+and report hold the stop, and `mjtrial verify` recomputes it. The guide's example, on the
+shipped config, stops early. Without the section the plan is the one it always was."""
 
 from __future__ import annotations
 
@@ -11,16 +12,29 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from conftest import copy_workflow, edit_config, run_snakemake
+import yaml
+from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
 from scipy.special import betainc, betaln
 
 from mjtrial import provenance
 from mjtrial.layout import Layout
+from mjtrial.sequential import calibrated_threshold
 from mjtrial.verify import Status, verify_results
 
 LAYOUT = Layout.of("research_mode")
-N, SHARD = 60, 10
-SHARDS = [f"{i:05d}" for i in range(N // SHARD)]
+
+
+def guide_stopping() -> dict:
+    """The `stopping` section docs/guide/statistics.md gives, as it is written there."""
+    guide = (REPO_ROOT / "docs" / "guide" / "statistics.md").read_text()
+    block = re.search(r"```yaml\n(stopping:\n.*?)```", guide, re.S)
+    return yaml.safe_load(block[1])["stopping"]
+
+
+SHIPPED = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+N, SHARD = SHIPPED["states"]["n"], guide_stopping()["look_every"]
+SHARDS = [f"{i:05d}" for i in range((N + SHARD - 1) // SHARD)]
+THRESHOLD = calibrated_threshold(N, guide_stopping()["alpha"])["threshold"]
 
 
 def planned_jobs(workdir: Path, *args: str) -> list[tuple[str, list[str], list[str]]]:
@@ -81,10 +95,8 @@ def test_with_a_stopping_section_the_first_plan_stops_at_the_first_look(tmp_path
 
 
 def with_stopping(config) -> None:
-    config["states"]["n"] = N
-    config["rollout"]["shard_size"] = SHARD
-    config["analysis"]["n_resamples"] = 500
-    config["stopping"] = {"rule": "mixture_sprt", "alpha": 0.05}
+    """The shipped config (N = 200, shards of 1,000 states) with the guide's stopping rule."""
+    config["stopping"] = guide_stopping()
 
 
 def e_value(wins: int, discordant: int) -> float:
@@ -95,14 +107,14 @@ def e_value(wins: int, discordant: int) -> float:
 
 @pytest.fixture(scope="module")
 def stopped(tmp_path_factory) -> Path:
-    """The gantry at N = 60 in shards of 10 with a stopping rule at alpha = 0.05, built."""
+    """The shipped gantry experiment with the guide's stopping rule, built."""
     workdir = copy_workflow(tmp_path_factory.mktemp("stopping"))
     edit_config(workdir, with_stopping)
     run_snakemake(workdir)
     return workdir
 
 
-def test_the_run_stops_at_the_first_shard_whose_look_reaches_one_over_alpha(stopped):
+def test_the_guides_example_stops_early_on_the_shipped_config(stopped):
     root = stopped
     ran = [s for s in SHARDS if (root / LAYOUT.shard_table("slow", s)).exists()]
     assert 0 < len(ran) < len(SHARDS)  # it stopped early
@@ -123,7 +135,7 @@ def test_the_run_stops_at_the_first_shard_whose_look_reaches_one_over_alpha(stop
         wins = sum(a and not b for a, b in pairs)
         losses = sum(b and not a for a, b in pairs)
         expected.append(e_value(wins, wins + losses))
-    assert all(e < 20 for e in expected[:-1]) and expected[-1] >= 20
+    assert all(e < THRESHOLD for e in expected[:-1]) and expected[-1] >= THRESHOLD
     for shard in SHARDS[len(ran) :]:
         for condition in ("slow", "fast"):
             assert not (root / LAYOUT.shard_table(condition, shard)).exists()
@@ -139,7 +151,9 @@ def test_the_run_stops_at_the_first_shard_whose_look_reaches_one_over_alpha(stop
     assert summary["n_states"] == n_used
     assert summary["conditions"]["slow"]["n"] == n_used
     record = summary["stopping"]
-    assert record["n_used"] == n_used and record["max_n"] == N and record["block"] == SHARD
+    assert record["n_used"] == n_used and record["max_n"] == N and record["look_every"] == SHARD
+    assert record["threshold"] == THRESHOLD < 1 / record["alpha"]
+    assert summary["falsifier"]["verdict"] == "survives"  # the rule's test decides it
     assert record["rejected"] and record["stopped_at_look"] == len(ran) - 1
     assert [look["e_value"] for look in record["looks"]] == pytest.approx(expected, rel=1e-9)
     assert pq.read_table(root / LAYOUT.rollout_table("slow")).num_rows == n_used

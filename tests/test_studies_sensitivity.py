@@ -8,6 +8,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
+from mjtrial import stats
 from mjtrial.studies.sensitivity import NOMINAL, summarize_sensitivity, variant_record
 
 FALSIFIER = {
@@ -76,11 +77,15 @@ def test_rates_wilson_and_a_difference_every_resample_agrees_on():
 def test_all_differences_positive_survive_and_none_refute():
     ones = table([1] * 6)
     zeros = table([0] * 6)
-    up = record(ones, zeros)["paired_difference"]
-    assert (up["estimate"], up["low"], up["high"]) == (1.0, 1.0, 1.0)
+    up = record(ones, zeros)
+    # Newcombe's interval of six pairs all to the treatment, as the main analysis gives it
+    interval = (1.0, *stats.newcombe_paired_interval(0, 6, 0, 0)[1:])
+    paired = up["paired_difference"]
+    assert (paired["estimate"], paired["low"], paired["high"]) == interval
+    assert up["verdict"] == "survives"  # exact McNemar p = 2 / 2^6 = 0.031: one-sided 0.016
     same = record(ones, ones)
-    assert same["paired_difference"]["low"] == 0.0
-    assert same["verdict"] == "refuted"  # lower bound at the threshold 0
+    assert same["paired_difference"]["low"] < 0.0 < same["paired_difference"]["high"]
+    assert same["verdict"] == "refuted"  # no discordant pair: no difference shown
 
 
 def test_pairs_are_aligned_by_state_id():

@@ -128,16 +128,24 @@ def bound_of(table: Mapping[str, int]) -> str | None:
     return None
 
 
+# Why the bootstrap is not the comparison's interval (kept beside it, `replaces`).
+BOOTSTRAP_UNDER_COVERS = (
+    "the percentile bootstrap over pairs under-covers with few pairs or rates near 0 or 1 "
+    "(exactly degenerate where every pair's difference is the same)"
+)
+
+
 def compare(
     a: np.ndarray, b: np.ndarray, *, comparison: Comparison, analysis: Mapping[str, Any]
 ) -> dict[str, Any]:
     """One planned comparison of success `a` (treatment) with `b` (baseline), shape (n,) each:
     the paired table, the exact McNemar test and the paired difference with its interval.
 
-    The interval is the percentile bootstrap over pairs, every comparison drawing the same
-    resamples of states (the seed `analysis.seed`); where it is degenerate (every pair's
-    difference the same: no discordant pair, or every pair discordant one way) Newcombe's
-    hybrid score interval replaces it, and the bootstrap's is kept beside it (`replaces`).
+    The interval is Newcombe's hybrid score interval (method 10): its exact coverage stays near
+    its nominal level at every n and rate (docs/guide/statistics.md gives the figures), where
+    the percentile bootstrap over pairs falls to 0.85 with tens of pairs near 0 or 1. The
+    bootstrap's interval (every comparison drawing the same resamples of states, the seed
+    `analysis.seed`) is kept beside it (`replaces`) for comparison with earlier reports.
     """
     treatment, baseline = comparison.pair
     confidence = float(analysis["confidence"])
@@ -148,16 +156,15 @@ def compare(
         confidence=confidence,
         seed=int(analysis["seed"]),
     )
-    paired = {
-        "treatment": treatment,
-        "baseline": baseline,
-        "estimate": estimate,
+    bootstrap = {
         "low": low,
         "high": high,
         "method": f"{stats.BOOTSTRAP_METHOD} over pairs",
         "n_resamples": int(analysis["n_resamples"]),
-        "confidence": confidence,
         "seed": int(analysis["seed"]),
+        "why": "degenerate: every pair's difference the same"
+        if low == high
+        else BOOTSTRAP_UNDER_COVERS,
     }
     test = stats.mcnemar(a, b)
     table = {
@@ -166,13 +173,17 @@ def compare(
         f"only_{baseline}": test.only_b,
         "neither": int((~a & ~b).sum()),
     }
-    if low == high:
-        _, new_low, new_high = stats.newcombe_paired_interval(
-            *table.values(), confidence=confidence
-        )
-        replaced = {k: paired[k] for k in ("low", "high", "method", "n_resamples", "seed")}
-        paired |= {"low": new_low, "high": new_high, "method": stats.NEWCOMBE_METHOD}
-        paired["replaces"] = {**replaced, "why": "degenerate: every pair's difference the same"}
+    _, new_low, new_high = stats.newcombe_paired_interval(*table.values(), confidence=confidence)
+    paired = {
+        "treatment": treatment,
+        "baseline": baseline,
+        "estimate": estimate,
+        "low": new_low,
+        "high": new_high,
+        "method": stats.NEWCOMBE_METHOD,
+        "confidence": confidence,
+        "replaces": bootstrap,
+    }
     return {
         "treatment": treatment,
         "baseline": baseline,
@@ -200,29 +211,89 @@ def correct_family(records: Sequence[dict[str, Any]], exploratory: Sequence[bool
         records[i]["mcnemar"]["p_holm"] = adjusted
 
 
+# How the verdict is decided, in words (the summary's `falsifier.decision`).
+DECISION_INTERVAL = "the interval's lower bound against the threshold"
+DECISION_EXACT = (
+    "the exact McNemar test, one-sided in the falsifier's direction at (1 - confidence) / 2"
+)
+DECISION_SEQUENTIAL = "the stopping rule's one-sided test, over every look up to the maximum N"
+
+
 def judge_falsifier(
     falsifier: Mapping[str, Any],
     paired: Mapping[str, float],
     *,
+    test: Mapping[str, Any] | None = None,
+    stopping: Mapping[str, Any] | None = None,
     n_unhealthy: int = 0,
     n_episodes: int = 1,
 ) -> dict[str, Any]:
-    """Verdict of the preregistered falsifier on the paired-difference interval.
+    """Verdict of the preregistered falsifier: one decision with one error budget.
 
-    Refuted when the interval's lower bound is at or below the threshold, i.e. the interval
-    includes the threshold or lies below it; invalid, whatever the interval, when more than the
-    design's `max_unhealthy_share` (default 0) of the compared episodes (`n_episodes`, both
-    conditions) are unhealthy: an unstable simulation is no evidence either way.
+    - With a stopping rule (`stopping`, `mjtrial.sequential.stopping_record`): survives when
+      its test rejected no difference at some look, the last at the maximum N included; its
+      one-sided error is at most `stopping.alpha` whatever the looks.
+    - Else, at the threshold 0 with the exact test given (`test`: `p_value`, `treatment_only`,
+      `baseline_only`, `alpha` = 1 - confidence): survives when the exact McNemar test
+      rejects in the falsifier's direction (two-sided p at most alpha and more pairs to the
+      treatment: one-sided at alpha / 2, the level a two-sided interval implies).
+    - Else: refuted when the interval's lower bound is at or below the threshold.
+
+    Where the interval and the decision disagree about the threshold, the reason says so and
+    why. Invalid, whatever the decision, when more than the design's `max_unhealthy_share`
+    (default 0) of the compared episodes (`n_episodes`, both conditions) are unhealthy: an
+    unstable simulation is no evidence either way.
     """
     threshold = float(falsifier["threshold"])
-    refuted = paired["low"] <= threshold
-    verdict = VERDICT_REFUTED if refuted else VERDICT_SURVIVES
-    relation = "at or below" if refuted else "above"
-    reason = (
+    interval_above = paired["low"] > threshold
+    statistic = (
         f"{falsifier['statistic']} ({falsifier['treatment']} - {falsifier['baseline']}) = "
-        f"{paired['estimate']:+.3f}, interval [{paired['low']:+.3f}, {paired['high']:+.3f}]: "
-        f"lower bound {relation} the threshold {threshold:g}"
+        f"{paired['estimate']:+.3f}, interval [{paired['low']:+.3f}, {paired['high']:+.3f}]"
     )
+    if stopping is not None:
+        survives = bool(stopping["rejected"])
+        last = stopping["looks"][-1] if stopping["looks"] else None
+        where = (
+            f"at look {last['look']} ({last['n']} states, {last['treatment_only']} of "
+            f"{last['discordant']} discordant pairs to {falsifier['treatment']}, e-value "
+            f"{last['e_value']:.3g})"
+            if last
+            else "(no look)"
+        )
+        decision = (
+            f"the stopping rule's test (one-sided, alpha {stopping['alpha']:g}) "
+            + ("reached" if survives else "never reached")
+            + f" its threshold {stopping['threshold']:.3g} {where}"
+        )
+        method = DECISION_SEQUENTIAL
+    elif threshold == 0 and test is not None:
+        alpha = float(test["alpha"])
+        survives = test["treatment_only"] > test["baseline_only"] and test["p_value"] <= alpha
+        decision = (
+            f"exact McNemar p = {test['p_value']:.3g} ({test['treatment_only']} pairs only "
+            f"{falsifier['treatment']}, {test['baseline_only']} only {falsifier['baseline']}): "
+            + ("rejects" if survives else "does not reject")
+            + f" no difference in the falsifier's direction at one-sided {alpha / 2:g}"
+        )
+        method = DECISION_EXACT
+    else:
+        survives = interval_above
+        decision = (
+            f"lower bound {'above' if survives else 'at or below'} the threshold {threshold:g}"
+        )
+        method = DECISION_INTERVAL
+    reason = f"{statistic}: {decision}"
+    if method != DECISION_INTERVAL and interval_above != survives:
+        reason += (
+            f"; the interval's lower bound is {'above' if interval_above else 'at or below'} "
+            f"{threshold:g}, but the verdict is the test's: the interval is an estimate "
+            + (
+                "on the states that ran, not adjusted for the looks"
+                if stopping is not None
+                else "of approximate coverage, the test exact"
+            )
+        )
+    verdict = VERDICT_SURVIVES if survives else VERDICT_REFUTED
     allowed = float(falsifier.get("max_unhealthy_share", 0.0))
     if n_unhealthy > allowed * n_episodes:
         verdict = VERDICT_INVALID
@@ -231,7 +302,18 @@ def judge_falsifier(
             f"or halted), more than the design allows ({allowed:g}): not evidence either way; "
             f"{reason}"
         )
-    return {**dict(falsifier), "verdict": verdict, "reason": reason}
+    return {**dict(falsifier), "verdict": verdict, "decision": method, "reason": reason}
+
+
+def exact_test(record: Mapping[str, Any], confidence: float) -> dict[str, Any]:
+    """A comparison record's exact McNemar test as `judge_falsifier` reads it."""
+    table = record["table"]
+    return {
+        "p_value": record["mcnemar"]["p_value"],
+        "treatment_only": table[f"only_{record['treatment']}"],
+        "baseline_only": table[f"only_{record['baseline']}"],
+        "alpha": 1.0 - confidence,
+    }
 
 
 def summarize(
@@ -246,6 +328,7 @@ def summarize(
     nominal_text: str = "each state parameter at its nominal value",
     categories: Sequence[str] = (),
     registered: Mapping[str, Any] | None = None,
+    stopping: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The experiment's summary.
 
@@ -265,6 +348,8 @@ def summarize(
         n met it.
       registered: the registration's record of the config (`registration.json`), if any: a
         comparison it did not plan is marked exploratory.
+      stopping: a stopping rule's record (`mjtrial.sequential.stopping_record`), if any: its
+        test decides the falsifier, and the summary carries it (`stopping`).
     """
     confidence = float(analysis["confidence"])
     order = np.argsort(states["state_id"])
@@ -355,10 +440,13 @@ def summarize(
         "falsifier": judge_falsifier(
             falsifier,
             paired,
+            test=exact_test(primary, confidence),
+            stopping=stopping,
             n_unhealthy=conditions[treatment]["unhealthy"] + conditions[baseline]["unhealthy"],
             n_episodes=2 * len(state_ids),
         ),
         "sample_size": sample_size_check(sample_size, len(state_ids), confidence=confidence),
+        **({"stopping": dict(stopping)} if stopping is not None else {}),
     }
 
 
@@ -388,7 +476,7 @@ def comparison_lines(record: Mapping[str, Any]) -> list[str]:
     role = "primary (the falsifier's)" if record["primary"] else "secondary"
     if record["exploratory"]:
         role += ", EXPLORATORY (not in the registration)"
-    how = p["method"] + (f", {p['n_resamples']} resamples" if "replaces" not in p else "")
+    how = p["method"]
     lines = [
         f"  {p['treatment']} - {p['baseline']} [{role}]: {p['estimate']:+.3f} "
         f"[{p['low']:+.3f}, {p['high']:+.3f}] ({how})"

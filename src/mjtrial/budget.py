@@ -16,7 +16,7 @@ import mujoco
 import psutil
 
 from mjtrial import engine
-from mjtrial.layout import shard_ids
+from mjtrial.layout import evaluation_shard_size, shard_ids
 from mjtrial.task import BoundTask, call
 
 # Steps of one episode: the preflight steps every condition's nominal episode, and a batch holds
@@ -90,7 +90,7 @@ def episode_problems(
 def rollout_jobs(config: Mapping[str, Any], n_conditions: int) -> int:
     """Rollout jobs of the built-in run and the studies: shards x (the nominal model's
     conditions + each variant's design conditions)."""
-    shards = len(shard_ids(config["states"]["n"], config["rollout"]["shard_size"]))
+    shards = len(shard_ids(config["states"]["n"], evaluation_shard_size(config)))
     variants = len(config.get("variants") or {})
     return shards * (n_conditions + variants * len(config["conditions"]))
 
@@ -99,8 +99,9 @@ def job_count_problem(config: Mapping[str, Any], n_conditions: int) -> tuple[str
     jobs = rollout_jobs(config, n_conditions)
     if jobs <= MAX_ROLLOUT_JOBS:
         return None
-    return "rollout.shard_size", (
-        f"{config['rollout']['shard_size']:,} states per shard make {jobs:,} rollout jobs for "
+    key = "stopping.look_every" if "stopping" in config else "rollout.shard_size"
+    return key, (
+        f"{evaluation_shard_size(config):,} states per shard make {jobs:,} rollout jobs for "
         f"{config['states']['n']:,} states; expected at most {MAX_ROLLOUT_JOBS:,} (a larger "
-        "shard_size)"
+        f"{key.split('.')[1]})"
     )

@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 import yaml
 
-from mjtrial import REPO_ROOT, budget
+from mjtrial import REPO_ROOT, budget, sequential
 from mjtrial.comparisons import comparisons_error
 from mjtrial.conditions import all_conditions, model_edits, policy_path, sweep_base
 from mjtrial.config_files import (  # noqa: F401 - read from here by the workflow and the CLI
@@ -299,6 +299,44 @@ def pilot_states(config: Mapping[str, Any]) -> int:
     return int((config.get("pilot") or {}).get("n", config["states"]["n"]))
 
 
+def _check_stopping(config: Mapping[str, Any], *, fail: Callable[[str, str], None]) -> None:
+    """A stopping rule's settings that the schema cannot check: one error budget for the
+    falsifier, a null of no difference, and a look before the maximum N."""
+    falsifier, stopping = config["design"]["falsifier"], config["stopping"]
+    if falsifier["threshold"] != 0:  # the sequential test's null is McNemar's: no difference
+        fail(
+            "design.falsifier.threshold",
+            f"expected 0 with a stopping rule (its null is no paired difference), got "
+            f"{falsifier['threshold']}",
+        )
+    fixed = (1.0 - float(config["analysis"]["confidence"])) / 2
+    if stopping["alpha"] > fixed + 1e-12:
+        fail(
+            "stopping.alpha",
+            f"expected at most {fixed:g}, the one-sided error of the falsifier's verdict at "
+            f"analysis.confidence {config['analysis']['confidence']:g} (the stopping rule's "
+            f"test decides it), got {stopping['alpha']:g}",
+        )
+    n, every = config["states"]["n"], stopping["look_every"]
+    if every >= n:
+        fail(
+            "stopping.look_every",
+            f"expected fewer than states.n ({n}) states between looks, or the rule cannot stop "
+            f"before N, got {every}",
+        )
+    # the best a look before N can see: every pair so far discordant to the treatment
+    last = (n - 1) // every * every
+    threshold = sequential.calibrated_threshold(n, float(stopping["alpha"]))["threshold"]
+    if sequential.e_value(last, last) < threshold:
+        fail(
+            "stopping.look_every",
+            f"expected a look before N at which the rule can stop: at the last one ({last} "
+            f"states) even every pair to {falsifier['treatment']} gives an e-value of "
+            f"{sequential.e_value(last, last):.3g}, under the threshold {threshold:.3g} "
+            f"(N = {n}, alpha {stopping['alpha']:g}), got {every}",
+        )
+
+
 def check_config(
     config: Mapping[str, Any],
     *,
@@ -346,13 +384,8 @@ def check_config(
             )
     if falsifier["treatment"] == falsifier["baseline"]:
         fail("design.falsifier.baseline", "expected a condition other than the treatment")
-    if "stopping" in config and falsifier["threshold"] != 0:
-        # the sequential test's null is McNemar's: no paired difference
-        fail(
-            "design.falsifier.threshold",
-            f"expected 0 with a stopping rule (its null is no paired difference), got "
-            f"{falsifier['threshold']}",
-        )
+    if "stopping" in config:
+        _check_stopping(config, fail=fail)
     wrong = comparisons_error(config["analysis"], falsifier, list(conditions))
     if wrong:
         fail(*wrong)

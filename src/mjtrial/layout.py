@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 RESULTS_DIR = "results"
 # Where `mjtrial replay` writes by default: beside the results, never inside a sealed folder.
@@ -128,6 +129,15 @@ BENCHMARK_STAGES = (
 def shard_ids(n_states: int, shard_size: int) -> list[str]:
     """The shards of `n_states` states, `shard_size` each (the last may hold fewer)."""
     return [f"{i:05d}" for i in range((n_states + shard_size - 1) // shard_size)]
+
+
+def evaluation_shard_size(config: Mapping[str, Any]) -> int:
+    """States per rollout job of the evaluation states: a stopping rule's `look_every` (its
+    look follows each shard, so the states a stop leaves out are never run), else
+    `rollout.shard_size` (the development states, a pilot's, always run in those)."""
+    if "stopping" in config:
+        return int(config["stopping"]["look_every"])
+    return int(config["rollout"]["shard_size"])
 
 
 def shard_range(shard: str, shard_size: int, n_states: int) -> tuple[int, int]:

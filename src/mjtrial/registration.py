@@ -70,8 +70,6 @@ def design_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> 
 
     repo_root = Path(repo_root)
     sections = {k: copy.deepcopy(config[k]) for k in REGISTERED_SECTIONS if k in config}
-    if "stopping" in config:  # the block a stopping rule looks after is part of its design
-        sections["rollout"] = {"shard_size": config["rollout"]["shard_size"]}
     reference = str(config["task"])
     task = (
         {

@@ -14,21 +14,24 @@ discordant pairs and a Beta(a, a) prior truncated to ``p > 1/2``::
 
 (``I`` the regularized incomplete beta function). Each likelihood ratio is a nonnegative
 martingale with mean 1 under the null, so their mixture is too (an e-process), and Ville's
-inequality (Ville 1939) bounds ``P(sup_d E_d >= 1/alpha) <= alpha``: the type-I error stays at
-most ``alpha`` however often the data are looked at and whenever the run stops. Looking only
-after each block of states (a shard) can only lower it. This is the test-martingale view of
-Howard, Ramdas, McAuliffe and Sekhon (2021), "Time-uniform, nonparametric, nonasymptotic
-confidence sequences" (Ann. Statist. 49(2)), and a fixed-prior instance of the betting
-e-processes of Waudby-Smith and Ramdas (2024, JRSS-B): the prior plays the part of the betting
-fraction. STEP (Snyder et al., RSS 2025, arXiv 2503.10966) tests two policies' success rates
-sequentially from unpaired trials; a simulator's common initial states make the trials paired,
-and only the discordant ones carry information.
+inequality (Ville 1939) bounds ``P(sup_d E_d >= 1/alpha) <= alpha`` over unboundedly many pairs.
+A run stops at its maximum N, so the threshold is calibrated to it exactly
+(`calibrated_threshold`): the smallest one that the e-value reaches within N discordant pairs
+with probability at most alpha under the null, a look after every pair allowed (fewer looks,
+or fewer discordant pairs, can only lower it). For N = 200 and alpha 0.05 it is 13.7, not 20.
+This is the test-martingale view of Howard, Ramdas, McAuliffe and Sekhon (2021),
+"Time-uniform, nonparametric, nonasymptotic confidence sequences" (Ann. Statist. 49(2)), and a
+fixed-prior instance of the betting e-processes of Waudby-Smith and Ramdas (2024, JRSS-B): the
+prior plays the part of the betting fraction. STEP (Snyder et al., RSS 2025, arXiv 2503.10966)
+tests two policies' success rates sequentially from unpaired trials; a simulator's common
+initial states make the trials paired, and only the discordant ones carry information.
 
 The test is one-sided, in the falsifier's direction: the hypothesis predicts the treatment
-better than the baseline, and the design is refuted unless it is. Evidence the other way never
-stops the run early; the experiment then runs to the registered maximum N and the fixed-N
-analysis judges the falsifier as it would have without a stopping rule. A two-sided mixture
-would spend half its prior on the direction no one predicted and need more pairs to stop.
+better than the baseline, and the design is refuted unless it is. Its decision is the
+falsifier's verdict, the last look at the maximum N included (`mjtrial.analysis.
+judge_falsifier`): one decision, one error budget. Evidence the other way never stops the run
+early. A two-sided mixture would spend half its prior on the direction no one predicted and
+need more pairs to stop.
 
 Everything here is pure: numpy arrays in, numbers and JSON-ready records out.
 """
@@ -37,6 +40,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -44,10 +48,14 @@ import numpy as np
 __all__ = [
     "PRIOR",
     "RULES",
+    "calibrated_threshold",
+    "critical_wins",
     "discordant_wins",
     "e_value",
     "e_values",
     "log_e_value",
+    "null_crossing_probability",
+    "operating_characteristics",
     "stopping_record",
 ]
 
@@ -113,32 +121,152 @@ def e_values(outcomes: Any, *, prior: float = PRIOR) -> np.ndarray:
     return np.exp(log_e_value(np.cumsum(x), np.arange(1, x.size + 1), prior=prior))
 
 
+# Past this maximum N the threshold is 1/alpha (Ville's inequality, valid for any number of
+# pairs): the exact calibration walks every discordant count up to N, O(N^2) per trial value.
+CALIBRATED_MAX_N = 2000
+# The calibration's precision: the threshold's log is found to within this (it errs upward:
+# the error bound it reports is the exact one at the threshold it returns).
+_LOG_TOLERANCE = 1e-4
+
+
+def critical_wins(max_n: int, log_threshold: float, *, prior: float = PRIOR) -> np.ndarray:
+    """For each discordant count d in 0..max_n, the fewest treatment wins whose e-value
+    reaches the threshold (``d + 1`` when none does): the e-value grows with the wins at fixed
+    d, so the rule rejects after d discordant pairs exactly when the wins reach this count."""
+    d = np.arange(max_n + 1)
+    low, high = np.zeros_like(d), d + 1
+    while np.any(low < high):
+        mid = (low + high) // 2
+        active = low < high
+        inside = np.minimum(mid, d)
+        reaches = active & (mid <= d) & (log_e_value(inside, d, prior=prior) >= log_threshold)
+        high = np.where(reaches, mid, high)
+        low = np.where(active & ~reaches, mid + 1, low)
+    return low
+
+
+def null_crossing_probability(max_n: int, log_threshold: float, *, prior: float = PRIOR) -> float:
+    """The exact probability under the null that the e-value reaches the threshold after any
+    of the first ``max_n`` discordant pairs, each won by the treatment with probability 1/2.
+
+    It bounds the rule's type-I error for a maximum N of ``max_n`` states whatever the
+    discordance rate and the look schedule: fewer discordant pairs, or looks at fewer of them,
+    can only lower it (the wins given the discordant count are Binomial(d, 1/2))."""
+    critical = critical_wins(max_n, log_threshold, prior=prior)
+    alive = np.zeros(max_n + 2)  # P(k wins after d pairs, threshold not yet reached)
+    alive[0] = 1.0
+    crossed = 0.0
+    for d in range(1, max_n + 1):
+        alive[1 : d + 1] += alive[0:d]
+        alive[: d + 1] *= 0.5
+        k = critical[d]
+        if k <= d:
+            crossed += float(alive[k : d + 1].sum())
+            alive[k : d + 1] = 0.0
+    return crossed
+
+
+@lru_cache(maxsize=64)
+def calibrated_threshold(max_n: int, alpha: float, *, prior: float = PRIOR) -> dict[str, Any]:
+    """The stopping rule's threshold for a maximum N of ``max_n`` states at level ``alpha``.
+
+    Ville's 1/alpha holds for an unbounded number of pairs; a run that stops at N can use the
+    smallest threshold whose exact crossing probability within N discordant pairs is at most
+    alpha (`null_crossing_probability`), a little lower and so more powerful. Past
+    `CALIBRATED_MAX_N` the threshold is 1/alpha.
+
+    Returns:
+        ``threshold``, ``error_bound`` (the exact crossing probability at it, at most alpha)
+        and ``method`` (how it was set, in words).
+    """
+    ville = math.log(1.0 / alpha)
+    if max_n > CALIBRATED_MAX_N:
+        return {
+            "threshold": 1.0 / alpha,
+            "error_bound": alpha,
+            "method": f"1/alpha (Ville's inequality; N = {max_n} is past the exact "
+            f"calibration's {CALIBRATED_MAX_N})",
+        }
+    low, high = 0.0, ville  # the crossing probability at 1/alpha is at most alpha (Ville)
+    while high - low > _LOG_TOLERANCE:
+        mid = (low + high) / 2
+        if null_crossing_probability(max_n, mid, prior=prior) <= alpha:
+            high = mid
+        else:
+            low = mid
+    return {
+        "threshold": math.exp(high),
+        "error_bound": null_crossing_probability(max_n, high, prior=prior),
+        "method": f"calibrated exactly for at most {max_n} discordant pairs and a look after "
+        "any of them (Ville's 1/alpha holds for unboundedly many)",
+    }
+
+
+def operating_characteristics(
+    *,
+    max_n: int,
+    look_every: int,
+    p_win: float,
+    p_loss: float,
+    threshold: float,
+    prior: float = PRIOR,
+) -> dict[str, float]:
+    """The rule's exact power and mean number of states used when each state is a treatment
+    win with probability ``p_win``, a baseline win with ``p_loss`` (else concordant), looking
+    after every ``look_every`` states up to ``max_n``.
+
+    Returns:
+        ``power`` (the probability of rejecting at some look) and ``mean_n``.
+    """
+    critical = critical_wins(max_n, math.log(threshold), prior=prior)
+    k = np.arange(max_n + 1)[:, None]
+    d = k + np.arange(max_n + 1)[None, :]
+    rejects = (d <= max_n) & (k >= critical[np.minimum(d, max_n)])
+    alive = np.zeros((max_n + 1, max_n + 1))  # P(k wins, l losses, not stopped)
+    alive[0, 0] = 1.0
+    power = mean_n = 0.0
+    looks = list(range(look_every, max_n, look_every)) + [max_n]
+    for n in range(1, max_n + 1):
+        step = alive * (1.0 - p_win - p_loss)
+        step[1:, :] += alive[:-1, :] * p_win
+        step[:, 1:] += alive[:, :-1] * p_loss
+        alive = step
+        if n in looks:
+            stop = float(alive[rejects].sum())
+            power += stop
+            mean_n += n * stop
+            alive[rejects] = 0.0
+    return {"power": power, "mean_n": mean_n + max_n * float(alive.sum())}
+
+
 def stopping_record(
     treatment: Any, baseline: Any, *, stopping: Mapping[str, Any]
 ) -> dict[str, Any]:
-    """The stopping rule applied to the pairs run so far: one look after each block of states.
+    """The stopping rule applied to the pairs run so far: one look after each block of
+    ``look_every`` states, the last at the maximum N.
 
     Args:
         treatment: Success under the falsifier's treatment, shape ``(n,)``, in state order.
         baseline: Success under its baseline on the same states, shape ``(n,)``.
         stopping: The rule (`config_slice("look", ...)`'s ``stopping``): ``rule``, ``alpha``,
-            ``block`` (states per look, `rollout.shard_size`), ``max_n`` (`states.n`).
+            ``look_every`` (states between looks), ``max_n`` (`states.n`).
 
     Returns:
-        The rule's settings, each look's states, discordant pairs, treatment wins and e-value,
-        and ``stopped`` (the last look reached ``1/alpha``, or ``max_n``), ``stopped_at_look``,
-        ``n_used`` and ``rejected`` (the null of no paired difference, in the falsifier's
-        direction).
+        The rule's settings and threshold (`calibrated_threshold`), each look's states,
+        discordant pairs, treatment wins and e-value, and ``stopped`` (a look reached the
+        threshold, or ``max_n`` was reached), ``stopped_at_look``, ``n_used`` and ``rejected``
+        (the null of no paired difference, in the falsifier's direction: the verdict).
     """
     rule, alpha = stopping["rule"], float(stopping["alpha"])
-    block, max_n = int(stopping["block"]), int(stopping["max_n"])
+    block, max_n = int(stopping["look_every"]), int(stopping["max_n"])
     if rule not in RULES:
         raise ValueError(f"stopping.rule: expected one of {list(RULES)}, got {rule!r}")
     a = np.asarray(treatment, dtype=bool)
     b = np.asarray(baseline, dtype=bool)
     discordant_wins(a, b)  # the shapes' check
+    calibration = calibrated_threshold(max_n, alpha)
+    bound = math.log(calibration["threshold"])
     looks = []
-    bound = math.log(1.0 / alpha)
     rejected_at = None
     for stop in range(block, a.size + block, block):
         n = min(stop, a.size)
@@ -160,18 +288,20 @@ def stopping_record(
     if rejected and rejected_at != last:
         raise ValueError(
             f"the pairs run go past the look that stopped: look {rejected_at} (n = "
-            f"{looks[rejected_at]['n']}) reached 1/alpha, yet {a.size} states ran"
+            f"{looks[rejected_at]['n']}) reached the threshold, yet {a.size} states ran"
         )
     if a.size > max_n or (not rejected and a.size not in (0, max_n) and a.size % block):
         raise ValueError(f"{a.size} states ran: expected whole blocks of {block} up to {max_n}")
     return {
         "rule": rule,
         "alpha": alpha,
-        "threshold": 1.0 / alpha,
-        "block": block,
+        "threshold": calibration["threshold"],
+        "threshold_method": calibration["method"],
+        "error_bound": calibration["error_bound"],
+        "look_every": block,
         "max_n": max_n,
         "prior": f"Beta({PRIOR:g}, {PRIOR:g}) on P(treatment wins a discordant pair), p > 1/2",
-        "method": "one-sided mixture SPRT on the discordant pairs (Ville's inequality)",
+        "method": "one-sided mixture SPRT on the discordant pairs",
         "looks": looks,
         "stopped": rejected or a.size >= max_n,
         "rejected": rejected,

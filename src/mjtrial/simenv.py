@@ -28,7 +28,7 @@ from uv import find_uv_bin
 from mjtrial import REPO_ROOT
 from mjtrial.atomic import write_text_atomic
 from mjtrial.conditions import sensitivity_conditions, variant_names
-from mjtrial.layout import NOMINAL, Layout, shard_ids
+from mjtrial.layout import NOMINAL, Layout, evaluation_shard_size, shard_ids
 
 ENVS = Path("envs")  # in the working folder (git ignores it)
 VERSION_KEY = "mujoco"  # a variant's key naming its MuJoCo version
@@ -179,7 +179,7 @@ def version_recordings(
     versions = [v for v in variant_names(config) if variant_version(config["variants"][v])]
     if not versions or config["recording"]["episodes"] == "none":
         return {}
-    shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+    shards = shard_ids(config["states"]["n"], evaluation_shard_size(config))
     return {
         v: {
             c: [layout.shard_recordings(c, s, v) for s in shards]

@@ -15,6 +15,7 @@ from mjtrial.layout import (
     NOMINAL,
     STUDY_FIGURES,
     Layout,
+    evaluation_shard_size,
     script_path,
     shard_ids,
     shard_range,
@@ -48,7 +49,7 @@ VERSIONS = {
     if variant_version(config["variants"][v])
 }
 SWEEP = sweep_conditions(config)  # swept value -> the condition that runs it
-SHARDS = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+SHARDS = shard_ids(config["states"]["n"], evaluation_shard_size(config))
 # The pilot's shards: of its first pilot.n development states (default: all states.n).
 PILOT_SHARDS = shard_ids(pilot_states(config), config["rollout"]["shard_size"])
 SHARD_PATTERN = r"\d{5}"
@@ -189,7 +190,7 @@ def simulator_env(wildcards):
 def shard_bounds(wildcards):
     """The state ids [first, stop) of the job's shard."""
     return shard_range(
-        wildcards.shard, config["rollout"]["shard_size"], config["states"]["n"]
+        wildcards.shard, evaluation_shard_size(config), config["states"]["n"]
     )
 
 

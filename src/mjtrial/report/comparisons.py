@@ -26,9 +26,9 @@ def _role(record: Mapping[str, Any]) -> str:
 
 
 def paired_text(record: Mapping[str, Any]) -> str:
-    """A comparison's paired difference with its interval; where the bootstrap interval was
-    degenerate (every pair's difference the same), why, and Newcombe's interval in its place;
-    at a ceiling or floor, that the comparison is at it."""
+    """A comparison's paired difference with its interval (Newcombe's); where the bootstrap
+    interval it replaces was degenerate (every pair's difference the same), why; at a ceiling
+    or floor, that the comparison is at it."""
     paired = record["paired_difference"]
     conf = pct(paired["confidence"])
     head = (
@@ -37,8 +37,8 @@ def paired_text(record: Mapping[str, Any]) -> str:
     )
     interval = signed_interval(paired["low"], paired["high"])
     replaced = paired.get("replaces")
-    if replaced is None:
-        return f"{head}, {conf} interval {interval} {_bootstrap_how(paired)}."
+    if replaced is None or replaced["low"] != replaced["high"]:
+        return f"{head}, {conf} interval {interval} ({paired['method']})."
     degenerate = signed_interval(replaced["low"], replaced["high"])
     newcombe = (
         f"the {conf} interval given is by {paired['method']}, valid there: **{interval}**, the "
@@ -89,11 +89,11 @@ def metric_lines(summary: Mapping[str, Any]) -> list[str]:
     family = summary["multiple_comparisons"]
     return [
         f"- Paired difference: the mean over states of success(treatment) - success(baseline), "
-        f"with a {pct(primary['confidence'])} interval by {bootstrap['method']} "
-        f"({bootstrap['n_resamples']} resamples, seed {bootstrap['seed']}; every comparison the "
-        "same resamples of states); where that interval is degenerate (every pair's difference "
-        "the same, as at a ceiling or floor) Newcombe's hybrid score interval (1998, method 10) "
-        "replaces it.",
+        f"with a {pct(primary['confidence'])} interval by {primary['method']}, whose coverage "
+        "stays near its level at every number of states and rate; the percentile bootstrap "
+        f"over pairs ({bootstrap['n_resamples']} resamples, seed {bootstrap['seed']}), which "
+        "covers less with few states near 0 or 1 and none where every pair's difference is "
+        "the same, is kept in the summary (`replaces`) only for comparison.",
         f"- Discordant pairs: {summary['mcnemar']['method']}.",
         f"- Comparisons planned in the config ({len(records)}): {names}; the first is the "
         "falsifier's (primary). "

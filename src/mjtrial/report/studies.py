@@ -68,7 +68,7 @@ def figure_sensitivity_forest(*, sensitivity: Mapping[str, Any]) -> Figure:
     ax.grid(axis="x", color=_SHADE, linewidth=0.6, zorder=0)
     ax.set_xlabel(
         f"{falsifier['treatment']} \u2212 {falsifier['baseline']} success\n"
-        f"({pct(sensitivity['confidence'])} paired bootstrap CI)"
+        f"({pct(sensitivity['confidence'])} Newcombe interval)"
     )
     handles = [
         ax.plot([], [], _VERDICT_STYLE[v][1], color=_VERDICT_STYLE[v][0], label=v)[0]
@@ -206,6 +206,15 @@ def _overrides(overrides: Mapping[str, Any]) -> str:
     return "; ".join(parts) or "none (as committed)"
 
 
+def _judged_by(falsifier: Mapping[str, Any], conf: str) -> str:
+    """How a variant's verdict is decided (`mjtrial.analysis.judge_falsifier`), in words."""
+    if float(falsifier["threshold"]) == 0:
+        return "refuted unless the exact McNemar test rejects no paired difference in its direction"
+    return (
+        f"refuted when the {conf} interval's lower bound is at or below {falsifier['threshold']:g}"
+    )
+
+
 def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -> str:
     """The report's "Sensitivity" section; `figure` is the forest plot's path for the link."""
     f = sensitivity["falsifier"]
@@ -215,12 +224,11 @@ def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -
     lines = [
         "## Sensitivity",
         "",
-        f"The falsifier ({f['statistic']}, {f['treatment']} \u2212 {f['baseline']}, refuted when "
-        f"the {conf} interval's lower bound is at or below {float(f['threshold']):g}) judged "
-        f"again on the same states under each simulator variant. Success with {conf} Wilson "
-        f"intervals; the difference with a {sensitivity['paired_difference_method']} "
-        f"({sensitivity['n_resamples']} resamples, seed {sensitivity['seed']}). A variant is "
-        f"invalid when any episode is unhealthy ({sensitivity['unhealthy_definition']}).",
+        f"The falsifier ({f['statistic']}, {f['treatment']} \u2212 {f['baseline']}, judged as "
+        f"in the main result: {_judged_by(f, conf)}) judged again on the same states under each "
+        f"simulator variant. Success with {conf} Wilson intervals; the difference with a "
+        f"{sensitivity['paired_difference_method']} interval. A variant is invalid when any "
+        f"episode is unhealthy ({sensitivity['unhealthy_definition']}).",
         "",
         head,
         "| " + " | ".join(["---"] * (len(names) + 4)) + " |",

@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.analysis import DECISION_EXACT, DECISION_SEQUENTIAL
 from mjtrial.conditions import condition_record, model_edits, policy_path
 from mjtrial.physics import load_model
 from mjtrial.policy_file import read_contract
@@ -585,13 +586,27 @@ def _failure_analysis(
 
 def _falsifier(summary: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[str]:
     f = summary["falsifier"]
-    conf = pct(summary["paired_difference"]["confidence"])
+    confidence = summary["paired_difference"]["confidence"]
+    conf = pct(confidence)
+    statistic = f"{f['statistic']} ({f['treatment']} - {f['baseline']})"
+    rule = {
+        DECISION_SEQUENTIAL: "the hypothesis is refuted unless the stopping rule's one-sided "
+        "test (Stopping early, below) rejects no paired difference in its direction at some "
+        f"look, the last at the maximum N included; the {conf} interval of {statistic} is "
+        "given beside it",
+        DECISION_EXACT: "the hypothesis is refuted unless the exact McNemar test rejects no "
+        f"paired difference in its direction at one-sided {(1 - confidence) / 2:g} (two-sided "
+        f"p at most {1 - confidence:g}, more discordant pairs to {f['treatment']}); the {conf} "
+        f"interval of {statistic} is given beside it",
+    }.get(
+        f.get("decision"),
+        f"the hypothesis is refuted when the lower bound of the {conf} interval of {statistic} "
+        f"is at or below {f['threshold']:g}",
+    )
     return [
         "## Falsifier",
         "",
-        f"{falsifier_clause(manifest)}the hypothesis is refuted when the lower bound of the {conf} "
-        f"interval of {f['statistic']} ({f['treatment']} - {f['baseline']}) is at or below "
-        f"{f['threshold']:g}.",
+        f"{falsifier_clause(manifest)}{rule}.",
         "",
         f"Verdict: **{f['verdict'].upper()}**.",
         "",

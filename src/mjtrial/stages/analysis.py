@@ -94,7 +94,15 @@ def summarize_tables(
         n = min(len(table["state_id"]) for table in outcomes.values())
         keep = states["state_id"] < n
         states = {c: values[keep] for c, values in states.items()}
-    summary = analysis.summarize(
+    record = None
+    if stopping:
+        falsifier = analysis_slice["falsifier"]
+        record = sequential.stopping_record(
+            outcomes[falsifier["treatment"]]["success"],
+            outcomes[falsifier["baseline"]]["success"],
+            stopping=stopping,
+        )
+    return analysis.summarize(
         states=states,
         outcomes=outcomes,
         nominal=nominal,
@@ -105,15 +113,8 @@ def summarize_tables(
         analysis=analysis_config,
         sample_size=analysis_slice.get("sample_size"),
         registered=read_registration(registration_path),
+        stopping=record,
     )
-    if stopping:
-        falsifier = analysis_slice["falsifier"]
-        summary["stopping"] = sequential.stopping_record(
-            outcomes[falsifier["treatment"]]["success"],
-            outcomes[falsifier["baseline"]]["success"],
-            stopping=stopping,
-        )
-    return summary
 
 
 # The stamp's name for the registration among the analysis' inputs (verify passes it back).

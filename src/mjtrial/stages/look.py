@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance, sequential
-from mjtrial.layout import Layout, shard_ids
+from mjtrial.layout import Layout, evaluation_shard_size, shard_ids
 from mjtrial.stages.stamping import make_stage_stamp
 
 log = logging.getLogger("mjtrial")
@@ -95,7 +95,7 @@ def stops(look_file: Path | str) -> bool:
 def shards_run(layout: Layout, config: Mapping[str, Any]) -> list[str]:
     """The evaluation's shards that ran, read from the look files on disk: every shard without
     a stopping rule, else each up to the first look that stopped (or the first missing look)."""
-    shards = shard_ids(config["states"]["n"], config["rollout"]["shard_size"])
+    shards = shard_ids(config["states"]["n"], evaluation_shard_size(config))
     if "stopping" not in config:
         return shards
     run = []

@@ -131,13 +131,9 @@ def declared_studies(config: Mapping[str, Any]) -> list[str]:
 
 
 def stopping_settings(config: Mapping[str, Any]) -> dict[str, Any]:
-    """The stopping rule as it runs: the config's `stopping`, its block (`rollout.shard_size`:
-    a look after each shard) and its maximum N (`states.n`)."""
-    return {
-        **config["stopping"],
-        "block": config["rollout"]["shard_size"],
-        "max_n": config["states"]["n"],
-    }
+    """The stopping rule as it runs: the config's `stopping` (a look after every `look_every`
+    states) and its maximum N (`states.n`)."""
+    return {**config["stopping"], "max_n": config["states"]["n"]}
 
 
 def _analysis_settings(config: Mapping[str, Any]) -> dict[str, Any]:

@@ -77,18 +77,23 @@ def variant_record(
         }
         for name, s in success.items()
     }
-    estimate, low, high = stats.paired_difference_ci(
-        success[treatment].astype(float),
-        success[baseline].astype(float),
-        n_resamples=int(analysis["n_resamples"]),
-        confidence=confidence,
-        seed=int(analysis["seed"]),
-    )
+    # the main analysis' interval and decision (`mjtrial.analysis.compare`, `judge_falsifier`)
+    a, b = success[treatment], success[baseline]
+    table = (int((a & b).sum()), int((a & ~b).sum()), int((~a & b).sum()), int((~a & ~b).sum()))
+    _, low, high = stats.newcombe_paired_interval(*table, confidence=confidence)
+    estimate = float(np.mean(a.astype(float) - b.astype(float)))  # as the analysis computes it
     paired = {"estimate": estimate, "low": low, "high": high}
+    test = stats.mcnemar(a, b)
     n_unhealthy = sum(rec["unhealthy"] for rec in conditions.values())
     judged = judge_falsifier(
         falsifier,
         paired,
+        test={
+            "p_value": test.p_value,
+            "treatment_only": test.only_a,
+            "baseline_only": test.only_b,
+            "alpha": 1.0 - confidence,
+        },
         n_unhealthy=n_unhealthy,
         n_episodes=sum(rec["n"] for rec in conditions.values()),
     )
@@ -142,9 +147,7 @@ def summarize_sensitivity(
     return {
         "falsifier": dict(falsifier),
         "confidence": float(analysis["confidence"]),
-        "paired_difference_method": f"{stats.BOOTSTRAP_METHOD} over pairs",
-        "n_resamples": int(analysis["n_resamples"]),
-        "seed": int(analysis["seed"]),
+        "paired_difference_method": stats.NEWCOMBE_METHOD,
         "unhealthy_definition": (
             "an episode with a MuJoCo warning, a non-finite state, or halted early "
             f"(failure category {UNHEALTHY!r})"

@@ -40,7 +40,15 @@ from mjtrial.conditions import (
 )
 from mjtrial.config import pilot_states
 from mjtrial.crate.check import crate_differences
-from mjtrial.layout import CONFIG_FILE, NOMINAL, STUDIES, Layout, shard_ids, shard_range
+from mjtrial.layout import (
+    CONFIG_FILE,
+    NOMINAL,
+    STUDIES,
+    Layout,
+    evaluation_shard_size,
+    shard_ids,
+    shard_range,
+)
 from mjtrial.recording import list_recordings
 from mjtrial.report import report_text
 from mjtrial.report.traces import record_difference
@@ -216,8 +224,9 @@ class _Checker:
         a re-simulated sample of each shard (the conditions, recordings and states of the
         config, unless given: the pilot's are the design's conditions on its first `pilot.n`
         development states, recorded nowhere)."""
-        size = self.config["rollout"]["shard_size"]
-        # the evaluation's shards that ran (a stopping rule's, up to the look that stopped)
+        # the evaluation's shards that ran (a stopping rule's, up to the look that stopped), or
+        # the pilot's (`n` given) in shards of rollout.shard_size
+        size = self.config["rollout"]["shard_size"] if n else evaluation_shard_size(self.config)
         shards = shard_ids(n, size) if n else shards_run(self.layout, self.config)
         n = n or self.config["states"]["n"]
         recorded = recorded or self.config["recording"]["episodes"]
@@ -282,12 +291,15 @@ class _Checker:
     def coverage(self) -> int:
         """Episodes to re-simulate per shard: every one if that fits the time budget
         (`verify.coverage`, timed on the first condition), and the check line says which."""
-        n, size = self.config["states"]["n"], self.config["rollout"]["shard_size"]
+        n = self.config["states"]["n"]
         pairs = list(self.conditions())
         design = [(NOMINAL, c) for c in self.config["conditions"]]
         episodes = sum(  # of the shards there (a study not run has none)
             stop - first
-            for layout, rollouts in ((self.layout, pairs), (self.layout.development, design))
+            for layout, rollouts, size in (
+                (self.layout, pairs, evaluation_shard_size(self.config)),
+                (self.layout.development, design, self.config["rollout"]["shard_size"]),
+            )
             for variant, condition in rollouts
             for shard in shard_ids(n, size)
             for first, stop in [shard_range(shard, size, n)]
