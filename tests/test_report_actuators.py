@@ -187,3 +187,19 @@ def test_servos_with_damping_or_a_gear_say_so():
     ]
     np.testing.assert_allclose([min(forces), max(forces)], [low, high], rtol=1e-12)
     assert "(kp × (ctrlrange − gear × the joint's range), × gear 2)" in text
+
+
+def test_a_tendons_limited_joints_are_what_stops_it():
+    """The gantry's gripper: one servo on a fixed tendon over the two finger joints, each
+    declared `range="0 0.05"` in the MJCF; the line names those ranges."""
+    from mjtrial.physics import load_model
+
+    mjcf = (ROOT / "models/gantry_gripper/gantry_gripper.xml").read_text()
+    for finger, axis in (("left_finger", "0 1 0"), ("right_finger", "0 -1 0")):
+        assert f'<joint name="{finger}" class="gantry" axis="{axis}" range="0 0.05"/>' in mjcf
+    model = load_model(ROOT / "models/gantry_gripper/scene.xml")
+    line = actuator_lines(model)[1 + _index(model, "gripper")]
+    assert line.endswith(
+        "its joints' ranges stop it (soft limits): `left_finger` [0, 0.05] m, "
+        "`right_finger` [0, 0.05] m"
+    )

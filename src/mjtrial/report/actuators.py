@@ -351,6 +351,22 @@ def _stop_text(model: mujoco.MjModel, i: int, position_unit: str) -> str:
     if trn == _TRN.mjTRN_TENDON and model.tendon_limited[target]:
         low, high = model.tendon_range[target]
         return f"the tendon's range [{low:g}, {high:g}] m stops it (a soft limit)"
+    if trn == _TRN.mjTRN_TENDON:  # a fixed tendon's joints may be limited one by one
+        first, n = model.tendon_adr[target], model.tendon_num[target]
+        joints = [
+            int(model.wrap_objid[w])
+            for w in range(first, first + n)
+            if model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT
+            and model.jnt_limited[model.wrap_objid[w]]
+        ]
+        if joints:
+            unit = lambda j: _JOINT_POSITION_UNIT[mujoco.mjtJoint(model.jnt_type[j])]  # noqa: E731
+            ranges = ", ".join(
+                f"`{_label(model, _OBJ.mjOBJ_JOINT, j)}` [{model.jnt_range[j][0]:g}, "
+                f"{model.jnt_range[j][1]:g}] {unit(j)}"
+                for j in joints
+            )
+            return f"its joints' ranges stop it (soft limits): {ranges}"
     return ""
 
 
