@@ -214,8 +214,7 @@ def _unclamped_force(model: mujoco.MjModel, i: int, act0: float) -> tuple[Interv
     if b1:
         lengths = length_range(model, i)
         if lengths is None:
-            what = "the joint's or tendon's position"
-            return _UNBOUNDED, f"its bias reads the length, and {what} has no range"
+            return _UNBOUNDED, "its bias reads its length, which no joint or tendon range bounds"
         force = _plus(force, _times(b1, lengths[0]))
         gear = model.actuator_gear[i, 0]
         over = lengths[1] if gear == 1 else f"gear × {lengths[1]}"
