@@ -106,3 +106,11 @@ def test_the_rates_are_the_physics_and_the_policys_under_each_condition():
         load_model(model_file), load_task(gantry["task"], repo_root=REPO_ROOT), gantry, model_file
     )
     assert len(open_loop) == 1 and "the controls are an open-loop sequence" in open_loop[0]
+
+
+def test_policy_check_says_a_signed_columns_signs():
+    from mjtrial.policy_check import _actuator
+
+    assert _actuator(("left", "right"), (1, -1)) == "[+left, -right]"
+    assert _actuator(("left", "right")) == "[left, right]"
+    assert _actuator("cart_motor") == "cart_motor"
