@@ -203,3 +203,16 @@ def test_a_tendons_limited_joints_are_what_stops_it():
         "its joints' ranges stop it (soft limits): `left_finger` [0, 0.05] m, "
         "`right_finger` [0, 0.05] m"
     )
+
+
+def test_a_muscles_passive_force_at_lmax_is_mujocos_curve():
+    """MuJoCo's passive curve (engine_util_misc.c): a cubic from optimal length to b = (1 +
+    lmax) / 2 reaching fpmax / 2, then a line of slope fpmax / (b - 1): at lmax, 1.5 × fpmax,
+    not fpmax."""
+    from mjtrial.report.actuators import passive_at_lmax
+
+    for lmax, fpmax in ((1.6, 1.3), (1.90307, 1.37875)):
+        prm = np.array([0.75, 1.05, 100.0, 200.0, 0.5, lmax, 1.5, fpmax, 1.2])
+        assert passive_at_lmax(prm) == pytest.approx(1.5 * fpmax, rel=1e-12)
+    model = mujoco.MjModel.from_xml_string(ELBOW)
+    assert "1.95 × peak at `lmax` (`fpmax` 1.3)" in actuator_lines(model)[1]

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import mujoco
+import numpy as np
 
 from mjtrial.task.address import describe
 
@@ -295,9 +296,20 @@ def _muscle_text(model: mujoco.MjModel, i: int) -> str:
         f"muscle, peak force {peak} at optimal length; force-length zero outside "
         f"[{prm[4]:g}, {prm[5]:g}] of the optimal length (`lmin`, `lmax`; `range` "
         f"[{prm[0]:g}, {prm[1]:g}] of it over the lengthrange), force-velocity up to "
-        f"`fvmax` {prm[8]:g} (`vmax` {prm[6]:g} optimal lengths/s), passive force up to "
-        f"`fpmax` {prm[7]:g} × peak at `lmax` and growing beyond"
+        f"`fvmax` {prm[8]:g} (`vmax` {prm[6]:g} optimal lengths/s), passive force zero up to "
+        f"optimal length, {passive_at_lmax(prm):.3g} × peak at `lmax` (`fpmax` {prm[7]:g}) and "
+        "growing beyond"
     )
+
+
+def passive_at_lmax(prm: np.ndarray) -> float:
+    """A muscle's passive force at `lmax`, in peak forces: MuJoCo's own curve
+    (`mju_muscleBias`), on a unit lengthrange mapped onto the muscle's `range`."""
+    unit = np.array(prm[:9], dtype=np.float64)
+    unit[2] = 1.0  # a peak force of 1
+    lengths = np.array([0.0, 1.0])
+    at_lmax = (unit[5] - unit[0]) / (unit[1] - unit[0])  # lmax on that lengthrange
+    return -mujoco.mju_muscleBias(at_lmax, lengths, 1.0, unit)
 
 
 _DYN_WORDS = {
