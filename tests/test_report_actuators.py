@@ -187,3 +187,32 @@ def test_servos_with_damping_or_a_gear_say_so():
     ]
     np.testing.assert_allclose([min(forces), max(forces)], [low, high], rtol=1e-12)
     assert "(kp × (ctrlrange − gear × the joint's range), × gear 2)" in text
+
+
+def test_a_tendons_limited_joints_are_what_stops_it():
+    """The gantry's gripper: one servo on a fixed tendon over the two finger joints, each
+    declared `range="0 0.05"` in the MJCF; the line names those ranges."""
+    from mjtrial.physics import load_model
+
+    mjcf = (ROOT / "models/gantry_gripper/gantry_gripper.xml").read_text()
+    for finger, axis in (("left_finger", "0 1 0"), ("right_finger", "0 -1 0")):
+        assert f'<joint name="{finger}" class="gantry" axis="{axis}" range="0 0.05"/>' in mjcf
+    model = load_model(ROOT / "models/gantry_gripper/scene.xml")
+    line = actuator_lines(model)[1 + _index(model, "gripper")]
+    assert line.endswith(
+        "its joints' ranges stop it (soft limits): `left_finger` [0, 0.05] m, "
+        "`right_finger` [0, 0.05] m"
+    )
+
+
+def test_a_muscles_passive_force_at_lmax_is_mujocos_curve():
+    """MuJoCo's passive curve (engine_util_misc.c): a cubic from optimal length to b = (1 +
+    lmax) / 2 reaching fpmax / 2, then a line of slope fpmax / (b - 1): at lmax, 1.5 × fpmax,
+    not fpmax."""
+    from mjtrial.report.actuators import passive_at_lmax
+
+    for lmax, fpmax in ((1.6, 1.3), (1.90307, 1.37875)):
+        prm = np.array([0.75, 1.05, 100.0, 200.0, 0.5, lmax, 1.5, fpmax, 1.2])
+        assert passive_at_lmax(prm) == pytest.approx(1.5 * fpmax, rel=1e-12)
+    model = mujoco.MjModel.from_xml_string(ELBOW)
+    assert "1.95 × peak at `lmax` (`fpmax` 1.3)" in actuator_lines(model)[1]

@@ -254,7 +254,7 @@ def test_joint_damping_armature_and_frictionloss_are_listed():
 
 
 def test_the_development_states_use_is_the_designs_own_words():
-    from mjtrial.report.text import _development_use
+    from mjtrial.report.setup import _development_use
 
     said = {"design": {"development_split": "Gains were tuned on the development states."}}
     assert _development_use(said) == ' (the design: "Gains were tuned on the development states")'

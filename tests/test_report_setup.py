@@ -8,7 +8,7 @@ import mujoco
 from fetch_mocap import FETCH, FINGERS, fetch_task
 from policy_graphs import tanh_mlp, write
 
-from mjtrial.report.text import _controller_lines
+from mjtrial.report.setup import _controller_lines
 
 MOCAP = {"body": "robot0:mocap", "relative_to": "target", "scale": 0.01}
 
@@ -58,7 +58,7 @@ def test_each_condition_is_said_with_its_own_policys_columns(tmp_path):
 def test_the_initial_states_say_each_parameters_distribution():
     from gantry_lift.task import TASK
 
-    from mjtrial.report.text import _initial_states_lines
+    from mjtrial.report.setup import _initial_states_lines
 
     states = {
         "n": 10,
@@ -85,7 +85,7 @@ def test_the_rates_are_the_physics_and_the_policys_under_each_condition():
     from conftest import REPO_ROOT
 
     from mjtrial.physics import load_model
-    from mjtrial.report.text import _rate_lines
+    from mjtrial.report.setup import _rate_lines
     from mjtrial.task import load_task
 
     config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
@@ -106,3 +106,11 @@ def test_the_rates_are_the_physics_and_the_policys_under_each_condition():
         load_model(model_file), load_task(gantry["task"], repo_root=REPO_ROOT), gantry, model_file
     )
     assert len(open_loop) == 1 and "the controls are an open-loop sequence" in open_loop[0]
+
+
+def test_policy_check_says_a_signed_columns_signs():
+    from mjtrial.policy_check import _actuator
+
+    assert _actuator(("left", "right"), (1, -1)) == "[+left, -right]"
+    assert _actuator(("left", "right")) == "[left, right]"
+    assert _actuator("cart_motor") == "cart_motor"

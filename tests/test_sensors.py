@@ -496,7 +496,7 @@ def test_noisy_episodes_re_simulated_alone_as_verify_does_equal_their_rows(noisy
 
 
 def test_the_manifest_and_report_say_what_errors_an_observation_has(noisy_run):
-    from mjtrial.report.text import _task_lines
+    from mjtrial.report.setup import _task_lines
     from mjtrial.stages.manifest import task_record
 
     record = task_record({"task": "tasks/cartpole_latency/task.py"}, repo_root=noisy_run)

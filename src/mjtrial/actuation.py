@@ -32,7 +32,7 @@ class ControlColumn:
     actuators: np.ndarray  # (k,) actuator indices
     qpos: np.ndarray | None  # (k,) qpos address of each actuator's joint, or None (absolute)
     scale: float
-    signs: tuple[int, ...] = ()  # (k,) +1 or -1 per actuator (a gripper's [a, -a]); (): all +1
+    signs: tuple[int, ...] = ()  # (k,) +1 or -1 per actuator (a hand's [a, -a]); (): all +1
 
     def sign(self, j: int) -> int:
         """The sign of the column's j-th actuator."""

@@ -52,7 +52,8 @@ class PolicyCheck:
         return [
             f"{self.policy.path}: contract {c.source}, sha256 {self.policy.sha256}",
             f"  task {c.task}: observations {', '.join(c.observations)}; actuators "
-            f"{', '.join(_actuator(a) for a in c.actuators)} ({c.action_scale})"
+            f"{', '.join(_actuator(a, c.signs_of(k)) for k, a in enumerate(c.actuators))} "
+            f"({c.action_scale})"
             + "".join(f", mocap body {m['body']}" for m in c.mocap)
             + f"; control period {c.control_period:g} s",
             "  privileged observations: "
@@ -75,12 +76,17 @@ class PolicyCheck:
         ]
 
 
-def _actuator(entry: str | tuple[str, ...] | RelativeColumn) -> str:
-    """A contract's actuator entry as said: one name, or the names one column drives (relative
-    to their joints: `relative [a, b] x 0.5`)."""
+def _actuator(entry: str | tuple[str, ...] | RelativeColumn, signs: tuple[int, ...] = ()) -> str:
+    """A contract's actuator entry as said: one name, or the names one column drives (each
+    with its sign when the column has signs: `[+left, -right]`; relative to their joints:
+    `relative [a, b] x 0.5`)."""
     if isinstance(entry, RelativeColumn):
         return f"relative {_actuator(entry.actuators)} x {entry.scale:g}"
-    return entry if isinstance(entry, str) else f"[{', '.join(entry)}]"
+    if isinstance(entry, str):
+        return entry
+    if signs:
+        entry = tuple(f"{'+' if s > 0 else '-'}{n}" for n, s in zip(entry, signs, strict=True))
+    return f"[{', '.join(entry)}]"
 
 
 def _sizes(batches: tuple[int, ...]) -> str:

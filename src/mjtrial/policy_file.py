@@ -593,7 +593,7 @@ class PolicyFile:
             # raw: clipped to a ctrllimited actuator's range, as MuJoCo would (unlimited: as is)
             limited = model.actuator_ctrllimited[indices].astype(bool)[:, None] & (not relative)
             own = np.where(limited, model.actuator_ctrlrange[indices], [-np.inf, np.inf])
-            # the column's range: each actuator's divided by its sign ([a, -a] fingers whose
+            # the column's range: each actuator's divided by its sign ([a, -a] jaws whose
             # ranges are [0, 0.04] and [-0.04, 0] share [0, 0.04])
             signs = np.array(self.contract.signs_of(k) or [1] * len(indices))[:, None]
             own = np.sort(own * signs, axis=1)

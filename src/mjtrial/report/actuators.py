@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import mujoco
+import numpy as np
 
 from mjtrial.task.address import describe
 
@@ -214,8 +215,7 @@ def _unclamped_force(model: mujoco.MjModel, i: int, act0: float) -> tuple[Interv
     if b1:
         lengths = length_range(model, i)
         if lengths is None:
-            what = "the joint's or tendon's position"
-            return _UNBOUNDED, f"its bias reads the length, and {what} has no range"
+            return _UNBOUNDED, "its bias reads its length, which no joint or tendon range bounds"
         force = _plus(force, _times(b1, lengths[0]))
         gear = model.actuator_gear[i, 0]
         over = lengths[1] if gear == 1 else f"gear × {lengths[1]}"
@@ -296,9 +296,20 @@ def _muscle_text(model: mujoco.MjModel, i: int) -> str:
         f"muscle, peak force {peak} at optimal length; force-length zero outside "
         f"[{prm[4]:g}, {prm[5]:g}] of the optimal length (`lmin`, `lmax`; `range` "
         f"[{prm[0]:g}, {prm[1]:g}] of it over the lengthrange), force-velocity up to "
-        f"`fvmax` {prm[8]:g} (`vmax` {prm[6]:g} optimal lengths/s), passive force up to "
-        f"`fpmax` {prm[7]:g} × peak at `lmax` and growing beyond"
+        f"`fvmax` {prm[8]:g} (`vmax` {prm[6]:g} optimal lengths/s), passive force zero up to "
+        f"optimal length, {passive_at_lmax(prm):.3g} × peak at `lmax` (`fpmax` {prm[7]:g}) and "
+        "growing beyond"
     )
+
+
+def passive_at_lmax(prm: np.ndarray) -> float:
+    """A muscle's passive force at `lmax`, in peak forces: MuJoCo's own curve
+    (`mju_muscleBias`), on a unit lengthrange mapped onto the muscle's `range`."""
+    unit = np.array(prm[:9], dtype=np.float64)
+    unit[2] = 1.0  # a peak force of 1
+    lengths = np.array([0.0, 1.0])
+    at_lmax = (unit[5] - unit[0]) / (unit[1] - unit[0])  # lmax on that lengthrange
+    return -mujoco.mju_muscleBias(at_lmax, lengths, 1.0, unit)
 
 
 _DYN_WORDS = {
@@ -351,6 +362,22 @@ def _stop_text(model: mujoco.MjModel, i: int, position_unit: str) -> str:
     if trn == _TRN.mjTRN_TENDON and model.tendon_limited[target]:
         low, high = model.tendon_range[target]
         return f"the tendon's range [{low:g}, {high:g}] m stops it (a soft limit)"
+    if trn == _TRN.mjTRN_TENDON:  # a fixed tendon's joints may be limited one by one
+        first, n = model.tendon_adr[target], model.tendon_num[target]
+        joints = [
+            int(model.wrap_objid[w])
+            for w in range(first, first + n)
+            if model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT
+            and model.jnt_limited[model.wrap_objid[w]]
+        ]
+        if joints:
+            unit = lambda j: _JOINT_POSITION_UNIT[mujoco.mjtJoint(model.jnt_type[j])]  # noqa: E731
+            ranges = ", ".join(
+                f"`{_label(model, _OBJ.mjOBJ_JOINT, j)}` [{model.jnt_range[j][0]:g}, "
+                f"{model.jnt_range[j][1]:g}] {unit(j)}"
+                for j in joints
+            )
+            return f"its joints' ranges stop it (soft limits): {ranges}"
     return ""
 
 

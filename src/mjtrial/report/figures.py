@@ -388,8 +388,10 @@ def figure_sample_traces(
     end = max(float(t.time[-1]) for t in traces.values())
     panel = fig.bbox.width / columns * 0.95  # pixels each condition's panel may use
     # the legend goes below the tick labels and the axis label, whatever the axes' height
+    tick = axes[0].xaxis.get_major_ticks()[0]
     below = -(
-        sum(matplotlib.rcParams[k] for k in ("xtick.major.size", "xtick.major.pad"))
+        tick.get_tick_padding()
+        + tick.get_pad()
         + matplotlib.rcParams["axes.labelpad"]
         + 2.4 * matplotlib.rcParams["font.size"]
     )

@@ -24,7 +24,7 @@ class Control:
     (gymnasium-robotics' Fetch drives two position servos of a hand so from one column).
 
     `signs`: +1 or -1 per actuator, multiplying the value for that actuator: robosuite's and
-    Metaworld's grippers drive two fingers with [a, -a] from one column, `signs=(1, -1)`.
+    Metaworld's hands drive their two jaws with [a, -a] from one column, `signs=(1, -1)`.
     """
 
     actuators: str | tuple[str, ...]

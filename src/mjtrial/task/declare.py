@@ -62,7 +62,8 @@ class Applier(Protocol):
 @dataclass(frozen=True)
 class StateParameter:
     """One column of the states table: drawn uniformly in [low, high] (config `states.ranges`
-    may change the range), then applied to each episode."""
+    may change the range, `states.distributions` draw it from a normal or a truncated normal
+    instead: `mjtrial.states`), then applied to each episode."""
 
     name: str
     unit: str
