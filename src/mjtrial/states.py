@@ -58,6 +58,10 @@ class ConstraintError(ValueError):
     """A `valid_state` constraint that keeps too few states, or answers with the wrong shape."""
 
 
+class NotAStateFunctionError(ConstraintError):
+    """A `valid_state` constraint whose answer for a state depends on more than its values."""
+
+
 def draw_valid_states(
     *,
     seed: int,
@@ -138,7 +142,7 @@ def check_state_function(
     for how, states, expected in asked:
         differ = int((_valid_rows(valid, states, parameters) != expected).sum())
         if differ:
-            raise ConstraintError(
+            raise NotAStateFunctionError(
                 f"not a function of each state's values: {how}, it answered {differ:,} of them "
                 "otherwise; expected each state's answer from its own values alone (no "
                 "unseeded randomness, module state, call order, clock or batch size)"
