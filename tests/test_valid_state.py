@@ -234,3 +234,18 @@ def test_verify_names_states_it_cannot_recompute_for_such_a_constraint_irreprodu
     assert checker.found.irreproducible == {
         rel: "cannot be recomputed: tasks/t/task.py: valid_state: not a function of each state's"
     }
+
+
+def test_the_config_check_refuses_such_a_constraint_before_any_job(tmp_path):
+    """The states job's probe runs in the config check too: refused when the workflow loads,
+    not in the states job (after the design is registered)."""
+    config = copy.deepcopy(CONFIG)
+    config["task"] = _task_file(tmp_path, NOT_FUNCTIONS["unseeded"][0])
+    with pytest.raises(ConfigError) as err:
+        check_config(config, source="config/config.yaml", repo_root=REPO_ROOT)
+    assert str(err.value).startswith(
+        f"config/config.yaml: task: {config['task']}: valid_state: not a function of each "
+        "state's values: asked twice about the same 10,000 states, it answered "
+    )
+    config["task"] = _task_file(tmp_path, "values['dx'] * values['dy'] > 0")
+    check_config(config, source="config/config.yaml", repo_root=REPO_ROOT)  # a function: passes

@@ -88,15 +88,7 @@ def draw_valid_states(
     """
     if n < 1:
         raise ValueError(f"n: expected at least 1 state, got {n}")
-    probe = generate_initial_states(seed=seed, n=PROBE_DRAWS, ranges=ranges, parameters=parameters)
-    answers = _valid_rows(valid, probe, parameters)
-    rate = float(np.mean(answers))
-    if rate < MIN_ACCEPTANCE:
-        raise ConstraintError(
-            f"expected at least {MIN_ACCEPTANCE:.0%} of states valid, got {rate:.2%} of the "
-            f"first {PROBE_DRAWS:,} drawn"
-        )
-    check_state_function(valid, probe, parameters, answers)
+    rate = probe_constraint(seed=seed, ranges=ranges, parameters=parameters, valid=valid)
     rng = np.random.default_rng(seed)
     kept: list[np.ndarray] = []  # per round, its valid rows (k, n_parameters)
     count = rejected = 0
@@ -119,6 +111,28 @@ def draw_valid_states(
         kept.append(block[needed])
         count += len(needed)
     return _table(np.concatenate(kept), parameters), rejected
+
+
+def probe_constraint(
+    *,
+    seed: int,
+    ranges: Mapping[str, Sequence[float]],
+    parameters: Sequence[str],
+    valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
+) -> float:
+    """The share of `PROBE_DRAWS` states (a generator of `seed`) the constraint accepts, after
+    the checks `draw_valid_states` makes before it draws (`ConstraintError`): also run by the
+    config check, so that a constraint it refuses is refused before any job."""
+    probe = generate_initial_states(seed=seed, n=PROBE_DRAWS, ranges=ranges, parameters=parameters)
+    answers = _valid_rows(valid, probe, parameters)
+    rate = float(np.mean(answers))
+    if rate < MIN_ACCEPTANCE:
+        raise ConstraintError(
+            f"expected at least {MIN_ACCEPTANCE:.0%} of states valid, got {rate:.2%} of the "
+            f"first {PROBE_DRAWS:,} drawn"
+        )
+    check_state_function(valid, probe, parameters, answers)
+    return rate
 
 
 def check_state_function(
