@@ -371,3 +371,21 @@ def test_view_counts_a_file_s_episodes_alike_in_every_message(folder, tmp_path, 
     argv = ["view", str(failures), "--condition", "c", "--state", "9", "--output", output]
     assert main([*argv, "--no-viewer"]) == 1
     assert capsys.readouterr().err.rstrip().endswith(f"among its {N_EPISODES} episodes' recordings")
+
+
+def test_an_episode_file_short_of_its_last_byte_is_one_line(folder, tmp_path, capsys):
+    """Cut inside its footer, rerun reads the file by a whole-file scan (with a warning) and
+    cannot give its store: one line, as for a frame cut short."""
+    from mjtrial.cli import main
+
+    copy = tmp_path / "c"
+    shutil.copytree(folder, copy)
+    episode = copy / "c-state-000000.rrd"
+    episode.write_bytes(episode.read_bytes()[:-1])
+    argv = ["view", str(episode), "--output", str(tmp_path / "ep.rrd"), "--no-viewer"]
+    assert main(argv) == 1
+    assert capsys.readouterr().err == (
+        f"mjtrial view: {episode}: not a readable .rrd file (truncated or damaged: it has no "
+        f"footer, which every file written whole has); `snakemake -c2 -R {copy}` rebuilds its "
+        "folder and what was made from it\n"
+    )

@@ -18,7 +18,7 @@ from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
 from mjtrial.stages.states import REDRAWN, build_states, draw_counted_states
 from mjtrial.states import draw_valid_states
-from mjtrial.task import TaskError
+from mjtrial.task import NotAFunctionError, TaskError
 
 RANGES = {"a": [-1.0, 1.0], "b": [0.0, 2.0]}
 
@@ -173,7 +173,7 @@ NOT_FUNCTIONS = {
 def test_a_constraint_that_is_not_a_function_of_the_state_is_refused_in_one_line(tmp_path, kind):
     rule, how = NOT_FUNCTIONS[kind]
     task = _task_file(tmp_path, rule)
-    with pytest.raises(TaskError) as err:
+    with pytest.raises(NotAFunctionError) as err:  # a TaskError: irreproducible for verify
         draw_counted_states({**GANTRY, "task": task}, repo_root=REPO_ROOT)
     message = str(err.value)
     assert message.startswith(
@@ -214,3 +214,38 @@ def test_a_constraint_that_rejects_every_round_of_n_stops_in_one_line():
         "state's answer from its own values alone, not the batch's size"
     )
     assert asked.count(7) == rounds
+
+
+def test_verify_names_states_it_cannot_recompute_for_such_a_constraint_irreproducible(tmp_path):
+    """The states of a run whose `valid_state` is not a function of the states cannot be
+    recomputed: verify says so (irreproducible), never that the file was tampered with."""
+    from mjtrial.layout import Layout
+    from mjtrial.verify.recompute import _Checker
+
+    layout = Layout(tmp_path / "results" / "x")
+    rel = "results/x/states.parquet"
+    checker = _Checker(layout, {"model": "m.xml"}, tmp_path, [rel], {}, "snakemake -c2")
+
+    def recompute():
+        raise NotAFunctionError("tasks/t/task.py: valid_state: not a function of each state's")
+
+    checker.check(layout.states, recompute)
+    assert checker.found.differs == {}
+    assert checker.found.irreproducible == {
+        rel: "cannot be recomputed: tasks/t/task.py: valid_state: not a function of each state's"
+    }
+
+
+def test_the_config_check_refuses_such_a_constraint_before_any_job(tmp_path):
+    """The states job's probe runs in the config check too: refused when the workflow loads,
+    not in the states job (after the design is registered)."""
+    config = copy.deepcopy(CONFIG)
+    config["task"] = _task_file(tmp_path, NOT_FUNCTIONS["unseeded"][0])
+    with pytest.raises(ConfigError) as err:
+        check_config(config, source="config/config.yaml", repo_root=REPO_ROOT)
+    assert str(err.value).startswith(
+        f"config/config.yaml: task: {config['task']}: valid_state: not a function of each "
+        "state's values: asked twice about the same 10,000 states, it answered "
+    )
+    config["task"] = _task_file(tmp_path, "values['dx'] * values['dy'] > 0")
+    check_config(config, source="config/config.yaml", repo_root=REPO_ROOT)  # a function: passes

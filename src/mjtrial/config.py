@@ -39,8 +39,9 @@ from mjtrial.policy_file import PolicyFileError, contract_path, load_policy_file
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simenv import model_overrides, variant_version
+from mjtrial.states import ConstraintError, probe_constraint
 from mjtrial.studies.variants import resolved_values, variant_model
-from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
+from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, call, load_task
 from mjtrial.task_checks import check_observations, nominal_episode_sha256, run_task_code
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
@@ -489,6 +490,19 @@ def check_config(
         fail("task", str(err))
     finally:
         mujoco.set_mju_user_warning(printer)
+    if task.valid_state is not None:  # the states job's probe, here before any job
+        try:
+            probe_constraint(
+                seed=config["states"]["seed"],
+                ranges=config["states"]["ranges"],
+                parameters=[p.name for p in task.state_parameters],
+                valid=lambda values: call(task, "valid_state", task.valid_state, values),
+                distributions=config["states"].get("distributions"),
+            )
+        except ConstraintError as err:
+            fail("task", f"{task.source or task.name}: valid_state: {err}")
+        except TaskError as err:
+            fail("task", str(err))
     nominal = nominal_episode_sha256(bound)
     for on_model, conditions in groups:
         if on_model.model is not bound.model and nominal_episode_sha256(on_model) == nominal:

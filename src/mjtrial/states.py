@@ -107,6 +107,10 @@ class ConstraintError(ValueError):
     """A `valid_state` constraint that keeps too few states, or answers with the wrong shape."""
 
 
+class NotAStateFunctionError(ConstraintError):
+    """A `valid_state` constraint whose answer for a state depends on more than its values."""
+
+
 def draw_valid_states(
     *,
     seed: int,
@@ -134,21 +138,9 @@ def draw_valid_states(
     """
     if n < 1:
         raise ValueError(f"n: expected at least 1 state, got {n}")
-    probe = generate_initial_states(
-        seed=seed,
-        n=PROBE_DRAWS,
-        ranges=ranges,
-        parameters=parameters,
-        distributions=distributions,
+    rate = probe_constraint(
+        seed=seed, ranges=ranges, parameters=parameters, valid=valid, distributions=distributions
     )
-    answers = _valid_rows(valid, probe, parameters)
-    rate = float(np.mean(answers))
-    if rate < MIN_ACCEPTANCE:
-        raise ConstraintError(
-            f"expected at least {MIN_ACCEPTANCE:.0%} of states valid, got {rate:.2%} of the "
-            f"first {PROBE_DRAWS:,} drawn"
-        )
-    check_state_function(valid, probe, parameters, answers)
     rng = np.random.default_rng(seed)
     kept: list[np.ndarray] = []  # per round, its valid rows (k, n_parameters)
     count = rejected = 0
@@ -175,6 +167,35 @@ def draw_valid_states(
     return _table(np.concatenate(kept), parameters), rejected
 
 
+def probe_constraint(
+    *,
+    seed: int,
+    ranges: Mapping[str, Sequence[float]],
+    parameters: Sequence[str],
+    valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
+    distributions: Distributions = None,
+) -> float:
+    """The share of `PROBE_DRAWS` states (a generator of `seed`) the constraint accepts, after
+    the checks `draw_valid_states` makes before it draws (`ConstraintError`): also run by the
+    config check, so that a constraint it refuses is refused before any job."""
+    probe = generate_initial_states(
+        seed=seed,
+        n=PROBE_DRAWS,
+        ranges=ranges,
+        parameters=parameters,
+        distributions=distributions,
+    )
+    answers = _valid_rows(valid, probe, parameters)
+    rate = float(np.mean(answers))
+    if rate < MIN_ACCEPTANCE:
+        raise ConstraintError(
+            f"expected at least {MIN_ACCEPTANCE:.0%} of states valid, got {rate:.2%} of the "
+            f"first {PROBE_DRAWS:,} drawn"
+        )
+    check_state_function(valid, probe, parameters, answers)
+    return rate
+
+
 def check_state_function(
     valid: Callable[[Mapping[str, np.ndarray]], np.ndarray],
     table: pa.Table,
@@ -196,7 +217,7 @@ def check_state_function(
     for how, states, expected in asked:
         differ = int((_valid_rows(valid, states, parameters) != expected).sum())
         if differ:
-            raise ConstraintError(
+            raise NotAStateFunctionError(
                 f"not a function of each state's values: {how}, it answered {differ:,} of them "
                 "otherwise; expected each state's answer from its own values alone (no "
                 "unseeded randomness, module state, call order, clock or batch size)"

@@ -22,6 +22,7 @@ from mjtrial.task import (
     BoundTask,
     ClosedLoop,
     Episodes,
+    NotAFunctionError,
     OpenLoop,
     Task,
     TaskError,
@@ -189,7 +190,7 @@ def check_setup_is_a_function(bound: BoundTask) -> None:
     for name in (*states, *states):
         sha = simulated_sha256(*bound.episode(states[name], scratch=scratch))
         if seen.setdefault(name, sha) != sha:
-            raise TaskError(
+            raise NotAFunctionError(
                 f"{_where(task)}: episode_setup: not a function of its arguments: the {name} "
                 "state's episode differed between two setups (another state's between them); "
                 "expected the same model and initial state for the same values (no unseeded "

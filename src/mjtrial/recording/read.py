@@ -71,7 +71,7 @@ def open_rrd(path: str | os.PathLike[str]) -> RrdReader:
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
             reader = RrdReader(path)
-            reader.recordings()
+        reader.recordings()  # a frame cut short: rerun's own words
         if any("no footer" in str(w.message) for w in said):
             raise ValueError("it has no footer, which every file written whole has")
     except (RuntimeError, ValueError, OSError) as exc:

@@ -14,8 +14,13 @@ import pyarrow.parquet as pq
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.layout import Layout
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
-from mjtrial.states import ConstraintError, draw_valid_states, generate_initial_states
-from mjtrial.task import TaskError, call, load_task
+from mjtrial.states import (
+    ConstraintError,
+    NotAStateFunctionError,
+    draw_valid_states,
+    generate_initial_states,
+)
+from mjtrial.task import NotAFunctionError, TaskError, call, load_task
 
 log = logging.getLogger("mjtrial")
 
@@ -149,7 +154,8 @@ def draw_counted_states(
                 **given,
             )
         except ConstraintError as err:
-            raise TaskError(f"{task.source or task.name}: valid_state: {err}") from None
+            kind = NotAFunctionError if isinstance(err, NotAStateFunctionError) else TaskError
+            raise kind(f"{task.source or task.name}: valid_state: {err}") from None
     (table, evaluation), (tuning, development) = drawn["evaluation"], drawn["development"]
     redrawn = None
     if task.valid_state is not None:

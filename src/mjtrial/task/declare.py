@@ -28,6 +28,11 @@ class TaskError(ValueError):
     """A task file that cannot be loaded, or whose declarations or functions are wrong."""
 
 
+class NotAFunctionError(TaskError):
+    """A task function (`episode_setup`, `valid_state`) whose result depends on more than its
+    arguments: no run of the task can be reproduced."""
+
+
 class ModelCheckError(TaskError):
     """The task's `check_model` refused the model; `problem` says why, without the file."""
 

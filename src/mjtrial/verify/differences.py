@@ -95,3 +95,15 @@ def recomputed_difference(first: Any, second: Any, *, what: str) -> str | None:
         return table_difference(first, columns(second), what=what)
     as_json = [json.dumps(x, sort_keys=True, default=str) for x in (first, second)]
     return None if as_json[0] == as_json[1] else f"{what} of the nominal episode differ"
+
+
+def not_reproduced(why: str, between: str) -> str:
+    """Why an output is irreproducible: it differs from its re-simulation (`why`), and a
+    second re-simulation differs from the first (`between`)."""
+    return (
+        f"differs from its re-simulation ({why}), and re-simulated twice here the two "
+        f"disagree ({between}): the task's code is not a function of its arguments (its "
+        "episode_setup, policy or a Custom state parameter draws unseeded randomness or reads "
+        "module state, call order or the clock): no run of it can be reproduced; no sign of "
+        "tampering"
+    )

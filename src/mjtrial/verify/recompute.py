@@ -62,12 +62,14 @@ from mjtrial.stages.rollout import nominal_episode
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
 from mjtrial.stages.studies import dose_response_summary, sensitivity_summary, study_report_text
+from mjtrial.task import NotAFunctionError
 from mjtrial.verify.coverage import DEFAULT_RESIMULATE, coverage
 from mjtrial.verify.differences import SHOWN as _SHOWN
 from mjtrial.verify.differences import (
     columns,
     json_difference,
     markdown_difference,
+    not_reproduced,
     recomputed_difference,
     table_difference,
 )
@@ -174,6 +176,9 @@ class _Checker:
         self.found.recomputed += 1
         try:
             why = difference()
+        except NotAFunctionError as err:  # the task's code, not the file: irreproducible
+            self.found.irreproducible[self.rel(path)] = f"cannot be recomputed: {err}"
+            return
         except Exception as err:  # noqa: BLE001 - an output that cannot be read back is named
             why = f"cannot be recomputed ({type(err).__name__}: {' '.join(str(err).split())[:100]})"
         if why:
@@ -464,13 +469,7 @@ class _Checker:
             return None
         between = recomputed_difference(first, resimulate(), what="two re-simulations")
         if between:
-            self.found.irreproducible[self.rel(path)] = (
-                f"differs from its re-simulation ({why}), and re-simulated twice here the two "
-                f"disagree ({between}): the task's code is not a function of its arguments "
-                "(its episode_setup, policy or a Custom state parameter draws unseeded "
-                "randomness or reads module state, call order or the clock): no run of it can "
-                "be reproduced; no sign of tampering"
-            )
+            self.found.irreproducible[self.rel(path)] = not_reproduced(why, between)
             return None
         return why
 
