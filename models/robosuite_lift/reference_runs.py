@@ -29,16 +29,15 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent.parent / "tasks" / "robosuite_lift"))
+sys.path.insert(0, str(HERE.parent.parent / "tasks"))
 import rsenv  # noqa: E402
 
 rsenv.ensure()
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
-import osc_reference  # noqa: E402
-import scripted  # noqa: E402
 from lift_env import make_env, reset_to, same_model  # noqa: E402
+from robosuite_lift import osc_reference, scripted  # noqa: E402
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 KEYS = ("state_id", "cube_x", "cube_y", "cube_yaw", "noise")

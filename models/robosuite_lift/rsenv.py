@@ -7,6 +7,10 @@ folder (git ignores `envs/`), built by uv from `requirements.txt` beside this fi
 package pinned with its hashes: `uv pip compile --generate-hashes requirements.in`). A script
 calls `ensure()` first: under any other interpreter it builds the environment once (uv's cache in
 `envs/uv-cache` unless `UV_CACHE_DIR` names one) and starts again under its Python.
+
+`ROBOSUITE_MUJOCO=3.14.0` selects instead robosuite 1.5.2 on MuJoCo 3.14.0
+(`requirements-mujoco-3.14.0.txt`, `envs/robosuite-1.5.2-mujoco-3.14.0/`), with the three
+shims of `mujoco_compat.py` applied: the same MuJoCo as mjtrial's own environment.
 """
 
 from __future__ import annotations
@@ -19,8 +23,15 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 REQUIREMENTS = HERE / "requirements.txt"
-ROBOSUITE, MUJOCO = "1.5.2", "3.9.0"
-VENV = Path("envs") / f"robosuite-{ROBOSUITE}" / "venv"
+ROBOSUITE = "1.5.2"
+MUJOCO = os.environ.get("ROBOSUITE_MUJOCO", "3.9.0")
+if MUJOCO == "3.9.0":
+    REQUIREMENTS, VENV = REQUIREMENTS, Path("envs") / f"robosuite-{ROBOSUITE}" / "venv"
+elif MUJOCO == "3.14.0":
+    REQUIREMENTS = HERE / "requirements-mujoco-3.14.0.txt"
+    VENV = Path("envs") / f"robosuite-{ROBOSUITE}-mujoco-3.14.0" / "venv"
+else:
+    sys.exit(f"rsenv: ROBOSUITE_MUJOCO is {MUJOCO!r}; expected 3.9.0 (default) or 3.14.0")
 
 
 def _versions_here() -> tuple[str, str] | None:
@@ -48,6 +59,10 @@ def ensure() -> None:
     """Return when this interpreter has robosuite 1.5.2 and MuJoCo 3.9.0; else build the
     environment (once) and re-run this script under its Python."""
     if _versions_here() == (ROBOSUITE, MUJOCO):
+        if MUJOCO != "3.9.0":
+            import mujoco_compat
+
+            mujoco_compat.apply()
         return
     python = VENV.absolute() / "bin" / "python"
     if Path(sys.prefix).resolve() == python.parent.parent.resolve():

@@ -11,12 +11,15 @@ closely). Derived from robosuite (MIT licence, `models/robosuite_lift/LICENSE`).
 The plain loop that reproduces robosuite's `env.step(action)` (`lite_physics=True`, the
 default; `control_freq` 20 Hz; the model's 2 ms timestep, so 25 physics steps an action):
 
+    ids = Ids.of(model)
+    state = start(model, data, ids)           # data: the reset state, after mj_forward
     for each policy action a (7 numbers: dx, dy, dz, dax, day, daz in [-1, 1], gripper):
         for i in range(25):
             mujoco.mj_step1(model, data)      # positions, velocities: J, M, bias, site poses
-            data.ctrl[:] = controller.ctrl(model, data, a, new_action=(i == 0))
+            data.ctrl[:] = ctrl(model, data, ids, state, a, new_action=(i == 0))
             mujoco.mj_step2(model, data)      # actuation, constraint solve, integration
 
+(`episode` below is that loop.)
 `mj_step` is never called and `mj_forward` never between steps: robosuite's `sim.step1()`,
 its controllers, `sim.step2()`. So every quantity the controller reads is MuJoCo's from
 `mj_step1` of this physics step: the grip site's pose and Jacobian (`mj_jacSite`), the mass
@@ -38,7 +41,16 @@ The policy's observations in robosuite's env (`env.step`'s return) are MuJoCo's 
 last `mj_step2`: positions computed by `mj_step1` (the grip site's `site_xpos`, the cube's
 `body_xpos`) are those of the state one physics step (2 ms) before the returned time, while
 `qpos`/`qvel` (the fingers' `robot0_gripper_qpos`) are the state at that time. After a reset,
-they are all the reset's (`mj_forward`).
+they are all the reset's (`mj_forward`). robosuite samples its observables on a clock
+(`sampling_rate` = control_freq, advanced 2 ms per physics step and by each forced update):
+from `env.reset()`, each step's observation is the data after its last physics step, but one
+more forced update after the reset moves every later sample a physics step earlier.
+
+Precision: robosuite runs `quat2mat`, `orientation_error`, `opspace_matrices` and
+`nullspace_torques` through numba, whose `inv`, `pinv` and `dot` call LAPACK and BLAS
+differently from numpy: the controls here differ from robosuite's by 1e-11 N m or less (numpy
+1.26 and 2.4 alike). `quat2mat` rounds the rotation to float32 as robosuite's does; in float64
+the torques would differ by about 1e-5 N m.
 
 What this does not reproduce: robosuite creates its controllers during its reset, after
 setting the arm's joints but before the fingers' and the cube's, and their first update (J, M,

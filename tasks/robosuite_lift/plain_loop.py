@@ -21,10 +21,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import osc_reference  # noqa: E402
-import reset  # noqa: E402
-import scripted  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tasks/, for a script
+from robosuite_lift import osc_reference, reset, scripted  # noqa: E402
 
 PHYSICS_STEPS = 25  # per policy step: 20 Hz actions, 2 ms physics
 CUBE_BODY = "cube_main"

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-from osc_reference import ARM_JOINTS, GRIPPER_INIT_QPOS, GRIPPER_JOINTS, INIT_QPOS
+from robosuite_lift.osc_reference import ARM_JOINTS, GRIPPER_INIT_QPOS, GRIPPER_JOINTS, INIT_QPOS
 
 CUBE_JOINT, CUBE_GEOM = "cube_joint0", "cube_g0"
 TABLE_OFFSET = np.array((0, 0, 0.8))  # the table's top centre (Lift's table_offset)
