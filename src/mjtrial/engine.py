@@ -44,6 +44,10 @@ from mjtrial.task import (
 # (benchmarks/bench_policy_file.py). Beyond MAX_BATCH episodes nothing got faster.
 BATCH_BYTES = 24 * 2**20
 MAX_BATCH = 256
+# A low-level controller's numpy calls are paid once per batch at every physics step: robosuite's
+# operational-space controller cost about 3 times less per episode in batches of 128 than of 19
+# (what BATCH_BYTES gives a 1,125-step Lift episode), so such batches hold at least this many.
+LOW_LEVEL_BATCH = 64
 UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
 
 
@@ -172,6 +176,8 @@ def iter_batches(
     task, model = bound.task, bound.model
     if batch_size is None:
         batch_size = batch_size_for(model, episode_steps(bound, condition))
+        if getattr(task.controller, "low_level", None) is not None:
+            batch_size = max(batch_size, LOW_LEVEL_BATCH)
     copies = bound.setup_copies or any(p.apply.stage == "model" for p in task.state_parameters)
     if copies:  # each batch slot holds a copy of the model, textures and all
         batch_size = max(1, min(batch_size, MODEL_COPIES_BYTES // mujoco.mj_sizeModel(model)))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+
 from robosuite_lift.osc_reference import ARM_JOINTS, GRIPPER_INIT_QPOS, GRIPPER_JOINTS, INIT_QPOS
 
 CUBE_JOINT, CUBE_GEOM = "cube_joint0", "cube_g0"
