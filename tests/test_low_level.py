@@ -170,3 +170,31 @@ def test_a_controller_whose_rows_depend_on_the_batch_is_refused(model):
     check_rows_alone(make(model), model, initial)  # the honest one passes
     with pytest.raises(ControllerError, match="row 0 alone gives other controls"):
         check_rows_alone(lambda: Mixing(model, ARM, kp=KP, kd=KD, scale=SCALE), model, initial)
+
+
+def test_an_episode_that_goes_unstable_halts_where_the_plain_loop_halts():
+    """A timestep of 5 s, far too long for the arm: MuJoCo warns (bad accelerations) and the
+    episode stops there, its state repeated, in the engine as in the plain loop."""
+    model = load_model(MANIPULATOR)
+    model.opt.timestep = 5.0
+    initial = initial_states(model, 3)
+    with rollout.Rollout(nthread=0) as runner:
+        batch = closed_loop.run_batch(
+            [model] * 3,
+            initial,
+            Wave(),
+            observe(model),
+            TIMING,
+            runner=runner,
+            datas=[mujoco.MjData(model)],
+            low_level=make(model),
+        )
+    frozen = np.all(batch.physics[:, -1] == batch.physics[:, -2], axis=1)
+    assert frozen.any()
+    for i, state in enumerate(initial):
+        ref = closed_loop.reference_episode(
+            model, state, Wave(), observe(model), TIMING, low_level=make(model)
+        )
+        assert ref.warnings.any() == frozen[i]
+        np.testing.assert_array_equal(batch.physics[i], ref.physics[0])
+        np.testing.assert_array_equal(batch.applied[i], ref.applied[0])

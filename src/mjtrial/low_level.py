@@ -189,14 +189,16 @@ class _Gather:
         v.time[i] = d.time
         v.qpos[i] = d.qpos
         v.qvel[i] = d.qvel
-        for k, site in enumerate(self.sites):
-            v.site_xpos[i, k] = d.site_xpos[site]
-            v.site_xmat[i, k] = d.site_xmat[site]
-            mujoco.mj_jacSite(m, d, v.site_jacp[i, k], v.site_jacr[i, k], site)
-        for k, body in enumerate(self.bodies):
-            v.body_xpos[i, k] = d.xpos[body]
-            v.body_xquat[i, k] = d.xquat[body]
-            mujoco.mj_jacBody(m, d, v.body_jacp[i, k], v.body_jacr[i, k], body)
+        if self.sites:
+            v.site_xpos[i] = d.site_xpos[self.sites]
+            v.site_xmat[i] = d.site_xmat[self.sites]
+            for k, site in enumerate(self.sites):
+                mujoco.mj_jacSite(m, d, v.site_jacp[i, k], v.site_jacr[i, k], site)
+        if self.bodies:
+            v.body_xpos[i] = d.xpos[self.bodies]
+            v.body_xquat[i] = d.xquat[self.bodies]
+            for k, body in enumerate(self.bodies):
+                mujoco.mj_jacBody(m, d, v.body_jacp[i, k], v.body_jacr[i, k], body)
         if reads.mass_matrix:
             mujoco.mj_fullM(m, d, v.mass_matrix[i])
         if reads.bias:
@@ -240,6 +242,7 @@ class _Slice:
         self.view = PhysicsView.empty(model, self.controller.reads, len(rows))
         self.gather = _Gather(model, self.controller.reads, self.view)
         self.halted = np.zeros(len(rows), dtype=bool)
+        self.no_warning = np.zeros_like(datas[0].warning.number).tobytes()
         self.pushes = _push_steps(pushes, rows)
         self.nu = model.nu
 
@@ -266,21 +269,21 @@ class _Slice:
             ctrl = np.asarray(ctrl, dtype=np.float64)
             if ctrl.shape != (len(rows), self.nu):
                 checked_controls(ctrl, len(rows), self.nu)
+            live = ~self.halted
+            if not np.isfinite(ctrl[live]).all():
+                checked_controls(ctrl[live], int(live.sum()), self.nu)
+            # a halted episode repeats its last controls, as its frozen state
+            applied[rows, j] = np.where(live[:, None], ctrl, applied[rows, j - 1])
             for i, (m, d) in enumerate(zip(models, datas, strict=True)):
                 row = rows[i]
-                if not self.halted[i]:
-                    if not np.isfinite(ctrl[i]).all():
-                        checked_controls(ctrl[i : i + 1], 1, self.nu)
+                if live[i]:
                     d.ctrl[:] = ctrl[i]
                     if self.pushes is not None:
                         body, start, stop, wrench = self.pushes
                         d.xfrc_applied[body] = wrench[i] if start[i] <= j < stop[i] else 0.0
                     mujoco.mj_step2(m, d)
-                    applied[row, j] = ctrl[i]
-                    if d.warning.number.any():
+                    if d.warning.number.tobytes() != self.no_warning:
                         self.halted[i] = True
-                else:
-                    applied[row, j] = applied[row, j - 1]
                 mujoco.mj_getState(m, d, physics[row, j], FULLPHYSICS)
                 sensordata[row, j] = d.sensordata
 
