@@ -70,6 +70,7 @@ CUBE_Z_OFFSET = 0.01  # m: the sampler's z_offset above the table top
 SUCCESS_HEIGHT = 0.04  # m above the table top (robosuite's _check_success)
 LIFTED = 0.01  # m: the cube counts as lifted this far above its start
 NOISE_RANGE = 4 * INIT_NOISE_STD  # rad: the joint noise's range for the schema and bands
+OBSERVATION_LAG = 1  # physics steps: robosuite's observed positions are the last mj_step1's
 
 
 def _id(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
@@ -117,8 +118,16 @@ def _set_yaw(model: mujoco.MjModel, data: mujoco.MjData, yaw: float) -> None:
 
 
 def timing(model: mujoco.MjModel, params) -> Timing:
+    """25 physics steps an action; the policy reads the state one physics step before its
+    instant, as robosuite's observations do: they are MuJoCo's data after the last `mj_step2`,
+    whose positions `mj_step1` computed at the state before that step (after a reset, the
+    reset's own)."""
     close_steps = int(params["close_steps"])
-    return Timing(steps_per_control=N_SUBSTEPS, n_controls=scripted.episode_steps(close_steps))
+    return Timing(
+        steps_per_control=N_SUBSTEPS,
+        n_controls=scripted.episode_steps(close_steps),
+        latency_steps=OBSERVATION_LAG,
+    )
 
 
 class ScriptedLift:
@@ -292,8 +301,7 @@ TASK = Task(
     ),
     limitations=(
         "One scripted policy; a learned one may close and lift differently.",
-        "robosuite's own observations read positions from MuJoCo's data after the last "
-        "physics step, 2 ms older than its joint positions; here every observation is of the "
-        "state at the policy's instant.",
+        "The policy reads positions 2 ms old, as robosuite's observations hold them; an "
+        "observation of a joint position would be 2 ms old here too, where robosuite's is not.",
     ),
 )
