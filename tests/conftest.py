@@ -51,13 +51,28 @@ SNAKEMAKE = str(Path(__import__("sys").executable).parent / "snakemake")
 WORKFLOW_FILES = ("Snakefile", "workflow", "config", "models", "tasks", "profiles", "policies")
 
 
+# Large model folders no test writes into: linked into a test's copy of the workflow, not
+# copied (robosuite's Lift is 45 MB of meshes; the pipeline tests copy the workflow about a
+# hundred times).
+LINKED = ("models/robosuite_lift",)
+
+
 def copy_workflow(workdir: Path) -> Path:
-    """The workflow's files (`WORKFLOW_FILES`) copied into `workdir`, a folder to run it in."""
+    """The workflow's files (`WORKFLOW_FILES`) copied into `workdir`, a folder to run it in
+    (the `LINKED` folders as symbolic links)."""
     import shutil
+
+    def ignore(folder: str, names: list[str]) -> list[str]:
+        return [n for n in names if (Path(folder) / n).relative_to(REPO_ROOT).as_posix() in LINKED]
 
     for name in WORKFLOW_FILES:
         src = REPO_ROOT / name
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+        if src.is_dir():
+            shutil.copytree(src, workdir / name, ignore=ignore)
+        else:
+            shutil.copy(src, workdir / name)
+    for rel in LINKED:
+        (workdir / rel).symlink_to(REPO_ROOT / rel, target_is_directory=True)
     return workdir
 
 

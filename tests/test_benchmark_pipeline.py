@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
-from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
+from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial import provenance
 from mjtrial.cli import main
@@ -53,10 +53,7 @@ def small(config):
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory) -> Path:
-    workdir = tmp_path_factory.mktemp("benchmark")
-    for name in WORKFLOW_FILES:
-        src = REPO_ROOT / name
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
+    workdir = copy_workflow(tmp_path_factory.mktemp("benchmark"))
     for experiment in ("config/config.yaml", "config/cartpole_latency.yaml"):
         edit_yaml(workdir / experiment, lambda c: c["states"].update(n=N_STATES))
     # the cart-pole's evaluations in shards of 6 states (6, 6, 4), the gantry's in one

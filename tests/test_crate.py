@@ -453,8 +453,8 @@ ODD = Layout.of("odd")
 @pytest.fixture(scope="module")
 def odd_names(built, tmp_path_factory) -> Path:
     """A copy of the built experiment with a second one whose task (`mjtrial new-task`'s)
-    lives in `tasks/odd ü/`, built small; then the first experiment's crate rebuilt, its copy
-    of the sources holding the new folder too."""
+    lives in `tasks/odd ü/`, built small; then the first experiment's crate rebuilt (its copy
+    of the sources holds only the task and model folders its own jobs read)."""
     import yaml
     from conftest import run_snakemake
 
@@ -483,8 +483,11 @@ def test_a_task_folder_named_with_a_space_and_a_non_ascii_letter_verifies(odd_na
     assert {"@id": f"source/{ODD_ID}/task.py"} in job["object"]
     report = _verify_odd(odd_names)
     assert report.ok, report.format()
-    # The other experiment, whose crate was rebuilt with the folder in its copy of the sources.
-    assert f"source/{ODD_ID}/task.py" in graph(odd_names / LAYOUT.crate)
+    # The other experiment, whose crate was rebuilt: its copy of the sources holds the task
+    # folders its jobs read, not the odd one, and it verifies.
+    assert f"source/{ODD_ID}/task.py" not in graph(odd_names / LAYOUT.crate)
+    assert not (odd_names / LAYOUT.root / "source" / ODD_FOLDER).exists()
+    assert (odd_names / LAYOUT.root / "source" / "tasks" / "gantry_lift" / "task.py").is_file()
     report = verify(odd_names)
     assert report.ok, report.format()
 

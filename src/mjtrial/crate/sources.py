@@ -22,6 +22,8 @@ from mjtrial.layout import STAGES, WORKFLOW_SOURCES
 # Found in a source tree, never part of it.
 _SKIPPED_DIRS = ("__pycache__",)
 _SKIPPED_SUFFIXES = (".pyc", ".pyo")
+# Folders of which the copy keeps only the subfolders the run's jobs read (`source_files`).
+_READ_ONLY_IF_USED = ("models", "tasks")
 # Files a copy of the workflow without them takes from the package's own repository.
 _PROJECT_FILES = ("pyproject.toml", "README.md")
 
@@ -47,11 +49,16 @@ def source_files(workdir: Path, read: Iterable[str] = ()) -> dict[str, Path]:
     `WORKFLOW_SOURCES` from `workdir` (a copy of the workflow without `pyproject.toml` or
     `README.md` takes them from the package's repository, when it has them), the package
     Python imports as `src/mjtrial/`, and the files in `read` (paths relative to `workdir`
-    that the jobs read: a model or a task kept outside those folders travels too). Hidden
-    files, `__pycache__` and compiled files are left.
+    that the jobs read: a model or a task kept outside those folders travels too). Of
+    `models/` and `tasks/`, only the folders holding a file in `read` are copied (whole, with
+    their READMEs and licences). Hidden files, `__pycache__` and compiled files are left.
     """
     workdir = Path(workdir)
     package = Path(mjtrial.__file__).resolve().parent
+    read = list(read)
+    # of `models/` and `tasks/`, the folders the jobs read from (robosuite's Lift is 45 MB of
+    # meshes, which no other run needs); all of them when nothing says what was read
+    used = {Path(rel).parts[:2] for rel in read if len(Path(rel).parts) > 2}
     files: dict[str, Path] = {}
     for name in WORKFLOW_SOURCES:
         top = workdir / name
@@ -60,7 +67,11 @@ def source_files(workdir: Path, read: Iterable[str] = ()) -> dict[str, Path]:
         if not top.exists():
             continue
         for f in _files_under(top):
-            files[(Path(name) / f.relative_to(top)).as_posix() if top.is_dir() else name] = f
+            rel = (Path(name) / f.relative_to(top)).as_posix() if top.is_dir() else name
+            parts = Path(rel).parts
+            if used and name in _READ_ONLY_IF_USED and len(parts) > 2 and parts[:2] not in used:
+                continue
+            files[rel] = f
     for f in _files_under(package):
         files[(Path("src") / package.name / f.relative_to(package)).as_posix()] = f
     for rel in read:
