@@ -51,6 +51,15 @@ FETCH_EDITS = {
     "object colour": (lambda m: m.geom_rgba.__setitem__(m.geom(OBJECT).id, [1, 0, 0, 1]), True),
     "free body pos": (lambda m: m.body_pos.__setitem__((m.body(OBJECT).id, 0), 1.7), True),
     "free body quat": (lambda m: m.body_quat.__setitem__(m.body(OBJECT).id, [0, 0, 0, 1]), True),
+    # below every geom it can touch (all at 1 0.005 0.0001): MuJoCo takes the larger of two
+    "object friction halved": (
+        lambda m: m.geom_friction.__setitem__(m.geom(OBJECT).id, [0.5, 0.005, 0.0001]),
+        True,
+    ),
+    "object friction doubled": (
+        lambda m: m.geom_friction.__setitem__(m.geom(OBJECT).id, [2.0, 0.005, 0.0001]),
+        False,
+    ),
     "object mass": (lambda m: m.body_mass.__setitem__(m.body(OBJECT).id, 5.0), False),
     "a joint's damping": (lambda m: m.dof_damping.__setitem__(0, 3.0), False),
     "timestep": (lambda m: setattr(m.opt, "timestep", 0.001), False),
@@ -148,6 +157,13 @@ def _gantry_cube_moved() -> dict:
     return config
 
 
+def _gantry_edited(edits: dict) -> dict:
+    config = _gantry()
+    config["conditions"]["fast"]["model"] = edits
+    config.pop("variants")
+    return config
+
+
 RED = {"geom": {"cube": {"rgba": [1, 0, 0, 1]}}}
 NO_CHANGE = {
     # every joint of the cart-pole sets its own damping: the class's value reaches none
@@ -163,6 +179,14 @@ NO_CHANGE = {
     "a free body's position under a keyframe reset": (
         _gantry_cube_moved,
         f"conditions.fast.model: {NOTHING}",
+    ),
+    # MuJoCo takes the larger of two geoms' frictions: the pads' torsional 0.003 and the
+    # floor's 0.005 stay (a sliding friction under 0.8 would change the floor's contacts: 0.6)
+    "a cube's torsional friction under the pads' and the floor's": (
+        lambda: _gantry_edited({"geom": {"cube": {"friction": [0.8, 0.001, 0.0001]}}}),
+        "conditions.fast.model: changes nothing: `cube` friction 0.8 0.003 0.0001 -> 0.8 0.001 "
+        "0.0001; its contacts with `floor`, `left_pad`, `right_pad` keep their values (MuJoCo "
+        "mixes each pair's contact parameters from its two geoms",
     ),
     "a variant's colour": (
         lambda: _gantry(variants={"red": RED}),

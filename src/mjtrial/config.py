@@ -32,6 +32,7 @@ from mjtrial.config_files import (  # noqa: F401 - read from here by the workflo
     rerun_command,
     run_configuration,
 )
+from mjtrial.contacts import describe_contact_changes
 from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.physics import ModelError, load_model
@@ -451,7 +452,7 @@ def check_config(
     for on_model, conditions in groups:
         if on_model.model is not bound.model and nominal_episode_sha256(on_model) == nominal:
             (name,) = conditions  # a condition with edits of the model has a group of its own
-            fail(f"conditions.{name}.model", f"changes nothing: {_SAME_SIMULATION}")
+            fail(f"conditions.{name}.model", _changes_nothing(bound.model, on_model.model))
         designed = {n: c for n, c in conditions.items() if n in config["conditions"]}
         unstable = _unstable(on_model, designed, config["failure_taxonomy"])
         if unstable:
@@ -464,6 +465,20 @@ _SAME_SIMULATION = (
     "the edited model simulates as the committed one (`physics.simulated_sha256`: a colour, a "
     "name, a value every element overrides or MuJoCo ignores); expected an edit of the physics"
 )
+
+
+def _changes_nothing(committed: mujoco.MjModel, edited: mujoco.MjModel) -> str:
+    """Why an edit simulates as the committed model: in its contacts' terms where it edited a
+    geom's contact parameters ("`cube` friction 0.8 -> 0.4; its contacts with `pad` keep their
+    values"), since MuJoCo mixes each pair's from its two geoms and a geom's own never acts."""
+    said = describe_contact_changes(committed, edited) if committed.ngeom == edited.ngeom else []
+    if not said:
+        return f"changes nothing: {_SAME_SIMULATION}"
+    return (
+        f"changes nothing: {'; '.join(said)} (MuJoCo mixes each pair's contact parameters from "
+        "its two geoms: the larger friction and condim, or the higher priority's); expected an "
+        "edit of the physics"
+    )
 
 
 def _conditions_by_model(
@@ -539,7 +554,7 @@ def _check_studies(
             fail(key, str(err))
         simulated = (version, nominal_episode_sha256(on_variant))
         if seen.get(simulated) == NOMINAL:
-            fail(key, f"changes nothing: {_SAME_SIMULATION}")
+            fail(key, _changes_nothing(bound.model, model))
         if simulated in seen:
             fail(
                 key,
