@@ -185,8 +185,9 @@ NO_CHANGE = {
     "a cube's torsional friction under the pads' and the floor's": (
         lambda: _gantry_edited({"geom": {"cube": {"friction": [0.8, 0.001, 0.0001]}}}),
         "conditions.fast.model: changes nothing: `cube` friction 0.8 0.003 0.0001 -> 0.8 0.001 "
-        "0.0001; its contacts with `floor`, `left_pad`, `right_pad` keep their values (MuJoCo "
-        "mixes each pair's contact parameters from its two geoms",
+        "0.0001; its contacts with `floor` keep friction 0.8 0.005 0.0001; its contacts with "
+        "`left_pad`, `right_pad` keep friction 0.8 0.003 0.0001 (MuJoCo mixes each pair's "
+        "contact parameters from its two geoms",
     ),
     "a variant's colour": (
         lambda: _gantry(variants={"red": RED}),

@@ -4,13 +4,24 @@ solref, solimp, the margin it includes), on small models and on the Fetch as it 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+import yaml
+from conftest import REPO_ROOT
 
-from mjtrial.contacts import collision_pairs, describe_contact_changes, pair_contacts
+from mjtrial.contacts import (
+    collision_pairs,
+    contact_lines,
+    describe_contact_changes,
+    pair_contacts,
+)
+from mjtrial.physics import load_model
+from mjtrial.report.text import _contact_edit_lines
+from mjtrial.task import ModelValue, StateParameter, load_task
 
 FETCH = Path(__file__).resolve().parents[1] / "tasks/fetch_pick/assets/fetch/pick_and_place.xml"
 
@@ -189,8 +200,8 @@ def _fingers(*, floor: float, cube: float) -> mujoco.MjModel:
 def test_a_lower_friction_under_geoms_that_grip_harder_is_said_to_change_no_contact():
     before, after = _fingers(floor=1, cube=1), _fingers(floor=1, cube=0.5)
     assert describe_contact_changes(before, after) == [
-        "`cube` friction 1 0.005 0.0001 -> 0.5 0.005 0.0001; its contacts with `floor`, `pad` "
-        "keep their values"
+        "`cube` friction 1 0.005 0.0001 -> 0.5 0.005 0.0001; its contacts with `floor` keep "
+        "friction 1 0.005 0.0001; its contacts with `pad` keep friction 2 0.005 0.0001"
     ]
 
 
@@ -199,5 +210,38 @@ def test_a_contact_whose_larger_friction_was_the_edited_geoms_is_said_to_change(
     assert describe_contact_changes(before, after) == [
         "`cube` friction 1 0.005 0.0001 -> 0.5 0.005 0.0001; its contacts with `floor` "
         "(friction 1 0.005 0.0001 -> 0.5 0.005 0.0001) change; its contacts with `pad` keep "
-        "their values"
+        "friction 2 0.005 0.0001"
+    ]
+
+
+def test_the_reports_table_gives_each_pairs_values_not_each_geoms():
+    model = _two_spheres(
+        'friction="0.5 0.01 0.001" priority="1"', 'friction="2 0.002 0.003" condim="6"'
+    )
+    assert contact_lines(model)[2:] == [
+        "| pairs | condim | friction (sliding, torsional, rolling) | solref | solimp "
+        "| margin, gap (m) | from |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| `b` & `a` | 3 | 0.5 0.01 0.001 | 0.02 1 | 0.9 0.95 0.001 0.5 2 | 0, 0 "
+        "| `a`'s (higher priority) |",
+    ]
+    assert _said(model) == _contacts_as_mujoco_makes_them(model)  # the row is MuJoCo's
+
+
+def test_the_report_says_a_conditions_and_a_state_parameters_edit_of_a_geom_in_contact_terms():
+    config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
+    config["conditions"]["fast"]["model"] = {"geom": {"cube": {"friction": [0.4, 0.003, 0.0001]}}}
+    path = REPO_ROOT / config["model"]
+    model = load_model(path)
+    task = load_task(config["task"], repo_root=REPO_ROOT)
+    grip = StateParameter("grip", "", 0.2, 0.7, ModelValue("geom", "cube", "friction"))
+    task = replace(task, state_parameters=(*task.state_parameters, grip))
+    lines = _contact_edit_lines(config, model, path, task)
+    assert lines[-2:] == [
+        "- condition `fast`: `cube` friction 0.8 0.003 0.0001 -> 0.4 0.003 0.0001; its contacts "
+        "with `floor` (friction 0.8 0.005 0.0001 -> 0.6 0.005 0.0001) change; its contacts with "
+        "`left_pad`, `right_pad` keep friction 0.8 0.003 0.0001",
+        "- state parameter `grip` from 0.2 to 0.7: `cube` friction 0.2 0.003 0.0001 -> 0.7 0.003 "
+        "0.0001; its contacts with `floor` (friction 0.6 0.005 0.0001 -> 0.7 0.005 0.0001) "
+        "change; its contacts with `left_pad`, `right_pad` keep friction 0.8 0.003 0.0001",
     ]

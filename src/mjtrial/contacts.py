@@ -92,7 +92,8 @@ class PairContact:
       solref: (2,); solimp: (5,); solreffriction: (2,), a `<pair>`'s (zeros: as solref);
         adhesion: newtons; margin, gap: metres (a contact is
         detected within margin + gap, and acts within margin).
-      rule: how they were chosen, in words ("geom `pad` has the higher priority").
+      rule: where they come from, in words ("mixed", "`pad`'s (higher priority)",
+        "`<pair>` 0").
     """
 
     geoms: tuple[int, int]
@@ -120,7 +121,7 @@ def _mix(model: mujoco.MjModel, g1: int, g2: int) -> tuple:
     p1, p2 = model.geom_priority[g1], model.geom_priority[g2]
     if p1 != p2:
         g = g1 if p1 > p2 else g2
-        rule = f"priority: {_name(model, g)}'s values"
+        rule = f"{_name(model, g)}'s (higher priority)"
         return (
             int(model.geom_condim[g]),
             model.geom_friction[g].copy(),
@@ -144,7 +145,7 @@ def _mix(model: mujoco.MjModel, g1: int, g2: int) -> tuple:
     solimp = mix * model.geom_solimp[g1] + (1 - mix) * model.geom_solimp[g2]
     friction = np.maximum(model.geom_friction[g1], model.geom_friction[g2])
     condim = int(max(model.geom_condim[g1], model.geom_condim[g2]))
-    rule = "larger friction and condim" + ("" if mix == 0.5 else f", solmix weight {mix:g}")
+    rule = "mixed" + ("" if mix == 0.5 else f" (solmix weight {mix:.3g} on {_name(model, g1)})")
     adhesion = float(model.geom_adhesion[g1] + model.geom_adhesion[g2])
     return condim, friction, solref, solimp, adhesion, rule
 
@@ -169,7 +170,7 @@ def pair_contact(
         solreffriction = model.pair_solreffriction[pair].copy()
         adhesion = float(model.pair_adhesion[pair])
         margin, gap = float(model.pair_margin[pair]), float(model.pair_gap[pair])
-        rule = f"`<pair>` {pair}'s own values"
+        rule = f"`<pair>` {pair}"
     else:
         condim, fri, solref, solimp, adhesion, rule = _mix(model, g1, g2)
         friction = fri[[0, 0, 1, 2, 2]]
@@ -181,7 +182,7 @@ def pair_contact(
         solref, solimp = model.opt.o_solref.copy(), model.opt.o_solimp.copy()
         solreffriction = model.opt.o_solref.copy()
         friction = model.opt.o_friction.copy()
-        rule = "the option's override"
+        rule = "`<option>` override"
     friction = np.maximum(friction, _MINMU)
     return PairContact(
         geoms=(min(g1, g2), max(g1, g2)),
@@ -224,57 +225,79 @@ def describe_contact_changes(
     before: mujoco.MjModel, after: mujoco.MjModel, *, max_pairs: int = 6
 ) -> list[str]:
     """What an edit of geoms does to their contacts, in a line per edited geom: "`cube`
-    friction 1 -> 0.5; its contacts with `left_pad`, `right_pad` keep 2 (the larger friction);
-    with `floor`: friction 1 -> 0.5". Only geoms whose mixed fields changed are said; the
-    models must have the same geoms."""
+    friction 1 0.005 0.0001 -> 0.5 0.005 0.0001; its contacts with `left_pad`, `right_pad`
+    keep friction 2 0.005 0.0001; its contacts with `floor` (friction 1 ... -> 0.8 ...)
+    change". Only geoms whose contact fields changed are said; the models must have the same
+    geoms."""
     old = {c.geoms: c for c in pair_contacts(before)}
     new = {c.geoms: c for c in pair_contacts(after)}
     lines = []
     for g in range(after.ngeom):
-        edited = [
-            f"{field.removeprefix('geom_')} {_shown(getattr(before, field)[g])} -> "
-            f"{_shown(getattr(after, field)[g])}"
-            for field in (*MIXED_GEOM_FIELDS, "geom_adhesion", "geom_margin", "geom_gap")
+        fields = [
+            field
+            for field in _CONTACT_FIELDS
             if not np.array_equal(getattr(before, field)[g], getattr(after, field)[g])
         ]
-        if not edited:
+        if not fields:
             continue
+        shown = sorted({s for f in fields for s in _CONTACT_FIELDS[f]}, key=_PAIR_FIELDS.index)
         touching = [k for k in sorted(set(old) | set(new)) if g in k]
-        kept, changed = [], []
+        kept: dict[str, list[str]] = {}
+        changed = []
         for key in touching:
             other = _name(after, key[0] if key[1] == g else key[1])
             a, b = old.get(key), new.get(key)
             if a is not None and b is not None and a.values() == b.values():
-                kept.append(other)
+                values = ", ".join(f"{f} {_shown(_pair_value(b, f))}" for f in shown)
+                kept.setdefault(values, []).append(other)
             else:
                 changed.append(f"{other} ({_pair_change(a, b)})")
-        parts = [f"{_name(after, g)} {', '.join(edited)}"]
+        edited = ", ".join(
+            f"{f.removeprefix('geom_')} {_shown(getattr(before, f)[g])} -> "
+            f"{_shown(getattr(after, f)[g])}"
+            for f in fields
+        )
+        parts = [f"{_name(after, g)} {edited}"]
         if not touching:
             parts.append("it touches no geom (contype, conaffinity)")
         if changed:
             parts.append(f"its contacts with {_listed(changed, max_pairs)} change")
-        if kept:
-            parts.append(f"its contacts with {_listed(kept, max_pairs)} keep their values")
+        parts += [
+            f"its contacts with {_listed(others, max_pairs)} keep {values}"
+            for values, others in kept.items()
+        ]
         lines.append("; ".join(parts))
     return lines
+
+
+# Each geom field an edit may change, with the fields of its pairs' contacts it can move.
+_PAIR_FIELDS = ("condim", "friction", "solref", "solimp", "adhesion", "margin", "gap")
+_CONTACT_FIELDS = {
+    "geom_friction": ("friction",),
+    "geom_condim": ("condim",),
+    "geom_solref": ("solref",),
+    "geom_solimp": ("solimp",),
+    "geom_solmix": ("solref", "solimp"),
+    "geom_priority": ("condim", "friction", "solref", "solimp", "adhesion"),
+    "geom_adhesion": ("adhesion",),
+    "geom_margin": ("margin",),
+    "geom_gap": ("gap",),
+}
+
+
+def _pair_value(c: PairContact, field: str):
+    return _three(c.friction) if field == "friction" else getattr(c, field)
 
 
 def _pair_change(a: PairContact | None, b: PairContact | None) -> str:
     if a is None or b is None:
         return "can touch now" if a is None else "can no longer touch"
-    parts = []
-    for label, x, y in (
-        ("condim", a.condim, b.condim),
-        ("friction", _three(a.friction), _three(b.friction)),
-        ("solref", a.solref, b.solref),
-        ("solimp", a.solimp, b.solimp),
-        ("adhesion", a.adhesion, b.adhesion),
-        ("margin", a.margin, b.margin),
-        ("gap", a.gap, b.gap),
-    ):
-        if x != y:
-            parts.append(f"{label} {_shown(x)} -> {_shown(y)}")
-    return ", ".join(parts)
+    parts = [
+        f"{f} {_shown(_pair_value(a, f))} -> {_shown(_pair_value(b, f))}"
+        for f in _PAIR_FIELDS
+        if _pair_value(a, f) != _pair_value(b, f)
+    ]
+    return ", ".join(parts) or "solreffriction changes"
 
 
 def _three(friction: tuple[float, ...]) -> tuple[float, ...]:
@@ -290,3 +313,45 @@ def _listed(items: list[str], at_most: int) -> str:
 def _shown(value) -> str:
     values = np.atleast_1d(np.asarray(value, dtype=float))
     return " ".join(f"{v:g}" for v in values)
+
+
+def contact_lines(model: mujoco.MjModel, *, max_pairs: int = 24) -> list[str]:
+    """The report's lines on contacts: the pairs that can collide, then what their contacts
+    use, as MuJoCo mixes it (pairs with the same values share a row)."""
+    if not contacts_enabled(model):
+        return ["- Contacts: disabled in the model's `<option>`; no geom collides."]
+    contacts = pair_contacts(model)
+    if not contacts:
+        return ["- Contacts: no two geoms of the model can collide (contype, conaffinity)."]
+    first = _geoms(contacts, max_pairs)
+    shown = ", ".join(f"{_name(model, a)}–{_name(model, b)}" for a, b in first)
+    more = f", and {len(contacts) - max_pairs} more" if len(contacts) > max_pairs else ""
+    rows: dict[tuple, list[PairContact]] = {}
+    for c in contacts:
+        rows.setdefault((c.values(), c.rule), []).append(c)
+    lines = [
+        f"- Contacts: {len(contacts)} geom pairs pass MuJoCo's collision filter (whether they "
+        f"come near each other is not checked): {shown}{more}. What their contacts use, as "
+        "MuJoCo mixes it from the two geoms (the larger friction and condim, solref and solimp "
+        "weighted by solmix, margin and gap summed; the higher priority's values where "
+        "priorities differ; a `<pair>`'s own), so a geom's own friction is not its contacts': "
+        "pairs with the same values share a row.",
+        "",
+        "| pairs | condim | friction (sliding, torsional, rolling) | solref | solimp "
+        "| margin, gap (m) | from |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for (_, rule), group in rows.items():
+        c = group[0]
+        named = [f"{_name(model, a)} & {_name(model, b)}" for a, b in _geoms(group, 6)]
+        listed = ", ".join(named) + (f" and {len(group) - 6} more" if len(group) > 6 else "")
+        adhesion = f", adhesion {c.adhesion:g} N" if c.adhesion else ""
+        lines.append(
+            f"| {listed} | {c.condim} | {_shown(_three(c.friction))} | {_shown(c.solref)} "
+            f"| {_shown(c.solimp)}{adhesion} | {c.margin:g}, {c.gap:g} | {rule} |"
+        )
+    return lines
+
+
+def _geoms(contacts: list[PairContact], at_most: int) -> list[tuple[int, int]]:
+    return [c.geoms for c in contacts[:at_most]]

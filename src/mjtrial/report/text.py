@@ -16,7 +16,8 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.conditions import condition_record
+from mjtrial.conditions import condition_record, model_edits
+from mjtrial.contacts import describe_contact_changes
 from mjtrial.physics import load_model
 from mjtrial.report.comparisons import (
     comparisons_section,
@@ -43,6 +44,7 @@ from mjtrial.report.model import (
 from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.stopping import stopping_section
 from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
+from mjtrial.studies.variants import variant_model
 from mjtrial.task import BoundTask, ClosedLoop, Task, load_task
 
 
@@ -204,12 +206,54 @@ def _controller_lines(model: mujoco.MjModel, task: Task) -> list[str]:
     return lines
 
 
+def _contact_edit_lines(
+    config: Mapping[str, Any], model: mujoco.MjModel, model_path: Path, task: Task
+) -> list[str]:
+    """What each condition's edits and each state parameter (from its low to its high value)
+    do to the contacts, in MuJoCo's mixed terms (`contacts.describe_contact_changes`): a geom's
+    own friction is not its contacts'. None where no geom's contact parameters are edited."""
+    lines = []
+    for name, condition in config["conditions"].items():
+        edits = model_edits(condition)
+        if edits:
+            key = f"conditions.{name}.model"
+            edited, _ = variant_model(model_path, {}, key_prefix=key, then=[(edits, key)])
+            lines += [f"- condition `{name}`: {line}" for line in _contact_changes(model, edited)]
+    bound = BoundTask.of(task, model)
+    nominal = {p.name: p.nominal_value for p in task.state_parameters}
+    scratch = mujoco.MjData(model)
+    for p in task.state_parameters:
+        if p.apply.stage != "model":
+            continue
+        low, high = (
+            bound.episode(nominal | {p.name: v}, scratch=scratch)[0] for v in (p.low, p.high)
+        )
+        lines += [
+            f"- state parameter `{p.name}` from {p.low:g} to {p.high:g}: {line}"
+            for line in _contact_changes(low, high)
+        ]
+    if not lines:
+        return []
+    return [
+        "",
+        "What the edits of geoms do to their contacts (MuJoCo mixes each pair's parameters "
+        "from its two geoms, as in the contacts table above):",
+        "",
+        *lines,
+    ]
+
+
+def _contact_changes(before: mujoco.MjModel, after: mujoco.MjModel) -> list[str]:
+    return describe_contact_changes(before, after) if before.ngeom == after.ngeom else []
+
+
 def _setup(
     summary: Mapping[str, Any],
     config: Mapping[str, Any],
     manifest: Mapping[str, Any],
     model: mujoco.MjModel,
     task: Task,
+    contact_edits: Sequence[str] = (),
 ) -> list[str]:
     m = manifest["model"]
     states = config["states"]
@@ -237,6 +281,7 @@ def _setup(
                 for name, c in config["conditions"].items()
             ],
         ),
+        *contact_edits,
         "",
         f"Initial states: n = {states['n']}, drawn with numpy's `default_rng({states['seed']})` "
         f"({bitgen}), one uniform draw of n values per parameter in the order "
@@ -543,7 +588,14 @@ def render_report(
     if design.get("hypothesis"):
         lines += [f"**Hypothesis.** {design['hypothesis']}", ""]
     sections = [
-        _setup(summary, config, manifest, model, task),
+        _setup(
+            summary,
+            config,
+            manifest,
+            model,
+            task,
+            _contact_edit_lines(config, model, Path(repo_root) / manifest["model"]["path"], task),
+        ),
         _metric(summary, manifest),
         _results(summary, figures, names, task),
         _failure_analysis(summary, config, figures, names, task),
