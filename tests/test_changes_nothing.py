@@ -18,6 +18,7 @@ import yaml
 from conftest import REPO_ROOT
 
 from mjtrial.config import ConfigError, check_config
+from mjtrial.engine import iter_batches
 from mjtrial.physics import FULLPHYSICS, simulated_sha256
 from mjtrial.task import (
     BoundTask,
@@ -256,3 +257,44 @@ def test_a_rest_position_matters_only_to_a_joint_with_a_spring(spring):
     (h0, t0), (h1, t1) = _hash_and_trajectory(nominal), _hash_and_trajectory(edited)
     assert np.array_equal(t0, t1) == (not spring)
     assert (h0 == h1) == (not spring)
+
+
+def _cartpole_conditions(conditions: dict) -> dict:
+    config = _config("cartpole_latency.yaml")
+    config["conditions"] = conditions
+    first, second = conditions
+    config["design"]["falsifier"].update(treatment=second, baseline=first)
+    config.pop("sweep", None)
+    config.pop("variants", None)
+    return config
+
+
+def test_two_conditions_that_run_alike_are_refused_naming_both():
+    # the default duration spelled out: one condition under two names
+    config = _cartpole_conditions(
+        {"stock": {"latency": 0.0}, "again": {"latency": 0.0, "duration": 3.0}}
+    )
+    assert _check(config) == (
+        "config/config.yaml: conditions.again: runs bit for bit as condition 'stock': the "
+        "nominal episode and each state parameter at its low and its high value (the others "
+        "nominal) give the same trajectories, so the two would be compared as if they differed; "
+        "expected conditions that differ in what the episode does (a parameter the task reads, "
+        "an edit of the physics, another policy)"
+    )
+
+
+def test_conditions_alike_only_at_the_nominal_state_pass():
+    """The cart-pole's pole starts upright and still at its nominal state, so the policy never
+    acts and latency cannot matter there: its two conditions' nominal episodes are bit for bit
+    the same, yet they differ at every tilted state. Refusing on the nominal episode alone
+    would refuse the built-in experiment."""
+    config = _config("cartpole_latency.yaml")
+    task = load_task(config["task"], repo_root=REPO_ROOT)
+    bound = BoundTask.of(task, mujoco.MjModel.from_xml_path(str(REPO_ROOT / config["model"])))
+    nominal = {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
+    physics = [
+        next(iter_batches(bound, nominal, c, thresholds={"fall_angle": 0.5})).episodes.physics
+        for c in config["conditions"].values()
+    ]
+    assert np.array_equal(physics[0], physics[1])  # the premise
+    check_config(config, source="config/cartpole_latency.yaml", repo_root=REPO_ROOT)
