@@ -9,6 +9,7 @@ Also the course's cheap test of a policy: an observation without a real-world so
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -73,6 +74,7 @@ def run_task_code(
     check that every state parameter changes the episode. Raises `TaskError` (one line)."""
     task = bound.task
     check_observations(task, allowed_privileged or {})
+    episodes = None  # a nominal episode, for what the task's outcome functions read
     for name, condition in conditions.items():
         params = task.parameters(condition)
         controller = task.controller
@@ -117,7 +119,8 @@ def run_task_code(
                 f"{type(err).__name__}: {err}"
             ) from None
         _check_outcome(task, batch.episodes, thresholds)
-    _check_parameters_applied(bound)
+        episodes = batch.episodes
+    _check_parameters_applied(bound, episodes, thresholds)
 
 
 def _check_outcome(task: Task, episodes: Episodes, thresholds: Mapping[str, float]) -> None:
@@ -143,10 +146,66 @@ def nominal_episode_sha256(bound: BoundTask) -> str:
     return simulated_sha256(model, state)
 
 
-def _check_parameters_applied(bound: BoundTask) -> None:
+class _ReadValues(dict):
+    """A task's `Episodes.values` that notes which parameters its code reads."""
+
+    def __init__(self, values: Mapping[str, np.ndarray]) -> None:
+        super().__init__(values)
+        self.read: set[str] = set()
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        self.read.add(name)
+        return super().__getitem__(name)
+
+    def get(self, name: str, default: object = None) -> object:
+        self.read.add(name)
+        return super().get(name, default)
+
+    def __iter__(self):
+        self.read.update(self.keys())
+        return super().__iter__()
+
+    def items(self):
+        self.read.update(self.keys())
+        return super().items()
+
+    def values(self):
+        self.read.update(self.keys())
+        return super().values()
+
+
+def read_by_task(
+    task: Task, episodes: Episodes | None, thresholds: Mapping[str, float]
+) -> set[str]:
+    """The state parameters a task reads other than through the physics: an observation the
+    policy reads (`Observation.episode_value`), or `success` or `measure` (`Episodes.values`,
+    noted as they run on a finished episode's rows). A goal held by no model element is read
+    there alone."""
+    controller = task.controller
+    read = set()
+    if isinstance(controller, ClosedLoop):
+        by_name = {o.name: o for o in task.observations}
+        read |= {by_name[n].parameter for n in controller.observations if n in by_name}
+    if episodes is not None:
+        noted = _ReadValues(episodes.values)
+        seen = replace(episodes, values=noted)
+        call(task, "success", task.success, seen)
+        call(task, "measure", task.measure, seen)
+        read |= noted.read
+    return read - {None}
+
+
+def _check_parameters_applied(
+    bound: BoundTask,
+    episodes: Episodes | None = None,
+    thresholds: Mapping[str, float] | None = None,
+) -> None:
     """Each state parameter at its low and at its high value, the others nominal: the episode's
-    model, initial state or push must differ, or the parameter is never applied."""
+    model, initial state or push must differ, or an observation the policy reads, `success` or
+    `measure` must read it (a goal: `read_by_task`, on a nominal episode's `episodes`), or the
+    parameter changes nothing."""
     task = bound.task
+    read = None
     pushes = getattr(task.controller, "pushes", None)
     scratch = mujoco.MjData(bound.model)
     for p in task.state_parameters:
@@ -163,8 +222,12 @@ def _check_parameters_applied(bound: BoundTask) -> None:
             )
             seen.append((simulated_sha256(model, state), repr(push)))
         if seen[0] == seen[1]:
+            read = read_by_task(task, episodes, thresholds or {}) if read is None else read
+            if p.name in read:
+                continue  # a goal: the policy or the outcome reads it
             raise TaskError(
                 f"{_where(task)}: state parameter {p.name!r}: the episode is the same at its low "
-                f"and high values; expected its apply ({type(p.apply).__name__}) to change the "
-                "initial state, the model or a push"
+                f"and high values and nothing reads it; expected its apply "
+                f"({type(p.apply).__name__}) to change the initial state, the model or a push, "
+                "or an observation the policy reads, success or a measure to read it (a goal)"
             )
