@@ -155,3 +155,15 @@ def test_a_condition_weakens_the_gantrys_gripper_by_a_factor_through_the_config_
     )
     gripper = model.actuator("gripper")
     assert (gripper.gainprm[0], gripper.biasprm[1]) == (4000 * 0.7, -4000 * 0.7)  # kp="4000"
+
+
+def test_a_factor_of_an_option_and_of_a_default_class():
+    xml = """<mujoco><option timestep="{}"/><default><joint damping="{}"/></default>
+      <worldbody><body><joint name="j"/><geom size="0.1"/></body></worldbody></mujoco>"""
+    reference = mujoco.MjModel.from_xml_string(xml.format(0.002 * 0.5, 0.4 * 3))
+    spec = mujoco.MjSpec.from_string(xml.format(0.002, 0.4))
+    edits = {"option": {"timestep": "x 0.5"}, "default": {"main": {"joint": {"damping": "x 3"}}}}
+    apply_overrides(spec, edits)
+    given = spec.compile()
+    assert given.opt.timestep == reference.opt.timestep
+    np.testing.assert_array_equal(given.dof_damping, reference.dof_damping)

@@ -117,7 +117,7 @@ def _apply_option(spec: mujoco.MjSpec, name: str, value: Any, key: str) -> None:
             _fail(key, f"expected one of {', '.join(keywords)}, got {value!r}")
         setattr(spec.option, name, keywords.index(value))
         return
-    coerced = _coerce(key, getattr(spec.option, name), value)
+    coerced = _given(key, getattr(spec.option, name), value)
     if name in POSITIVE_OPTIONS and not coerced > 0:
         _fail(key, f"expected a positive number, got {value!r}")
     setattr(spec.option, name, coerced)
@@ -146,14 +146,17 @@ def _apply_element(element: Any, name: str, value: Any, key: str) -> None:
     public = [a for a in dir(element) if not a.startswith("_")]
     if name in _NOT_SETTABLE or name not in public:
         _fail(key, "unknown or not overridable attribute")
-    current = getattr(element, name)
+    setattr(element, name, _given(key, getattr(element, name), value))
+
+
+def _given(key: str, current: Any, value: Any) -> Any:
+    """`value` as `_coerce` makes it, a factor (`factor_of`) times `current` first."""
     factor = factor_of(value, key)
     if factor is not None:
         if isinstance(current, bool) or not isinstance(current, float | np.ndarray):
             _fail(key, f"expected a numeric attribute of real numbers to scale, got {current!r}")
         value = (np.asarray(current, dtype=float) * factor).tolist()
-        value = value if isinstance(current, np.ndarray) else float(value)
-    setattr(element, name, _coerce(key, current, value))
+    return _coerce(key, current, value)
 
 
 # An actuator's MJCF attributes that MjSpec holds inside its parameter arrays, by what the
@@ -295,7 +298,7 @@ def _apply_default(spec: mujoco.MjSpec, name: str, kinds: Any, where: str) -> No
             if attribute in _NOT_SETTABLE or attribute not in public:
                 _fail(key, "unknown or not overridable attribute")
             old = np.copy(getattr(values, attribute))
-            new = _coerce(key, getattr(values, attribute), value)
+            new = _given(key, getattr(values, attribute), value)
             # the class, and each class below it that still inherits the value
             classes, frontier = {name}, [name]
             while frontier:
