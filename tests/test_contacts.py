@@ -222,7 +222,7 @@ def test_the_reports_table_gives_each_pairs_values_not_each_geoms():
         "| pairs | condim | friction (sliding, torsional, rolling) | solref | solimp "
         "| margin, gap (m) | from |",
         "| --- | --- | --- | --- | --- | --- | --- |",
-        "| `b` & `a` | 3 | 0.5 0.01 0.001 | 0.02 1 | 0.9 0.95 0.001 0.5 2 | 0, 0 "
+        "| `b` & `a` | 3 | 0.5, 0.01, 0.001 | 0.02, 1 | 0.9, 0.95, 0.001, 0.5, 2 | 0, 0 "
         "| `a`'s (higher priority) |",
     ]
     assert _said(model) == _contacts_as_mujoco_makes_them(model)  # the row is MuJoCo's

@@ -346,9 +346,10 @@ def contact_lines(model: mujoco.MjModel, *, max_pairs: int = 24) -> list[str]:
         named = [f"{_name(model, a)} & {_name(model, b)}" for a, b in _geoms(group, 6)]
         listed = ", ".join(named) + (f" and {len(group) - 6} more" if len(group) > 6 else "")
         adhesion = f", adhesion {c.adhesion:g} N" if c.adhesion else ""
+        cell = lambda values: ", ".join(f"{v:g}" for v in values)  # noqa: E731
         lines.append(
-            f"| {listed} | {c.condim} | {_shown(_three(c.friction))} | {_shown(c.solref)} "
-            f"| {_shown(c.solimp)}{adhesion} | {c.margin:g}, {c.gap:g} | {rule} |"
+            f"| {listed} | {c.condim} | {cell(_three(c.friction))} | {cell(c.solref)} "
+            f"| {cell(c.solimp)}{adhesion} | {c.margin:g}, {c.gap:g} | {rule} |"
         )
     return lines
 
