@@ -6,7 +6,6 @@ any work starts, so a typo never costs a run or touches an earlier result.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -43,7 +42,13 @@ from mjtrial.provenance.model_closure import model_closure
 from mjtrial.simenv import model_overrides, variant_version
 from mjtrial.studies.variants import edited_values, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, load_task
-from mjtrial.task_checks import check_observations, nominal_episode_sha256, run_task_code
+from mjtrial.task_checks import (
+    alike_conditions,
+    check_observations,
+    episodes_sha256,
+    nominal_episode_sha256,
+    run_task_code,
+)
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -459,7 +464,7 @@ def check_config(
         unstable = _unstable(on_model, designed, config["failure_taxonomy"], runs=runs)
         if unstable:
             fail("model", f"{config['model']}: {unstable}")
-    same = _same_episodes(runs, config["conditions"], config["failure_taxonomy"])
+    same = alike_conditions(runs, config["conditions"], config["failure_taxonomy"])
     if same:
         first, second = same
         fail(
@@ -659,56 +664,6 @@ def _check_variant_applies(
             )
 
 
-def _same_episodes(
-    runs: Mapping[str, tuple[BoundTask, str]],
-    conditions: Mapping[str, Mapping[str, Any]],
-    thresholds: Mapping[str, float],
-) -> tuple[str, str] | None:
-    """Two of the design's conditions that run alike, or None. Alike at the nominal state
-    (`runs`: each one's bound task and nominal episode's hash) is not enough: conditions may
-    differ only away from it (a recovery from an offset), so those are run again with each
-    state parameter at its low and its high value, and named only if alike there too."""
-    seen: dict[str, str] = {}
-    for name, (_, digest) in runs.items():
-        if digest not in seen:
-            seen[digest] = name
-            continue
-        first = seen[digest]
-        probes = [_probe_digest(runs[n][0], conditions[n], thresholds) for n in (first, name)]
-        if probes[0] == probes[1]:
-            return first, name
-    return None
-
-
-def _episodes_digest(episodes: Any) -> str:
-    """The sha256 of a batch's trajectories: states and the controls that made them."""
-    digest = hashlib.sha256(np.ascontiguousarray(episodes.physics).tobytes())
-    digest.update(np.ascontiguousarray(episodes.ctrl).tobytes())
-    return digest.hexdigest()
-
-
-def _probe_digest(
-    bound: BoundTask, condition: Mapping[str, Any], thresholds: Mapping[str, float]
-) -> str:
-    """The hash of a condition's episodes at each state parameter's low and high value."""
-    task = bound.task
-    nominal = {p.name: p.nominal_value for p in task.state_parameters}
-    probes = [nominal | {p.name: v} for p in task.state_parameters for v in (p.low, p.high)]
-    if not probes:
-        return ""
-    values = {p.name: np.array([s[p.name] for s in probes]) for p in task.state_parameters}
-    given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
-    printer = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(lambda _: None)
-    try:
-        return "".join(
-            _episodes_digest(b.episodes)
-            for b in iter_batches(bound, values, condition, thresholds=given, nthread=0)
-        )
-    finally:
-        mujoco.set_mju_user_warning(printer)
-
-
 def _unstable(
     bound: BoundTask,
     conditions: Mapping[str, Mapping[str, Any]],
@@ -718,7 +673,7 @@ def _unstable(
 ) -> str | None:
     """Why the model cannot run the task, or None: it runs the nominal episode (each state
     parameter at its nominal value) under every condition. `runs` gets each condition's bound
-    task and its nominal episode's hash (`_same_episodes`)."""
+    task and its nominal episode's hash (`task_checks.alike_conditions`)."""
     task = bound.task
     nominal = {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
     given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
@@ -731,7 +686,7 @@ def _unstable(
         finally:
             mujoco.set_mju_user_warning(printer)
         if runs is not None:
-            runs[name] = (bound, _episodes_digest(batch.episodes))
+            runs[name] = (bound, episodes_sha256(batch.episodes))
         outcome = batch.outcome
         if outcome["nonfinite"][0] or outcome["warning"][0]:
             what = outcome["warning"][0] or "a non-finite state"

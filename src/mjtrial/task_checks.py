@@ -8,6 +8,7 @@ Also the course's cheap test of a policy: an observation without a real-world so
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping
 from dataclasses import replace
 
@@ -231,3 +232,53 @@ def _check_parameters_applied(
                 f"({type(p.apply).__name__}) to change the initial state, the model or a push, "
                 "or an observation the policy reads, success or a measure to read it (a goal)"
             )
+
+
+def alike_conditions(
+    runs: Mapping[str, tuple[BoundTask, str]],
+    conditions: Mapping[str, Mapping[str, float]],
+    thresholds: Mapping[str, float],
+) -> tuple[str, str] | None:
+    """Two of the design's conditions that run alike, or None. Alike at the nominal state
+    (`runs`: each one's bound task and nominal episode's hash) is not enough: conditions may
+    differ only away from it (a recovery from an offset), so those are run again with each
+    state parameter at its low and its high value, and named only if alike there too."""
+    seen: dict[str, str] = {}
+    for name, (_, digest) in runs.items():
+        if digest not in seen:
+            seen[digest] = name
+            continue
+        first = seen[digest]
+        probes = [_probe_sha256(runs[n][0], conditions[n], thresholds) for n in (first, name)]
+        if probes[0] == probes[1]:
+            return first, name
+    return None
+
+
+def episodes_sha256(episodes: Episodes) -> str:
+    """The sha256 of a batch's trajectories: states and the controls that made them."""
+    digest = hashlib.sha256(np.ascontiguousarray(episodes.physics).tobytes())
+    digest.update(np.ascontiguousarray(episodes.ctrl).tobytes())
+    return digest.hexdigest()
+
+
+def _probe_sha256(
+    bound: BoundTask, condition: Mapping[str, float], thresholds: Mapping[str, float]
+) -> str:
+    """The hash of a condition's episodes at each state parameter's low and high value."""
+    task = bound.task
+    nominal = {p.name: p.nominal_value for p in task.state_parameters}
+    probes = [nominal | {p.name: v} for p in task.state_parameters for v in (p.low, p.high)]
+    if not probes:
+        return ""
+    values = {p.name: np.array([s[p.name] for s in probes]) for p in task.state_parameters}
+    given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
+    printer = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda _: None)
+    try:
+        return "".join(
+            episodes_sha256(b.episodes)
+            for b in iter_batches(bound, values, condition, thresholds=given, nthread=0)
+        )
+    finally:
+        mujoco.set_mju_user_warning(printer)
