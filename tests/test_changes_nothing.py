@@ -190,6 +190,10 @@ NO_CHANGE = {
         "`left_pad`, `right_pad` keep friction 0.8 0.003 0.0001 (MuJoCo mixes each pair's "
         "contact parameters from its two geoms",
     ),
+    "a variant's friction no contact sees": (
+        lambda: _gantry(variants={"slick": {"geom": {"cube": {"friction": [0.8, 0.001, 0.0001]}}}}),
+        "variants.slick: changes nothing: `cube` friction 0.8 0.003 0.0001 -> 0.8 0.001 0.0001;",
+    ),
     "a variant's colour": (
         lambda: _gantry(variants={"red": RED}),
         f"variants.red: {NOTHING}",
