@@ -302,3 +302,15 @@ def test_conditions_alike_only_at_the_nominal_state_pass():
     ]
     assert np.array_equal(physics[0], physics[1])  # the premise
     check_config(config, source="config/cartpole_latency.yaml", repo_root=REPO_ROOT)
+
+
+def test_a_state_parameter_that_edits_a_friction_no_contact_sees_is_refused():
+    """The gantry cube's torsional friction drawn below the pads' (0.003) and the floor's
+    (0.005): MuJoCo takes the larger of two, so every episode is the same."""
+    gantry = load_task("tasks/gantry_lift/task.py", repo_root=REPO_ROOT)
+    torsion = StateParameter(
+        "torsion", "m", 0.0005, 0.002, ModelValue("geom", "cube", "friction", 1)
+    )
+    bound = BoundTask.of(replace(gantry, state_parameters=(*gantry.state_parameters, torsion)))
+    with pytest.raises(TaskError, match="state parameter 'torsion': the episode is the same at"):
+        run_task_code(bound, {"fast": {"lift_time": 0.15}}, thresholds={})
