@@ -487,7 +487,7 @@ _SAME_SIMULATION = (
 
 def _changes_nothing(committed: mujoco.MjModel, edited: mujoco.MjModel) -> str:
     """Why an edit simulates as the committed model: in its contacts' terms where it edited a
-    geom's contact parameters ("`cube` friction 0.8 -> 0.4; its contacts with `pad` keep their
+    geom's contact parameters ("`block` friction 0.8 -> 0.4; its contacts with `jaw` keep their
     values"), since MuJoCo mixes each pair's from its two geoms and a geom's own never acts."""
     said = describe_contact_changes(committed, edited) if committed.ngeom == edited.ngeom else []
     if not said:

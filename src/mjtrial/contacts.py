@@ -13,7 +13,7 @@ extra detection distance) are the sums of the two. A `<pair>` uses its own value
 replace the geoms' for that pair. With `<option><flag override="enable"/>` the option's
 `o_margin`, `o_solref`, `o_solimp` and `o_friction` replace them.
 
-A geom's own friction is therefore not what its contacts use: a cube at 0.5 held by pads at 2.0
+A geom's own friction is therefore not what its contacts use: a block at 0.5 held by jaws at 2.0
 slides at 2.0 either way. The report says each pair's values (`mjtrial.report.model`), an edit
 is described by what it changes in them (`describe_contact_changes`), and the simulation's hash
 (`physics.simulated_sha256`) reads the pairs' values instead of the geoms', so an edit that no
@@ -92,7 +92,7 @@ class PairContact:
       solref: (2,); solimp: (5,); solreffriction: (2,), a `<pair>`'s (zeros: as solref);
         adhesion: newtons; margin, gap: metres (a contact is
         detected within margin + gap, and acts within margin).
-      rule: where they come from, in words ("mixed", "`pad`'s (higher priority)",
+      rule: where they come from, in words ("mixed", "`jaw`'s (higher priority)",
         "`<pair>` 0").
     """
 
@@ -151,7 +151,7 @@ def _mix(model: mujoco.MjModel, g1: int, g2: int) -> tuple:
 
 
 def _name(model: mujoco.MjModel, g: int) -> str:
-    """A geom as the report names it: `cube`, or `geom 3 of body left_finger`."""
+    """A geom as the report names it: `block`, or `geom 3 of body left_jaw`."""
     from mjtrial.task.address import describe  # here: `physics` imports this module early
 
     return f"`{describe(model, mujoco.mjtObj.mjOBJ_GEOM, g)}`"
@@ -224,8 +224,8 @@ def contact_digest_values(model: mujoco.MjModel) -> np.ndarray:
 def describe_contact_changes(
     before: mujoco.MjModel, after: mujoco.MjModel, *, max_pairs: int = 6
 ) -> list[str]:
-    """What an edit of geoms does to their contacts, in a line per edited geom: "`cube`
-    friction 1 0.005 0.0001 -> 0.5 0.005 0.0001; its contacts with `left_pad`, `right_pad`
+    """What an edit of geoms does to their contacts, in a line per edited geom: "`block`
+    friction 1 0.005 0.0001 -> 0.5 0.005 0.0001; its contacts with `left_jaw`, `right_jaw`
     keep friction 2 0.005 0.0001; its contacts with `floor` (friction 1 ... -> 0.8 ...)
     change". Only geoms whose contact fields changed are said; the models must have the same
     geoms."""

@@ -128,7 +128,7 @@ def simulated_sha256(model: mujoco.MjModel, state: np.ndarray) -> str:
     never reads its `qpos_spring` (which a free body's position sets too). A geom's friction,
     condim, priority, solmix, solref and solimp are read only to mix its pairs' contact
     parameters: the pairs that can touch and their mixed values are hashed instead
-    (`contacts.contact_digest_values`), so a cube's friction lowered under pads that grip
+    (`contacts.contact_digest_values`), so a block's friction lowered under jaws that grip
     harder changes nothing (with flexes, which mix with geoms too, the geoms' own are hashed).
     """
     free = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
