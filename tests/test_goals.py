@@ -32,7 +32,7 @@ def test_a_goal_the_policy_observes_needs_no_model_element():
             replace(p, apply=GOAL) if p.name in goals else p for p in reacher.state_parameters
         ),
     )
-    assert read_by_task(task, None, {}) == goals  # the policy's observations alone
+    assert read_by_task(task, None) == goals  # the policy's observations alone
     run_task_code(
         BoundTask.of(task),
         {"as_shipped": {"latency": 0.02}},

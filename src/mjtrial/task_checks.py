@@ -121,7 +121,7 @@ def run_task_code(
             ) from None
         _check_outcome(task, batch.episodes, thresholds)
         episodes = batch.episodes
-    _check_parameters_applied(bound, episodes, thresholds)
+    _check_parameters_applied(bound, episodes)
 
 
 def _check_outcome(task: Task, episodes: Episodes, thresholds: Mapping[str, float]) -> None:
@@ -175,9 +175,7 @@ class _ReadValues(dict):
         return super().values()
 
 
-def read_by_task(
-    task: Task, episodes: Episodes | None, thresholds: Mapping[str, float]
-) -> set[str]:
+def read_by_task(task: Task, episodes: Episodes | None) -> set[str]:
     """The state parameters a task reads other than through the physics: an observation the
     policy reads (`Observation.episode_value`), or `success` or `measure` (`Episodes.values`,
     noted as they run on a finished episode's rows). A goal held by no model element is read
@@ -196,11 +194,7 @@ def read_by_task(
     return read - {None}
 
 
-def _check_parameters_applied(
-    bound: BoundTask,
-    episodes: Episodes | None = None,
-    thresholds: Mapping[str, float] | None = None,
-) -> None:
+def _check_parameters_applied(bound: BoundTask, episodes: Episodes | None = None) -> None:
     """Each state parameter at its low and at its high value, the others nominal: the episode's
     model, initial state or push must differ, or an observation the policy reads, `success` or
     `measure` must read it (a goal: `read_by_task`, on a nominal episode's `episodes`), or the
@@ -223,7 +217,7 @@ def _check_parameters_applied(
             )
             seen.append((simulated_sha256(model, state), repr(push)))
         if seen[0] == seen[1]:
-            read = read_by_task(task, episodes, thresholds or {}) if read is None else read
+            read = read_by_task(task, episodes) if read is None else read
             if p.name in read:
                 continue  # a goal: the policy or the outcome reads it
             raise TaskError(
