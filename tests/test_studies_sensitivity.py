@@ -136,9 +136,10 @@ def test_summary_counts_verdicts_without_the_nominal_row():
 
 
 def test_the_sensitivity_report_says_a_variants_geom_edit_in_contact_terms(tmp_path):
-    """The built-in `friction_low` variant, the gantry's pads at sliding friction 0.6: the
-    cube is at 0.8, so the pad-cube contacts keep 0.8 (MuJoCo takes the larger of the two);
-    the pads' contacts with the floor (0.6) and with each other fall from 0.8 to 0.6."""
+    """The gantry's pads alone at sliding friction 0.6 (the built-in `friction_low` lowers the
+    cube's too, for this reason): the cube is at 0.8, so the pad-cube contacts keep 0.8 (MuJoCo
+    takes the larger of the two); the pads' contacts with the floor (0.6) and with each other
+    fall from 0.8 to 0.6."""
     good, bad = table([1] * 6), table([0] * 6)
     low = {"friction": [0.6, 0.003, 0.0001]}
 
