@@ -15,6 +15,7 @@ from conftest import REPO_ROOT
 
 from mjtrial.contacts import (
     collision_pairs,
+    contact_digest_values,
     contact_lines,
     describe_contact_changes,
     pair_contacts,
@@ -254,3 +255,8 @@ def test_the_report_says_a_conditions_and_a_state_parameters_edit_of_a_geom_in_c
         "0.0001; its contacts with `floor` (friction 0.6 0.005 0.0001 -> 0.7 0.005 0.0001) "
         "change; its contacts with `left_pad`, `right_pad` keep friction 0.8 0.003 0.0001",
     ]
+
+
+def test_a_model_without_contacts_has_no_pairs_and_no_table():
+    model = _two_spheres("", "", option='<option><flag contact="disable"/></option>')
+    assert pair_contacts(model) == [] and contact_digest_values(model).shape == (0, 16)

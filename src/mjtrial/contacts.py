@@ -23,7 +23,6 @@ pair sees changes nothing and is refused.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import combinations
 
 import mujoco
 import numpy as np
@@ -58,25 +57,21 @@ def collision_pairs(model: mujoco.MjModel) -> list[tuple[int, int]]:
     if not contacts_enabled(model):
         return []
     pairs = {tuple(sorted(p)) for p in zip(model.pair_geom1, model.pair_geom2, strict=True)}
-    excluded = set(model.exclude_signature.tolist())
+    excluded = model.exclude_signature
     filter_parent = not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
     weld = model.body_weldid
     weld_parent = weld[model.body_parentid[weld]]
-    for g1, g2 in combinations(range(model.ngeom), 2):
-        if not (
-            model.geom_contype[g1] & model.geom_conaffinity[g2]
-            or model.geom_contype[g2] & model.geom_conaffinity[g1]
-        ):
-            continue
-        b1, b2 = model.geom_bodyid[g1], model.geom_bodyid[g2]
+    contype, conaffinity, body = model.geom_contype, model.geom_conaffinity, model.geom_bodyid
+    for g1 in range(model.ngeom - 1):  # each geom against those after it, at once
+        g2 = np.arange(g1 + 1, model.ngeom)
+        b1, b2 = body[g1], body[g2]
         w1, w2 = weld[b1], weld[b2]
-        if w1 == w2 or not (model.body_dofnum[w1] or model.body_dofnum[w2]):
-            continue
-        if filter_parent and w1 and w2 and (w1 == weld_parent[b2] or w2 == weld_parent[b1]):
-            continue
-        if ((min(b1, b2) << 16) + max(b1, b2)) in excluded:
-            continue
-        pairs.add((g1, g2))
+        keep = ((contype[g1] & conaffinity[g2]) | (contype[g2] & conaffinity[g1])) != 0
+        keep &= (w1 != w2) & ((model.body_dofnum[w1] > 0) | (model.body_dofnum[w2] > 0))
+        if filter_parent:
+            keep &= ~((w1 != 0) & (w2 != 0) & ((w1 == weld_parent[b2]) | (w2 == weld_parent[b1])))
+        keep &= ~np.isin((np.minimum(b1, b2) << 16) + np.maximum(b1, b2), excluded)
+        pairs.update((g1, int(g)) for g in g2[keep])
     return sorted((int(a), int(b)) for a, b in pairs)
 
 
@@ -116,40 +111,6 @@ class PairContact:
         )
 
 
-def _mix(model: mujoco.MjModel, g1: int, g2: int) -> tuple:
-    """`mj_contactParam` for two geoms: condim, friction (3,), solref, solimp, adhesion, rule."""
-    p1, p2 = model.geom_priority[g1], model.geom_priority[g2]
-    if p1 != p2:
-        g = g1 if p1 > p2 else g2
-        rule = f"{_name(model, g)}'s (higher priority)"
-        return (
-            int(model.geom_condim[g]),
-            model.geom_friction[g].copy(),
-            model.geom_solref[g].copy(),
-            model.geom_solimp[g].copy(),
-            float(model.geom_adhesion[g]),
-            rule,
-        )
-    s1, s2 = model.geom_solmix[g1], model.geom_solmix[g2]
-    if s1 >= _MINVAL and s2 >= _MINVAL:
-        mix = s1 / (s1 + s2)
-    elif s1 < _MINVAL and s2 < _MINVAL:
-        mix = 0.5
-    else:
-        mix = 0.0 if s1 < _MINVAL else 1.0
-    r1, r2 = model.geom_solref[g1], model.geom_solref[g2]
-    if r1[0] > 0 and r2[0] > 0:
-        solref = mix * r1 + (1 - mix) * r2
-    else:  # a direct reference (stiffness, damping as negative numbers): the smaller
-        solref = np.minimum(r1, r2)
-    solimp = mix * model.geom_solimp[g1] + (1 - mix) * model.geom_solimp[g2]
-    friction = np.maximum(model.geom_friction[g1], model.geom_friction[g2])
-    condim = int(max(model.geom_condim[g1], model.geom_condim[g2]))
-    rule = "mixed" + ("" if mix == 0.5 else f" (solmix weight {mix:.3g} on {_name(model, g1)})")
-    adhesion = float(model.geom_adhesion[g1] + model.geom_adhesion[g2])
-    return condim, friction, solref, solimp, adhesion, rule
-
-
 def _name(model: mujoco.MjModel, g: int) -> str:
     """A geom as the report names it: `block`, or `geom 3 of body left_jaw`."""
     from mjtrial.task.address import describe  # here: `physics` imports this module early
@@ -157,68 +118,127 @@ def _name(model: mujoco.MjModel, g: int) -> str:
     return f"`{describe(model, mujoco.mjtObj.mjOBJ_GEOM, g)}`"
 
 
-def pair_contact(
-    model: mujoco.MjModel, g1: int, g2: int, *, pair: int | None = None
-) -> PairContact:
-    """The parameters of the contacts between geoms `g1` and `g2` (`pair`: the `<pair>` that
-    names them, which sets its own)."""
-    if pair is not None:
-        condim = int(model.pair_dim[pair])
-        friction = model.pair_friction[pair].copy()
-        solref = model.pair_solref[pair].copy()
-        solimp = model.pair_solimp[pair].copy()
-        solreffriction = model.pair_solreffriction[pair].copy()
-        adhesion = float(model.pair_adhesion[pair])
-        margin, gap = float(model.pair_margin[pair]), float(model.pair_gap[pair])
-        rule = f"`<pair>` {pair}"
-    else:
-        condim, fri, solref, solimp, adhesion, rule = _mix(model, g1, g2)
-        friction = fri[[0, 0, 1, 2, 2]]
-        solreffriction = np.zeros(2)
-        margin = float(model.geom_margin[g1] + model.geom_margin[g2])
-        gap = float(model.geom_gap[g1] + model.geom_gap[g2])
+def _table(model: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[str, np.ndarray]:
+    """`mj_contactParam` for many geom pairs at once, then each `<pair>`'s own values and the
+    option's override: arrays over the pairs, in their order (the keys of `PairContact`, and
+    `pair`, -1 where none; `mix`, solmix's weight on the first geom; `winner`, the geom whose
+    higher priority gave its values, -1 where none)."""
+    g1 = np.array([p[0] for p in pairs], dtype=int)
+    g2 = np.array([p[1] for p in pairs], dtype=int)
+    take = lambda field: (getattr(model, field)[g1], getattr(model, field)[g2])  # noqa: E731
+    s1, s2 = take("geom_solmix")
+    both = (s1 >= _MINVAL) & (s2 >= _MINVAL)
+    mix = np.where(
+        both,
+        s1 / np.where(both, s1 + s2, 1.0),
+        np.where((s1 < _MINVAL) & (s2 < _MINVAL), 0.5, np.where(s1 < _MINVAL, 0.0, 1.0)),
+    )[:, None]
+    r1, r2 = take("geom_solref")
+    standard = ((r1[:, 0] > 0) & (r2[:, 0] > 0))[:, None]
+    i1, i2 = take("geom_solimp")
+    out = {
+        "condim": np.maximum(*take("geom_condim")),
+        "friction": np.maximum(*take("geom_friction")),
+        # a direct reference (stiffness, damping as negative numbers): the smaller
+        "solref": np.where(standard, mix * r1 + (1 - mix) * r2, np.minimum(r1, r2)),
+        "solimp": mix * i1 + (1 - mix) * i2,
+        "adhesion": np.add(*take("geom_adhesion")),
+    }
+    p1, p2 = take("geom_priority")
+    winner = np.where(p1 > p2, g1, np.where(p1 < p2, g2, -1))
+    higher = winner >= 0
+    for key, field in (
+        ("condim", "geom_condim"),
+        ("friction", "geom_friction"),
+        ("solref", "geom_solref"),
+        ("solimp", "geom_solimp"),
+        ("adhesion", "geom_adhesion"),
+    ):
+        out[key][higher] = getattr(model, field)[winner[higher]]
+    out["friction"] = out["friction"][:, [0, 0, 1, 2, 2]]
+    out |= {
+        "solreffriction": np.zeros((len(pairs), 2)),
+        "margin": np.add(*take("geom_margin")),
+        "gap": np.add(*take("geom_gap")),
+        "mix": mix[:, 0],
+        "winner": winner,
+        "pair": np.full(len(pairs), -1),
+    }
+    row = {p: i for i, p in enumerate(pairs)}
+    for i, (a, b) in enumerate(zip(model.pair_geom1, model.pair_geom2, strict=True)):
+        k = row.get((min(a, b), max(a, b)))
+        if k is None:
+            continue  # (two `<pair>`s of the same geoms both collide: the later one is said)
+        out["pair"][k] = i
+        for key, field in (
+            ("condim", "pair_dim"),
+            ("friction", "pair_friction"),
+            ("solref", "pair_solref"),
+            ("solimp", "pair_solimp"),
+            ("solreffriction", "pair_solreffriction"),
+            ("adhesion", "pair_adhesion"),
+            ("margin", "pair_margin"),
+            ("gap", "pair_gap"),
+        ):
+            out[key][k] = getattr(model, field)[i]
     if model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE:
-        margin = float(model.opt.o_margin)
-        solref, solimp = model.opt.o_solref.copy(), model.opt.o_solimp.copy()
-        solreffriction = model.opt.o_solref.copy()
-        friction = model.opt.o_friction.copy()
-        rule = "`<option>` override"
-    friction = np.maximum(friction, _MINMU)
-    return PairContact(
-        geoms=(min(g1, g2), max(g1, g2)),
-        pair=pair,
-        condim=condim,
-        friction=tuple(float(v) for v in friction),
-        solref=tuple(float(v) for v in solref),
-        solimp=tuple(float(v) for v in solimp),
-        solreffriction=tuple(float(v) for v in solreffriction),
-        adhesion=adhesion,
-        margin=margin,
-        gap=gap,
-        rule=rule,
-    )
+        out["margin"][:] = model.opt.o_margin
+        out["solref"][:] = out["solreffriction"][:] = model.opt.o_solref
+        out["solimp"][:] = model.opt.o_solimp
+        out["friction"][:] = model.opt.o_friction
+    out["friction"] = np.maximum(out["friction"], _MINMU)
+    return out
 
 
 def pair_contacts(model: mujoco.MjModel) -> list[PairContact]:
     """Every pair of geoms that can touch (`collision_pairs`) with its contacts' parameters; a
-    `<pair>` replaces the mixed values of its two geoms (the last one naming them wins)."""
-    explicit = {
-        tuple(sorted((int(a), int(b)))): i
-        for i, (a, b) in enumerate(zip(model.pair_geom1, model.pair_geom2, strict=True))
-    }
-    return [
-        pair_contact(model, g1, g2, pair=explicit.get((g1, g2)))
-        for g1, g2 in collision_pairs(model)
-    ]
+    `<pair>` replaces the mixed values of its two geoms."""
+    pairs = collision_pairs(model)
+    t = _table(model, pairs)
+    override = model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE
+    contacts = []
+    for i, (g1, g2) in enumerate(pairs):
+        if override:
+            rule = "`<option>` override"
+        elif t["pair"][i] >= 0:
+            rule = f"`<pair>` {t['pair'][i]}"
+        elif t["winner"][i] >= 0:
+            rule = f"{_name(model, int(t['winner'][i]))}'s (higher priority)"
+        else:
+            mix = t["mix"][i]
+            rule = "mixed" + (
+                "" if mix == 0.5 else f" (solmix weight {mix:.3g} on {_name(model, g1)})"
+            )
+        contacts.append(
+            PairContact(
+                geoms=(g1, g2),
+                pair=int(t["pair"][i]) if t["pair"][i] >= 0 else None,
+                condim=int(t["condim"][i]),
+                friction=tuple(float(v) for v in t["friction"][i]),
+                solref=tuple(float(v) for v in t["solref"][i]),
+                solimp=tuple(float(v) for v in t["solimp"][i]),
+                solreffriction=tuple(float(v) for v in t["solreffriction"][i]),
+                adhesion=float(t["adhesion"][i]),
+                margin=float(t["margin"][i]),
+                gap=float(t["gap"][i]),
+                rule=rule,
+            )
+        )
+    return contacts
 
 
 def contact_digest_values(model: mujoco.MjModel) -> np.ndarray:
     """The pairs and their mixed parameters as one float64 array, for the simulation's hash:
     what MuJoCo reads of `MIXED_GEOM_FIELDS` (never read otherwise), so a geom edit no pair
     sees hashes the same. Each row: the two geom ids, condim, friction (5), solref (2),
-    solimp (5)."""
-    rows = [(*c.geoms, c.condim, *c.friction, *c.solref, *c.solimp) for c in pair_contacts(model)]
-    return np.asarray(rows, dtype=np.float64).reshape(len(rows), 15)
+    solimp (5), adhesion."""
+    pairs = collision_pairs(model)
+    if not pairs:
+        return np.zeros((0, 16))
+    t = _table(model, pairs)
+    columns = [np.array(pairs, dtype=float).reshape(-1, 2), t["condim"][:, None]]
+    columns += [t["friction"], t["solref"], t["solimp"], t["adhesion"][:, None]]
+    return np.hstack([np.asarray(c, dtype=np.float64).reshape(len(pairs), -1) for c in columns])
 
 
 def describe_contact_changes(
