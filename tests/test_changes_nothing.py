@@ -18,6 +18,7 @@ import yaml
 from conftest import REPO_ROOT
 
 from mjtrial.config import ConfigError, check_config
+from mjtrial.engine import iter_batches
 from mjtrial.physics import FULLPHYSICS, simulated_sha256
 from mjtrial.task import (
     BoundTask,
@@ -51,6 +52,15 @@ FETCH_EDITS = {
     "object colour": (lambda m: m.geom_rgba.__setitem__(m.geom(OBJECT).id, [1, 0, 0, 1]), True),
     "free body pos": (lambda m: m.body_pos.__setitem__((m.body(OBJECT).id, 0), 1.7), True),
     "free body quat": (lambda m: m.body_quat.__setitem__(m.body(OBJECT).id, [0, 0, 0, 1]), True),
+    # below every geom it can touch (all at 1 0.005 0.0001): MuJoCo takes the larger of two
+    "object friction halved": (
+        lambda m: m.geom_friction.__setitem__(m.geom(OBJECT).id, [0.5, 0.005, 0.0001]),
+        True,
+    ),
+    "object friction doubled": (
+        lambda m: m.geom_friction.__setitem__(m.geom(OBJECT).id, [2.0, 0.005, 0.0001]),
+        False,
+    ),
     "object mass": (lambda m: m.body_mass.__setitem__(m.body(OBJECT).id, 5.0), False),
     "a joint's damping": (lambda m: m.dof_damping.__setitem__(0, 3.0), False),
     "timestep": (lambda m: setattr(m.opt, "timestep", 0.001), False),
@@ -148,6 +158,13 @@ def _gantry_cube_moved() -> dict:
     return config
 
 
+def _gantry_edited(edits: dict) -> dict:
+    config = _gantry()
+    config["conditions"]["fast"]["model"] = edits
+    config.pop("variants")
+    return config
+
+
 RED = {"geom": {"cube": {"rgba": [1, 0, 0, 1]}}}
 NO_CHANGE = {
     # every joint of the cart-pole sets its own damping: the class's value reaches none
@@ -163,6 +180,19 @@ NO_CHANGE = {
     "a free body's position under a keyframe reset": (
         _gantry_cube_moved,
         f"conditions.fast.model: {NOTHING}",
+    ),
+    # MuJoCo takes the larger of two geoms' frictions: the pads' torsional 0.003 and the
+    # floor's 0.005 stay (a sliding friction under 0.8 would change the floor's contacts: 0.6)
+    "a cube's torsional friction under the pads' and the floor's": (
+        lambda: _gantry_edited({"geom": {"cube": {"friction": [0.8, 0.001, 0.0001]}}}),
+        "conditions.fast.model: changes nothing: `cube` friction 0.8 0.003 0.0001 -> 0.8 0.001 "
+        "0.0001; its contacts with `floor` keep friction 0.8 0.005 0.0001; its contacts with "
+        "`left_pad`, `right_pad` keep friction 0.8 0.003 0.0001 (MuJoCo mixes each pair's "
+        "contact parameters from its two geoms",
+    ),
+    "a variant's friction no contact sees": (
+        lambda: _gantry(variants={"slick": {"geom": {"cube": {"friction": [0.8, 0.001, 0.0001]}}}}),
+        "variants.slick: changes nothing: `cube` friction 0.8 0.003 0.0001 -> 0.8 0.001 0.0001;",
     ),
     "a variant's colour": (
         lambda: _gantry(variants={"red": RED}),
@@ -237,3 +267,70 @@ def test_one_element_under_two_names_in_one_variant_is_refused():
         "variants.damped.joint.wrist; expected each element once, under one name (else the "
         "last edit would win)"
     )
+
+
+SPRING = """<mujoco><worldbody><body pos="0 0 1"><joint name="hinge" axis="0 1 0" {spring}/>
+  <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02"/></body></worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("spring", ["", 'stiffness="2"'])
+def test_a_rest_position_matters_only_to_a_joint_with_a_spring(spring):
+    nominal = mujoco.MjModel.from_xml_string(SPRING.format(spring=spring))
+    edited = copy.copy(nominal)
+    edited.qpos_spring[0] = 0.4
+    (h0, t0), (h1, t1) = _hash_and_trajectory(nominal), _hash_and_trajectory(edited)
+    assert np.array_equal(t0, t1) == (not spring)
+    assert (h0 == h1) == (not spring)
+
+
+def _cartpole_conditions(conditions: dict) -> dict:
+    config = _config("cartpole_latency.yaml")
+    config["conditions"] = conditions
+    first, second = conditions
+    config["design"]["falsifier"].update(treatment=second, baseline=first)
+    config.pop("sweep", None)
+    config.pop("variants", None)
+    return config
+
+
+def test_two_conditions_that_run_alike_are_refused_naming_both():
+    # the default duration spelled out: one condition under two names
+    config = _cartpole_conditions(
+        {"stock": {"latency": 0.0}, "again": {"latency": 0.0, "duration": 3.0}}
+    )
+    assert _check(config) == (
+        "config/config.yaml: conditions.again: runs bit for bit as condition 'stock': the "
+        "nominal episode and each state parameter at its low and its high value (the others "
+        "nominal) give the same trajectories, so the two would be compared as if they differed; "
+        "expected conditions that differ in what the episode does (a parameter the task reads, "
+        "an edit of the physics, another policy)"
+    )
+
+
+def test_conditions_alike_only_at_the_nominal_state_pass():
+    """The cart-pole's pole starts upright and still at its nominal state, so the policy never
+    acts and latency cannot matter there: its two conditions' nominal episodes are bit for bit
+    the same, yet they differ at every tilted state. Refusing on the nominal episode alone
+    would refuse the built-in experiment."""
+    config = _config("cartpole_latency.yaml")
+    task = load_task(config["task"], repo_root=REPO_ROOT)
+    bound = BoundTask.of(task, mujoco.MjModel.from_xml_path(str(REPO_ROOT / config["model"])))
+    nominal = {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
+    physics = [
+        next(iter_batches(bound, nominal, c, thresholds={"fall_angle": 0.5})).episodes.physics
+        for c in config["conditions"].values()
+    ]
+    assert np.array_equal(physics[0], physics[1])  # the premise
+    check_config(config, source="config/cartpole_latency.yaml", repo_root=REPO_ROOT)
+
+
+def test_a_state_parameter_that_edits_a_friction_no_contact_sees_is_refused():
+    """The gantry cube's torsional friction drawn below the pads' (0.003) and the floor's
+    (0.005): MuJoCo takes the larger of two, so every episode is the same."""
+    gantry = load_task("tasks/gantry_lift/task.py", repo_root=REPO_ROOT)
+    torsion = StateParameter(
+        "torsion", "m", 0.0005, 0.002, ModelValue("geom", "cube", "friction", 1)
+    )
+    bound = BoundTask.of(replace(gantry, state_parameters=(*gantry.state_parameters, torsion)))
+    with pytest.raises(TaskError, match="state parameter 'torsion': the episode is the same at"):
+        run_task_code(bound, {"fast": {"lift_time": 0.15}}, thresholds={})

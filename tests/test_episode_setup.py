@@ -282,7 +282,7 @@ def test_the_report_gives_the_weld_as_the_setup_leaves_it():
     line now gives the relative pose, anchor and torque scale of the nominal episode's model,
     after the setup: the values the setup wrote."""
     from mjtrial.report.model import equality_lines
-    from mjtrial.report.text import _nominal_start
+    from mjtrial.report.setup import _nominal_start
 
     def sawyer_like(model, data, values):
         metaworld_setup(model, data, values)

@@ -7,8 +7,10 @@ from statistics import NormalDist
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT
 
 from mjtrial import stats
+from mjtrial.stages.studies import study_report_text
 from mjtrial.studies.sensitivity import NOMINAL, summarize_sensitivity, variant_record
 
 FALSIFIER = {
@@ -165,3 +167,37 @@ def test_the_study_reads_every_condition_under_every_variant(tmp_path):
         "conditions": {"a": {}, "b": {}, "c": {}},
     }
     assert sensitivity_conditions(config) == ["b", "c", "a"]
+
+
+def test_the_sensitivity_report_says_a_variants_geom_edit_in_contact_terms(tmp_path):
+    """The gantry's pads alone at sliding friction 0.6 (the built-in `friction_low` lowers the
+    cube's too, for this reason): the cube is at 0.8, so the pad-cube contacts keep 0.8 (MuJoCo
+    takes the larger of the two); the pads' contacts with the floor (0.6) and with each other
+    fall from 0.8 to 0.6."""
+    good, bad = table([1] * 6), table([0] * 6)
+    low = {"friction": [0.6, 0.003, 0.0001]}
+
+    def variant(overrides):
+        return {"tables": {"fast": bad, "slow": good}, "overrides": overrides, "model_sha256": "0"}
+
+    summary = summarize_sensitivity(
+        {
+            NOMINAL: variant({}),
+            "friction_low": variant({"geom": {"left_pad": low, "right_pad": low}}),
+        },
+        falsifier=FALSIFIER,
+        analysis=ANALYSIS,
+    )
+    text = study_report_text(
+        "sensitivity",
+        summary,
+        report=tmp_path / "report_sensitivity.md",
+        figures_dir=tmp_path / "figures",
+        model_file=REPO_ROOT / "models" / "gantry_gripper" / "scene.xml",
+    )
+    assert (
+        "  - in its contacts: `left_pad` friction 0.8 0.003 0.0001 -> 0.6 0.003 0.0001; its "
+        "contacts with `floor` (friction 0.8 0.005 0.0001 -> 0.6 0.005 0.0001), `right_pad` "
+        "(friction 0.8 0.003 0.0001 -> 0.6 0.003 0.0001) change; its contacts with `cube` keep "
+        "friction 0.8 0.003 0.0001"
+    ) in text

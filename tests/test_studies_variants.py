@@ -133,7 +133,7 @@ def test_no_overrides_is_the_committed_model_and_its_hash(nominal):
         ({"option": {"timestep": -1e-3}}, "v.x.option.timestep: expected a positive number"),
         ({"geom": {"thumb": {"friction": FRICTION}}}, "v.x.geom.thumb: the model has no geom"),
         ({"actuator": {"gripper": {"forcerange": "15"}}}, "v.x.actuator.gripper.forcerange:"),
-        ({"actuator": {"gripper": {"kp": 1}}}, "v.x.actuator.gripper.kp: unknown or not"),
+        ({"actuator": {"gripper": {"area": 1}}}, "v.x.actuator.gripper.area: unknown or not"),
         ({"body": {"cube": {"mass": 1.0}}}, "v.x.body.cube.mass: unknown or not overridable"),
         ({"camera": {"top": {"fovy": 30}}}, "v.x.camera: unknown override kind"),
         ({"joint": {"gantry_z": {"damping": 1}}}, "v.x.joint.gantry_z.damping: expected 3 numbers"),

@@ -32,6 +32,7 @@ from mjtrial.config_files import (  # noqa: F401 - read from here by the workflo
     rerun_command,
     run_configuration,
 )
+from mjtrial.contacts import describe_contact_changes
 from mjtrial.engine import iter_batches
 from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.physics import ModelError, load_model
@@ -42,7 +43,13 @@ from mjtrial.simenv import model_overrides, variant_version
 from mjtrial.states import ConstraintError, probe_constraint
 from mjtrial.studies.variants import resolved_values, variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, call, load_task
-from mjtrial.task_checks import check_observations, nominal_episode_sha256, run_task_code
+from mjtrial.task_checks import (
+    alike_conditions,
+    check_observations,
+    episodes_sha256,
+    nominal_episode_sha256,
+    run_task_code,
+)
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / CONFIG_FILE
@@ -504,14 +511,26 @@ def check_config(
         except TaskError as err:
             fail("task", str(err))
     nominal = nominal_episode_sha256(bound)
+    runs: dict[str, tuple[BoundTask, str]] = {}  # each designed condition's nominal episode
     for on_model, conditions in groups:
         if on_model.model is not bound.model and nominal_episode_sha256(on_model) == nominal:
             (name,) = conditions  # a condition with edits of the model has a group of its own
-            fail(f"conditions.{name}.model", f"changes nothing: {_SAME_SIMULATION}")
+            fail(f"conditions.{name}.model", _changes_nothing(bound.model, on_model.model))
         designed = {n: c for n, c in conditions.items() if n in config["conditions"]}
-        unstable = _unstable(on_model, designed, config["failure_taxonomy"])
+        unstable = _unstable(on_model, designed, config["failure_taxonomy"], runs=runs)
         if unstable:
             fail("model", f"{config['model']}: {unstable}")
+    same = alike_conditions(runs, config["conditions"], config["failure_taxonomy"])
+    if same:
+        first, second = same
+        fail(
+            f"conditions.{second}",
+            f"runs bit for bit as condition {first!r}: the nominal episode and each state "
+            "parameter at its low and its high value (the others nominal) give the same "
+            "trajectories, so the two would be compared as if they differed; expected "
+            "conditions that differ in what the episode does (a parameter the task reads, an "
+            "edit of the physics, another policy)",
+        )
     _check_studies(config, schema, model_file, bound, fail)
 
 
@@ -520,6 +539,20 @@ _SAME_SIMULATION = (
     "the edited model simulates as the committed one (`physics.simulated_sha256`: a colour, a "
     "name, a value every element overrides or MuJoCo ignores); expected an edit of the physics"
 )
+
+
+def _changes_nothing(committed: mujoco.MjModel, edited: mujoco.MjModel) -> str:
+    """Why an edit simulates as the committed model: in its contacts' terms where it edited a
+    geom's contact parameters ("`block` friction 0.8 -> 0.4; its contacts with `jaw` keep their
+    values"), since MuJoCo mixes each pair's from its two geoms and a geom's own never acts."""
+    said = describe_contact_changes(committed, edited) if committed.ngeom == edited.ngeom else []
+    if not said:
+        return f"changes nothing: {_SAME_SIMULATION}"
+    return (
+        f"changes nothing: {'; '.join(said)} (MuJoCo mixes each pair's contact parameters from "
+        "its two geoms: the larger friction and condim, or the higher priority's); expected an "
+        "edit of the physics"
+    )
 
 
 def _conditions_by_model(
@@ -595,7 +628,7 @@ def _check_studies(
             fail(key, str(err))
         simulated = (version, nominal_episode_sha256(on_variant))
         if seen.get(simulated) == NOMINAL:
-            fail(key, f"changes nothing: {_SAME_SIMULATION}")
+            fail(key, _changes_nothing(bound.model, model))
         if simulated in seen:
             fail(
                 key,
@@ -692,9 +725,12 @@ def _unstable(
     bound: BoundTask,
     conditions: Mapping[str, Mapping[str, Any]],
     thresholds: Mapping[str, float],
+    *,
+    runs: dict[str, tuple[BoundTask, str]] | None = None,
 ) -> str | None:
     """Why the model cannot run the task, or None: it runs the nominal episode (each state
-    parameter at its nominal value) under every condition."""
+    parameter at its nominal value) under every condition. `runs` gets each condition's bound
+    task and its nominal episode's hash (`task_checks.alike_conditions`)."""
     task = bound.task
     nominal = {p.name: np.array([p.nominal_value]) for p in task.state_parameters}
     given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
@@ -706,6 +742,8 @@ def _unstable(
             batch = next(iter_batches(bound, nominal, condition, thresholds=given, nthread=0))
         finally:
             mujoco.set_mju_user_warning(printer)
+        if runs is not None:
+            runs[name] = (bound, episodes_sha256(batch.episodes))
         outcome = batch.outcome
         if outcome["nonfinite"][0] or outcome["warning"][0]:
             what = outcome["warning"][0] or "a non-finite state"

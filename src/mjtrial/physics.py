@@ -16,6 +16,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from mjtrial.contacts import MIXED_GEOM_FIELDS, contact_digest_values
+
 # Layout of an mjSTATE_FULLPHYSICS vector: time, qpos, qvel, act, ...
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
 """The state signature of a physics state row (`mujoco.mj_getState`): time, qpos, qvel, act,
@@ -136,7 +138,11 @@ def simulated_sha256(model: mujoco.MjModel, state: np.ndarray) -> str:
     MuJoCo ignores for their element: a body whose joint is free is placed by its qpos alone,
     so its `body_pos` and `body_quat` are never read, and its qpos0 only by a reset, whose
     result `state` is (with a keyframe, qpos0 is not even that); a joint without a spring
-    never reads its `qpos_spring` (which a free body's position sets too).
+    never reads its `qpos_spring` (which a free body's position sets too). A geom's friction,
+    condim, priority, solmix, solref and solimp are read only to mix its pairs' contact
+    parameters: the pairs that can touch and their mixed values are hashed instead
+    (`contacts.contact_digest_values`), so a block's friction lowered under jaws that grip
+    harder changes nothing (with flexes, which mix with geoms too, the geoms' own are hashed).
     """
     free = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
     unsprung = np.flatnonzero(
@@ -147,10 +153,11 @@ def simulated_sha256(model: mujoco.MjModel, state: np.ndarray) -> str:
         "qpos0": free,  # a free joint's: a reset's alone (other joints' kinematics read theirs)
         "qpos_spring": unsprung,  # the rest position of a joint without a spring
     }
+    mixed = () if model.nflex else MIXED_GEOM_FIELDS
     digest = hashlib.sha256()
     for name in _simulated_fields(tuple(dir(model))):
         value = getattr(model, name)
-        if not isinstance(value, np.ndarray):
+        if not isinstance(value, np.ndarray) or name in mixed:
             continue
         if free.size and name in ("body_pos", "body_quat"):
             value = value.copy()
@@ -164,6 +171,8 @@ def simulated_sha256(model: mujoco.MjModel, state: np.ndarray) -> str:
         digest.update(np.ascontiguousarray(value).tobytes())
     for name in sorted(a for a in dir(model.opt) if not a.startswith("_")):
         digest.update(name.encode() + np.asarray(getattr(model.opt, name)).tobytes())
+    if mixed:
+        digest.update(b"contacts " + contact_digest_values(model).tobytes())
     digest.update(np.float64(model.stat.meaninertia).tobytes())
     digest.update(np.ascontiguousarray(state, dtype=np.float64).tobytes())
     return digest.hexdigest()

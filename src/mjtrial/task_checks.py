@@ -9,7 +9,9 @@ Also the course's cheap test of a policy: an observation without a real-world so
 from __future__ import annotations
 
 import copy
+import hashlib
 from collections.abc import Mapping
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -76,6 +78,7 @@ def run_task_code(
     check that every state parameter changes the episode. Raises `TaskError` (one line)."""
     task = bound.task
     check_observations(task, allowed_privileged or {})
+    episodes = None  # a nominal episode, for what the task's outcome functions read
     for name, condition in conditions.items():
         params = task.parameters(condition)
         controller = task.controller
@@ -128,7 +131,8 @@ def run_task_code(
                 f"{type(err).__name__}: {err}"
             ) from None
         _check_outcome(task, batch.episodes, thresholds)
-    _check_parameters_applied(bound)
+        episodes = batch.episodes
+    _check_parameters_applied(bound, episodes)
     check_setup_is_a_function(bound)
     _check_setup_leaves_model(bound)
 
@@ -198,10 +202,60 @@ def check_setup_is_a_function(bound: BoundTask) -> None:
             )
 
 
-def _check_parameters_applied(bound: BoundTask) -> None:
+class _ReadValues(dict):
+    """A task's `Episodes.values` that notes which parameters its code reads."""
+
+    def __init__(self, values: Mapping[str, np.ndarray]) -> None:
+        super().__init__(values)
+        self.read: set[str] = set()
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        self.read.add(name)
+        return super().__getitem__(name)
+
+    def get(self, name: str, default: object = None) -> object:
+        self.read.add(name)
+        return super().get(name, default)
+
+    def __iter__(self):
+        self.read.update(self.keys())
+        return super().__iter__()
+
+    def items(self):
+        self.read.update(self.keys())
+        return super().items()
+
+    def values(self):
+        self.read.update(self.keys())
+        return super().values()
+
+
+def read_by_task(task: Task, episodes: Episodes | None) -> set[str]:
+    """The state parameters a task reads other than through the physics: an observation the
+    policy reads (`Observation.episode_value`), or `success` or `measure` (`Episodes.values`,
+    noted as they run on a finished episode's rows). A goal held by no model element is read
+    there alone."""
+    controller = task.controller
+    read = set()
+    if isinstance(controller, ClosedLoop):
+        by_name = {o.name: o for o in task.observations}
+        read |= {by_name[n].parameter for n in controller.observations if n in by_name}
+    if episodes is not None:
+        noted = _ReadValues(episodes.values)
+        seen = replace(episodes, values=noted)
+        call(task, "success", task.success, seen)
+        call(task, "measure", task.measure, seen)
+        read |= noted.read
+    return read - {None}
+
+
+def _check_parameters_applied(bound: BoundTask, episodes: Episodes | None = None) -> None:
     """Each state parameter at its low and at its high value, the others nominal: the episode's
-    model, initial state or push must differ, or the parameter is never applied."""
+    model, initial state or push must differ, or an observation the policy reads, `success` or
+    `measure` must read it (a goal: `read_by_task`, on a nominal episode's `episodes`), or the
+    parameter changes nothing."""
     task = bound.task
+    read = None
     pushes = getattr(task.controller, "pushes", None)
     scratch = mujoco.MjData(bound.model)
     for p in task.state_parameters:
@@ -218,8 +272,62 @@ def _check_parameters_applied(bound: BoundTask) -> None:
             )
             seen.append((simulated_sha256(model, state), repr(push)))
         if seen[0] == seen[1]:
+            read = read_by_task(task, episodes) if read is None else read
+            if p.name in read:
+                continue  # a goal: the policy or the outcome reads it
             raise TaskError(
                 f"{_where(task)}: state parameter {p.name!r}: the episode is the same at its low "
-                f"and high values; expected its apply ({type(p.apply).__name__}) to change the "
-                "initial state, the model or a push"
+                f"and high values and nothing reads it; expected its apply "
+                f"({type(p.apply).__name__}) to change the initial state, the model or a push, "
+                "or an observation the policy reads, success or a measure to read it (a goal)"
             )
+
+
+def alike_conditions(
+    runs: Mapping[str, tuple[BoundTask, str]],
+    conditions: Mapping[str, Mapping[str, float]],
+    thresholds: Mapping[str, float],
+) -> tuple[str, str] | None:
+    """Two of the design's conditions that run alike, or None. Alike at the nominal state
+    (`runs`: each one's bound task and nominal episode's hash) is not enough: conditions may
+    differ only away from it (a recovery from an offset), so those are run again with each
+    state parameter at its low and its high value, and named only if alike there too."""
+    seen: dict[str, str] = {}
+    for name, (_, digest) in runs.items():
+        if digest not in seen:
+            seen[digest] = name
+            continue
+        first = seen[digest]
+        probes = [_probe_sha256(runs[n][0], conditions[n], thresholds) for n in (first, name)]
+        if probes[0] == probes[1]:
+            return first, name
+    return None
+
+
+def episodes_sha256(episodes: Episodes) -> str:
+    """The sha256 of a batch's trajectories: states and the controls that made them."""
+    digest = hashlib.sha256(np.ascontiguousarray(episodes.physics).tobytes())
+    digest.update(np.ascontiguousarray(episodes.ctrl).tobytes())
+    return digest.hexdigest()
+
+
+def _probe_sha256(
+    bound: BoundTask, condition: Mapping[str, float], thresholds: Mapping[str, float]
+) -> str:
+    """The hash of a condition's episodes at each state parameter's low and high value."""
+    task = bound.task
+    nominal = {p.name: p.nominal_value for p in task.state_parameters}
+    probes = [nominal | {p.name: v} for p in task.state_parameters for v in (p.low, p.high)]
+    if not probes:
+        return ""
+    values = {p.name: np.array([s[p.name] for s in probes]) for p in task.state_parameters}
+    given = {t.name: float(thresholds.get(t.name, t.default)) for t in task.thresholds}
+    printer = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda _: None)
+    try:
+        return "".join(
+            episodes_sha256(b.episodes)
+            for b in iter_batches(bound, values, condition, thresholds=given, nthread=0)
+        )
+    finally:
+        mujoco.set_mju_user_warning(printer)

@@ -8,12 +8,15 @@ assumed from the built-in tasks. What bounds each actuator is `mjtrial.report.ac
 
 from __future__ import annotations
 
-from itertools import combinations
-
 import mujoco
 import numpy as np
 
 from mjtrial.actuation import Actuation, ControlColumn
+from mjtrial.contacts import (  # noqa: F401 - the report's contact lines, said where they live
+    collision_pairs,
+    contact_lines,
+    contacts_enabled,
+)
 from mjtrial.task.address import describe
 
 _OBJ = mujoco.mjtObj
@@ -23,71 +26,6 @@ def _label(model: mujoco.MjModel, kind: mujoco.mjtObj, index: int) -> str:
     """How the report names element `index` of `kind`: its name, else what it is attached to
     ("geom 27 of body robot0:base_link", `mjtrial.task.address.describe`)."""
     return describe(model, kind, index)
-
-
-def contacts_enabled(model: mujoco.MjModel) -> bool:
-    """False when `<option><flag contact="disable"/>` (or constraint) turns every contact off."""
-    off = mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-    return not model.opt.disableflags & off
-
-
-def collision_pairs(model: mujoco.MjModel) -> list[tuple[int, int]]:
-    """The geom pairs (ids, ascending) that MuJoCo's collision filter lets through: the
-    explicit `<pair>`s, and the pairs whose contype and conaffinity match (bitwise), on different
-    weld bodies (bodies joined without a joint move as one) of which at least one has a degree of
-    freedom (two dof-less weld bodies, the world's and mocap bodies, are never tested), not parent
-    and child weld bodies unless filterparent is disabled (the world is no one's parent here),
-    not `<exclude>`d. Their distance is another matter: two geoms that can never come near each
-    other are listed."""
-    if not contacts_enabled(model):
-        return []
-    pairs = {tuple(sorted(p)) for p in zip(model.pair_geom1, model.pair_geom2, strict=True)}
-    excluded = set(model.exclude_signature.tolist())
-    filter_parent = not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
-    weld = model.body_weldid
-    weld_parent = weld[model.body_parentid[weld]]
-    for g1, g2 in combinations(range(model.ngeom), 2):
-        if not (
-            model.geom_contype[g1] & model.geom_conaffinity[g2]
-            or model.geom_contype[g2] & model.geom_conaffinity[g1]
-        ):
-            continue
-        b1, b2 = model.geom_bodyid[g1], model.geom_bodyid[g2]
-        w1, w2 = weld[b1], weld[b2]
-        if w1 == w2 or not (model.body_dofnum[w1] or model.body_dofnum[w2]):
-            continue
-        if filter_parent and w1 and w2 and (w1 == weld_parent[b2] or w2 == weld_parent[b1]):
-            continue
-        if ((min(b1, b2) << 16) + max(b1, b2)) in excluded:
-            continue
-        pairs.add((g1, g2))
-    return sorted((int(a), int(b)) for a, b in pairs)
-
-
-def contact_lines(model: mujoco.MjModel, *, max_pairs: int = 24) -> list[str]:
-    """The pairs that can collide and, per geom in one, what sets its contacts' friction budget."""
-    if not contacts_enabled(model):
-        return ["- Contacts: disabled in the model's `<option>`; no geom collides."]
-    pairs = collision_pairs(model)
-    if not pairs:
-        return ["- Contacts: no two geoms of the model can collide (contype, conaffinity)."]
-    geom = lambda g: f"`{_label(model, _OBJ.mjOBJ_GEOM, g)}`"  # noqa: E731
-    shown = ", ".join(f"{geom(a)}–{geom(b)}" for a, b in pairs[:max_pairs])
-    more = f", and {len(pairs) - max_pairs} more" if len(pairs) > max_pairs else ""
-    lines = [
-        f"- Contacts: {len(pairs)} geom pairs pass MuJoCo's collision filter (whether they come "
-        f"near each other is not checked): {shown}{more}. The parameters of their geoms:",
-        "",
-        "| geom | condim | friction (sliding, torsional, rolling) | solref | solimp |",
-        "| --- | --- | --- | --- | --- |",
-    ]
-    for g in sorted({g for pair in pairs for g in pair}):
-        numbers = lambda values: ", ".join(f"{v:g}" for v in values)  # noqa: E731
-        lines.append(
-            f"| {geom(g)} | {model.geom_condim[g]} | {numbers(model.geom_friction[g])} "
-            f"| {numbers(model.geom_solref[g])} | {numbers(model.geom_solimp[g])} |"
-        )
-    return lines
 
 
 def joint_lines(model: mujoco.MjModel) -> list[str]:

@@ -12,6 +12,7 @@ import numpy as np
 
 from mjtrial import provenance
 from mjtrial.conditions import condition_record, model_edits, policy_path
+from mjtrial.contacts import describe_contact_changes
 from mjtrial.policy_file import read_contract
 from mjtrial.report.actuators import actuator_lines
 from mjtrial.report.labels import markdown_table, pct, setting
@@ -26,6 +27,7 @@ from mjtrial.report.solver import solver_line
 from mjtrial.stages.condition import condition_model
 from mjtrial.stages.stamping import config_slice
 from mjtrial.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
+from mjtrial.studies.variants import variant_model
 from mjtrial.task import BoundTask, ClosedLoop, Control, Task, call
 from mjtrial.task.actions import bind_actions
 
@@ -230,6 +232,47 @@ def _controller_lines(
     return lines
 
 
+def _contact_edit_lines(
+    config: Mapping[str, Any], model: mujoco.MjModel, model_path: Path, task: Task
+) -> list[str]:
+    """What each condition's edits and each state parameter (from its low to its high value)
+    do to the contacts, in MuJoCo's mixed terms (`contacts.describe_contact_changes`): a geom's
+    own friction is not its contacts'. None where no geom's contact parameters are edited."""
+    lines = []
+    for name, condition in config["conditions"].items():
+        edits = model_edits(condition)
+        if edits:
+            key = f"conditions.{name}.model"
+            edited, _ = variant_model(model_path, {}, key_prefix=key, then=[(edits, key)])
+            lines += [f"- condition `{name}`: {line}" for line in _contact_changes(model, edited)]
+    bound = BoundTask.of(task, model)
+    nominal = {p.name: p.nominal_value for p in task.state_parameters}
+    scratch = mujoco.MjData(model)
+    for p in task.state_parameters:
+        if p.apply.stage != "model":
+            continue
+        low, high = (
+            bound.episode(nominal | {p.name: v}, scratch=scratch)[0] for v in (p.low, p.high)
+        )
+        lines += [
+            f"- state parameter `{p.name}` from {p.low:g} to {p.high:g}: {line}"
+            for line in _contact_changes(low, high)
+        ]
+    if not lines:
+        return []
+    return [
+        "",
+        "What the edits of geoms do to their contacts (MuJoCo mixes each pair's parameters "
+        "from its two geoms, as in the contacts table above):",
+        "",
+        *lines,
+    ]
+
+
+def _contact_changes(before: mujoco.MjModel, after: mujoco.MjModel) -> list[str]:
+    return describe_contact_changes(before, after) if before.ngeom == after.ngeom else []
+
+
 def setup_section(
     summary: Mapping[str, Any],
     config: Mapping[str, Any],
@@ -267,6 +310,7 @@ def setup_section(
                 for name, c in config["conditions"].items()
             ],
         ),
+        *_contact_edit_lines(config, model, repo_root / m["path"], task),
         "",
         *_initial_states_lines(states, task, bitgen),
         *(

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -215,8 +215,15 @@ def _judged_by(falsifier: Mapping[str, Any], conf: str) -> str:
     )
 
 
-def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -> str:
-    """The report's "Sensitivity" section; `figure` is the forest plot's path for the link."""
+def render_sensitivity_section(
+    sensitivity: Mapping[str, Any],
+    *,
+    figure: str,
+    contact_changes: Mapping[str, Sequence[str]] | None = None,
+) -> str:
+    """The report's "Sensitivity" section; `figure` is the forest plot's path for the link;
+    `contact_changes`, per variant, what its edits of geoms do to their contacts
+    (`mjtrial.contacts.describe_contact_changes`)."""
     f = sensitivity["falsifier"]
     conf = pct(sensitivity["confidence"])
     names = list(next(iter(sensitivity["variants"].values()))["conditions"])
@@ -242,9 +249,9 @@ def render_sensitivity_section(sensitivity: Mapping[str, Any], *, figure: str) -
             f"[{p['low']:+.3f}, {p['high']:+.3f}] | {verdict} | `{rec['model_sha256'][:12]}` |"
         )
     lines += ["", "Overrides of each variant:", ""]
-    lines += [
-        f"- {name}: {_overrides(rec['overrides'])}" for name, rec in sensitivity["variants"].items()
-    ]
+    for name, rec in sensitivity["variants"].items():
+        lines.append(f"- {name}: {_overrides(rec['overrides'])}")
+        lines += [f"  - in its contacts: {line}" for line in (contact_changes or {}).get(name, [])]
     for name, rec in sensitivity["variants"].items():
         if "flipped" in rec:
             lines += flipped_table(name, rec["flipped"])

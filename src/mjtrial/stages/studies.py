@@ -16,6 +16,7 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.contacts import describe_contact_changes
 from mjtrial.layout import NOMINAL, STUDY_FIGURES
 from mjtrial.recording.divergence import episode_divergence
 from mjtrial.recording.read import find_episode_file
@@ -73,6 +74,7 @@ def run_sensitivity(
         report=report,
         figures_dir=figures_dir,
         repo_root=repo_root,
+        model_file=model_file,
     )
 
 
@@ -122,6 +124,7 @@ def _write(
     report: Path,
     figures_dir: Path,
     repo_root: Path,
+    model_file: Path | None = None,
 ) -> dict[str, Any]:
     stamp = make_stage_stamp(study, dict(study_slice), inputs, repo_root=repo_root)
     provenance.write_json(summary, output, stamp)
@@ -131,7 +134,9 @@ def _write(
         out_dir=figures_dir,
         stamp=stamp,
     )
-    text = study_report_text(study, summary, report=report, figures_dir=figures_dir)
+    text = study_report_text(
+        study, summary, report=report, figures_dir=figures_dir, model_file=model_file
+    )
     provenance.write_markdown(text, report, stamp)
     log.info("%s -> %s, %s, %d figure files", study, output, report, len(figures))
     return summary
@@ -226,13 +231,29 @@ def dose_response_summary(
 
 
 def study_report_text(
-    study: str, summary: Mapping[str, Any], *, report: Path, figures_dir: Path
+    study: str,
+    summary: Mapping[str, Any],
+    *,
+    report: Path,
+    figures_dir: Path,
+    model_file: Path | None = None,
 ) -> str:
-    """A study's report (its figure's PNG linked from the report's folder)."""
+    """A study's report (its figure's PNG linked from the report's folder); with `model_file`,
+    the sensitivity report says what each variant's edits of geoms do to their contacts."""
     png = Path(figures_dir) / f"{STUDY_FIGURES[study]}.png"
     figure = Path(os.path.relpath(png, Path(report).parent)).as_posix()
-    render = {
-        "sensitivity": study_report.render_sensitivity_section,
-        "dose_response": study_report.render_dose_response_section,
-    }[study]
-    return render(json.loads(json.dumps(summary)), figure=figure) + "\n"
+    summary = json.loads(json.dumps(summary))
+    if study == "dose_response":
+        return study_report.render_dose_response_section(summary, figure=figure) + "\n"
+    changes = {}
+    if model_file is not None:
+        nominal = variant_model(model_file, {})[0]
+        for name, rec in summary["variants"].items():
+            edits = model_overrides(rec["overrides"])
+            if edits:
+                edited = variant_model(model_file, edits)[0]
+                changes[name] = describe_contact_changes(nominal, edited)
+    return (
+        study_report.render_sensitivity_section(summary, figure=figure, contact_changes=changes)
+        + "\n"
+    )

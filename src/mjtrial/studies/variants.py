@@ -117,17 +117,142 @@ def _apply_option(spec: mujoco.MjSpec, name: str, value: Any, key: str) -> None:
             _fail(key, f"expected one of {', '.join(keywords)}, got {value!r}")
         setattr(spec.option, name, keywords.index(value))
         return
-    coerced = _coerce(key, getattr(spec.option, name), value)
+    coerced = _given(key, getattr(spec.option, name), value)
     if name in POSITIVE_OPTIONS and not coerced > 0:
         _fail(key, f"expected a positive number, got {value!r}")
     setattr(spec.option, name, coerced)
+
+
+def factor_of(value: Any, key: str) -> float | None:
+    """The factor an edit gives (`{factor: 0.7}` or `"x 0.7"`: the value as loaded times 0.7),
+    or None for a value given outright; a `ValueError` for a malformed or non-positive one."""
+    if isinstance(value, Mapping):
+        if set(value) != {"factor"}:
+            _fail(key, f"expected a value, or {{factor: <number>}}; got {dict(value)!r}")
+        factor = value["factor"]
+    elif isinstance(value, str) and value.strip()[:1] in ("x", "×"):
+        try:
+            factor = float(value.strip()[1:])
+        except ValueError:
+            _fail(key, f"expected 'x <number>' (a factor), got {value!r}")
+    else:
+        return None
+    if not _is_number(factor) or factor <= 0:
+        _fail(key, f"expected a positive factor, got {factor!r}")
+    return float(factor)
 
 
 def _apply_element(element: Any, name: str, value: Any, key: str) -> None:
     public = [a for a in dir(element) if not a.startswith("_")]
     if name in _NOT_SETTABLE or name not in public:
         _fail(key, "unknown or not overridable attribute")
-    setattr(element, name, _coerce(key, getattr(element, name), value))
+    setattr(element, name, _given(key, getattr(element, name), value))
+
+
+def _given(key: str, current: Any, value: Any) -> Any:
+    """`value` as `_coerce` makes it, a factor (`factor_of`) times `current` first."""
+    factor = factor_of(value, key)
+    if factor is not None:
+        if isinstance(current, bool) or not isinstance(current, float | np.ndarray):
+            _fail(key, f"expected a numeric attribute of real numbers to scale, got {current!r}")
+        value = (np.asarray(current, dtype=float) * factor).tolist()
+    return _coerce(key, current, value)
+
+
+# An actuator's MJCF attributes that MjSpec holds inside its parameter arrays, by what the
+# actuator is (MuJoCo's XML reference, "actuator"; `MjsActuator.set_to_*` write the same): each
+# attribute's numbers, each number the (array, index, sign) places it is written to. A
+# position servo's `kp` is gainprm[0] and -biasprm[1]; a muscle's `force` is gainprm[2] and
+# biasprm[2] (its force-length-velocity curve reads both), its `timeconst` two numbers.
+_Places = tuple[tuple[str, int, float], ...]
+_MUSCLE_PRM = ("force", "scale", "lmin", "lmax", "vmax", "fpmax", "fvmax")  # gainprm[2:9]
+IN_ARRAYS: dict[str, dict[str, tuple[_Places, ...]]] = {
+    "position": {
+        "kp": ((("gainprm", 0, 1.0), ("biasprm", 1, -1.0)),),
+        "kv": ((("biasprm", 2, -1.0),),),
+    },
+    "velocity": {"kv": ((("gainprm", 0, 1.0), ("biasprm", 2, -1.0)),)},
+    "damper": {"kv": ((("gainprm", 2, -1.0),),)},
+    "muscle": {
+        **{
+            name: ((("gainprm", 2 + i, 1.0), ("biasprm", 2 + i, 1.0)),)
+            for i, name in enumerate(_MUSCLE_PRM)
+        },
+        "timeconst": ((("dynprm", 0, 1.0),), (("dynprm", 1, 1.0),)),
+        "tausmooth": ((("dynprm", 2, 1.0),),),
+    },
+    "filtered": {"timeconst": ((("dynprm", 0, 1.0),),)},
+}
+ACTUATOR_ATTRIBUTES = frozenset(a for kind in IN_ARRAYS.values() for a in kind)
+
+
+def actuator_kind(actuator: Any) -> str:
+    """What an actuator is, as its MJCF element made it: muscle, position (gain kp, bias -kp
+    on the length), velocity (gain kv, bias -kv on the velocity), damper (gain -kv times the
+    velocity), filtered (activation through a filter: a `timeconst`), or general."""
+    gain, bias = actuator.gainprm, actuator.biasprm
+    if actuator.gaintype == mujoco.mjtGain.mjGAIN_MUSCLE:
+        return "muscle"
+    if actuator.gaintype == mujoco.mjtGain.mjGAIN_AFFINE and gain[0] == gain[1] == 0 > gain[2]:
+        return "damper"
+    if (
+        actuator.gaintype == mujoco.mjtGain.mjGAIN_FIXED
+        and gain[0] > 0
+        and (actuator.biastype == mujoco.mjtBias.mjBIAS_AFFINE)
+    ):
+        if bias[1] == -gain[0]:
+            return "position"
+        if bias[1] == 0 and bias[2] == -gain[0]:
+            return "velocity"
+    if actuator.dyntype in (mujoco.mjtDyn.mjDYN_FILTER, mujoco.mjtDyn.mjDYN_FILTEREXACT):
+        return "filtered"
+    return "general"
+
+
+def _apply_actuator_attribute(actuator: Any, name: str, value: Any, key: str) -> None:
+    """Set an actuator's MJCF attribute (`kp`, a muscle's `force`) in the arrays that hold it,
+    leaving their other numbers: `force: {factor: 0.7}` scales a muscle's peak force alone."""
+    kind = actuator_kind(actuator)
+    own = IN_ARRAYS.get(kind, {})
+    if (
+        kind != "muscle"
+        and name == "timeconst"
+        and actuator.dyntype
+        in (
+            mujoco.mjtDyn.mjDYN_FILTER,
+            mujoco.mjtDyn.mjDYN_FILTEREXACT,
+        )
+    ):
+        own = IN_ARRAYS["filtered"]
+    if name not in own:
+        _fail(
+            key,
+            f"this is a {kind} actuator, which has no {name!r}; expected kp or kv on a position "
+            "servo, kv on a velocity servo or a damper, force, scale, lmin, lmax, vmax, fpmax, "
+            "fvmax, timeconst or tausmooth on a muscle, timeconst with a filter's activation, "
+            "or a field MjSpec holds (gear, forcerange, gainprm, ...)",
+        )
+    numbers = own[name]
+    current = np.array([sign * getattr(actuator, a)[i] for (a, i, sign), *_ in numbers])
+    factor = factor_of(value, key)
+    if factor is not None and kind == "muscle" and name == "force" and current[0] < 0:
+        _fail(
+            key,
+            "this muscle's force is MuJoCo's own (scale / acc0: force is negative in the "
+            "model), so a factor of it has no base; expected `scale` by the factor, which "
+            "scales that force alike, or a force in newtons",
+        )
+    if factor is not None:
+        new = current * factor
+    elif len(numbers) == 1:
+        new = np.array([_coerce(key, 0.0, value)])
+    else:
+        new = _coerce(key, current, value)
+    for places, number in zip(numbers, new, strict=True):
+        for array, i, sign in places:
+            values = np.array(getattr(actuator, array))
+            values[i] = sign * number
+            setattr(actuator, array, values)
 
 
 def _class_parents(spec: mujoco.MjSpec) -> dict[str, str | None]:
@@ -173,7 +298,7 @@ def _apply_default(spec: mujoco.MjSpec, name: str, kinds: Any, where: str) -> No
             if attribute in _NOT_SETTABLE or attribute not in public:
                 _fail(key, "unknown or not overridable attribute")
             old = np.copy(getattr(values, attribute))
-            new = _coerce(key, getattr(values, attribute), value)
+            new = _given(key, getattr(values, attribute), value)
             # the class, and each class below it that still inherits the value
             classes, frontier = {name}, [name]
             while frontier:
@@ -276,7 +401,11 @@ def apply_overrides(
             if not isinstance(attributes, Mapping) or not attributes:
                 _fail(f"{where}.{element_name}", "expected a non-empty mapping of attributes")
             for name, value in attributes.items():
-                _apply_element(element, name, value, f"{where}.{element_name}.{name}")
+                key = f"{where}.{element_name}.{name}"
+                if kind == "actuator" and name in ACTUATOR_ATTRIBUTES:
+                    _apply_actuator_attribute(element, name, value, key)
+                else:
+                    _apply_element(element, name, value, key)
 
 
 def _compiled(spec: mujoco.MjSpec, *, source: str) -> tuple[mujoco.MjModel, str]:
@@ -369,6 +498,8 @@ def describe_edits(edits: Mapping[str, Any]) -> str:
 
 
 def _shown(value: Any) -> str:
+    if isinstance(value, Mapping):  # {factor: 0.7}
+        return f"x {value['factor']:g}"
     if isinstance(value, str):
         return value
     if isinstance(value, Sequence):

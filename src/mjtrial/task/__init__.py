@@ -8,7 +8,8 @@ gymnasium's `reset(seed=...)`, in declarations rather than callbacks where mjtri
 - `model`: the MJCF file, relative to the task file;
 - `state_parameters`: the randomized initial state, each `StateParameter` with its unit, default
   range and how it is applied (`BodyMass`, `JointPosition`, `JointVelocity`, a `Custom`
-  function, or `DISTURBANCE`: read by the closed-loop controller's `pushes`); the states
+  function, `DISTURBANCE`: read by the closed-loop controller's `pushes`, or `GOAL`: a goal no
+  model element holds, read by an observation or by the success test); the states
   table's columns are their names, drawn in this order;
 - `protocol_parameters`: what conditions, sweeps and variants may set, with types and bounds;
 - `controller`: `OpenLoop` (a control sequence per condition, run by `mujoco.rollout`) or
@@ -29,9 +30,11 @@ from mjtrial.task.actions import Control, MocapAction
 from mjtrial.task.appliers import (
     DISTURBANCE,
     EPISODE_SETUP,
+    GOAL,
     BodyMass,
     Custom,
     Disturbance,
+    Goal,
     JointPosition,
     JointVelocity,
     MocapPosition,
@@ -73,6 +76,7 @@ __all__ = [
     "DISTURBANCE",
     "ENGINE_MEASURES",
     "EPISODE_SETUP",
+    "GOAL",
     "ENTRY_POINT_GROUP",
     "FAILURE_CATEGORY",
     "NONFINITE",
@@ -86,6 +90,7 @@ __all__ = [
     "Control",
     "Custom",
     "Disturbance",
+    "Goal",
     "Episodes",
     "FailureCategory",
     "JointPosition",

@@ -271,3 +271,21 @@ class ReadBySetup:
 EPISODE_SETUP = ReadBySetup()
 """A state parameter's `apply` when the task's `episode_setup` reads it (an object placed relative
 to where the suite's own reset left the robot)."""
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A goal that lives in no model element (a target angle, a commanded velocity): applied
+    to nothing, read by an observation (`Observation.episode_value`) the policy reads, or by
+    `success` or `measure` (`Episodes.values`). The config check refuses one that nothing
+    reads."""
+
+    stage = "goal"
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        return None
+
+
+GOAL = Goal()
+"""A state parameter's `apply` when it is a goal no model element holds: the policy's
+observations or the success test read it (`Goal`)."""

@@ -53,7 +53,8 @@ def _element(model: mujoco.MjModel, kind: mujoco.mjtObj | str, name: str) -> int
 class Applier(Protocol):
     """How a state parameter is applied (`mjtrial.task.appliers`: `BodyMass`, `JointPosition`,
     `JointVelocity`, `ModelValue`, `MocapPosition`, `Rotation`, `Custom`, `DISTURBANCE`,
-    `EPISODE_SETUP`): its `stage` ("model", "initial", "disturbance" or "setup") and
+    `EPISODE_SETUP`, `GOAL`): its `stage` ("model", "initial", "disturbance", "setup" or
+    "goal") and
     `bind(model)`, which resolves its names and returns `apply(model, data, value)` (None for
     a value the controller or the setup reads)."""
 

@@ -668,7 +668,14 @@ class _Checker:
             self.check(
                 report_path,
                 lambda s=study, p=report_path, f=summary: markdown_difference(
-                    p, study_report_text(s, f(), report=p, figures_dir=layout.figures_dir)
+                    p,
+                    study_report_text(
+                        s,
+                        f(),
+                        report=p,
+                        figures_dir=layout.figures_dir,
+                        model_file=self.model_file,
+                    ),
                 ),
             )
 
