@@ -53,6 +53,7 @@ def test_a_tampered_registration_names_what_was_changed(tmp_path, config):
     data["current"]["design"]["sections"]["states"]["n"] = 100
     assert registration.problems(data) == [
         "the registration: its design is not the one its sha256 was taken of",
+        "the registration: it is not the one its sha256 was taken of",
         "the registration history is not the one its sha256 was taken of",
     ]
 

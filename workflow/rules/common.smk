@@ -20,7 +20,12 @@ from mjtrial.layout import (
 )
 from mjtrial.policy_file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
-from mjtrial.registration import RegistrationError, ensure_registered, note_deviation
+from mjtrial.registration import (
+    RegistrationError,
+    ensure_registered,
+    note_deviation,
+    rewritten_registration,
+)
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
 from mjtrial.simenv import build_key as env_build_key
@@ -112,22 +117,26 @@ def run_shard_folders_by_condition(wildcards):
     return shard_folders(CONDITIONS)
 
 
-# What only develops the design (its states, its pilot) registers nothing: the pilot's
+# What only develops the design (its states, its pilot) notes no deviation: the pilot's
 # discordance is what the registered power plan reads.
 DEVELOPMENT_TARGETS = {"dev", "pilot"}
 
 
-def register_design():
-    """The design is registered when the workflow is first loaded to build anything, before
-    any job (mjtrial.registration): not a rule's output, so no rerun, `--forceall` or config
-    edit ever rewrites it."""
-    targets = set(getattr(workflow.dag_settings, "targets", None) or ())
-    if not workflow.is_main_process or (targets and targets <= DEVELOPMENT_TARGETS):
-        return
-    try:
-        ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd())
-    except RegistrationError as err:
-        sys.exit(f"mjtrial: {err}")
+def register_design(log):
+    """The `register` job (register.smk): the design is registered once, before the first
+    evaluation rollout and after the states job's checks; a registration Snakemake removed to
+    rerun the job (`--forceall`) is put back from the run's snapshot, never made anew. Its log
+    says which."""
+    existed = LAYOUT.registration.exists()
+    saved = SAFEKEEPING.saved(LAYOUT.registration)
+    data = ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd(), saved=saved)
+    current = data["current"]
+    done = "put back" if saved is not None and not existed else "registered"
+    Path(log).parent.mkdir(parents=True, exist_ok=True)
+    Path(log).write_text(
+        f"{done} {LAYOUT.registration}: {current['registered_utc']}, design sha256 "
+        f"{current['design_sha256']}\n"
+    )
 
 
 def note_design_deviation():
@@ -138,17 +147,17 @@ def note_design_deviation():
         return  # a pilot develops the design: what it tries is no deviation
     try:
         entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
+        rewritten = rewritten_registration(LAYOUT)
     except RegistrationError as err:
         sys.exit(f"mjtrial: {err}")
+    if rewritten:
+        sys.exit(f"mjtrial: {LAYOUT.registration}: {rewritten[0]}; no job was started")
     if entry is not None:
         keys = ", ".join(c["key"] for c in entry["changes"])
         print(
             f"mjtrial: the design deviates from its registration: {keys}",
             file=sys.stderr,
         )
-
-
-register_design()
 
 
 def qualified(wildcards):
@@ -388,6 +397,6 @@ def figure_outputs():
 
 
 def registered_design(wildcards):
-    """The registration, when there is one (the analysis marks what it did not plan
-    exploratory): written when the workflow loads, before any job."""
-    return str(LAYOUT.registration) if LAYOUT.registration.exists() else []
+    """The registration (the analysis marks what it did not plan exploratory), written by the
+    `register` job before the first rollout."""
+    return str(LAYOUT.registration)
