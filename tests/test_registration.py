@@ -3,7 +3,9 @@ a rerun, every later difference recorded as a deviation, with whether results ex
 
 from __future__ import annotations
 
+import base64
 import copy
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -217,3 +219,110 @@ def test_plan_of_a_registered_design_reads_the_pilot(tmp_path, config, capsys):
     out = capsys.readouterr().out
     assert "0.250 (the pilot: 40 pairs" in out
     assert "pairs for a difference of +0.100" in out
+
+
+def test_a_policy_file_swapped_after_registration_is_a_deviation(tmp_path):
+    """Issue 42 item 7: the registration hashed the task and the model, not the policy graph and
+    contract a condition runs, so a policy swapped after the data was no deviation."""
+    work = copy_workflow(tmp_path)
+    config = yaml.safe_load((work / "config" / "cartpole_latency.yaml").read_text())
+    name = next(iter(config["conditions"]))
+    config["conditions"][name]["policy"] = "policies/cartpole_bc/seed-1.onnx"
+    registered = registration.design_record(config, repo_root=work)
+    files = registered["policy_files_sha256"]
+    assert set(files) == {"policies/cartpole_bc/seed-1.onnx", "policies/cartpole_bc/policy.yaml"}
+    graph = work / "policies" / "cartpole_bc" / "seed-1.onnx"
+    assert (
+        files["policies/cartpole_bc/seed-1.onnx"] == hashlib.sha256(graph.read_bytes()).hexdigest()
+    )
+    data = {"current": {"design": registered}}
+    shutil.copy(work / "policies" / "cartpole_bc" / "seed-2.onnx", graph)  # swapped
+    contract = work / "policies" / "cartpole_bc" / "policy.yaml"
+    contract.write_text(contract.read_text() + "\n# edited\n")
+    found = registration.deviations(data, registration.design_record(config, repo_root=work))
+    assert [c["key"] for c in found] == [
+        "policy_files_sha256.policies/cartpole_bc/policy.yaml",
+        "policy_files_sha256.policies/cartpole_bc/seed-1.onnx",
+    ]
+    # a design without a policy file is registered as before (no key of its own)
+    plain = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    assert "policy_files_sha256" not in registration.design_record(plain, repo_root=work)
+
+
+def test_the_results_a_registration_witnesses(tmp_path, config):
+    """Issue 42 item 6: results in the folder, or only in Snakemake's records of them (the
+    folder deleted), make a registration one made after results existed; the states, the
+    pilot's development folder and the logs do not."""
+    layout = Layout(Path("results") / "x")
+    (tmp_path / layout.root / "development").mkdir(parents=True)
+    (tmp_path / layout.development.states).write_bytes(b"pilot")
+    (tmp_path / layout.states).write_bytes(b"states")
+    (tmp_path / layout.log("states")).parent.mkdir()
+    (tmp_path / layout.log("states")).write_text("log")
+    assert registration.results_witness(layout, workdir=tmp_path) == {
+        "existed": False,
+        "files": 0,
+        "records": 0,
+        "sha256": {},
+    }
+    # Snakemake's record of a rollout table whose file is gone
+    metadata = tmp_path / ".snakemake" / "metadata"
+    metadata.mkdir(parents=True)
+    table = (layout.root / "rollouts" / "fast.parquet").as_posix()
+    (metadata / base64.urlsafe_b64encode(table.encode()).decode()).write_text("{}")
+    seen = registration.results_witness(layout, workdir=tmp_path)
+    assert (seen["existed"], seen["files"], seen["records"]) == (True, 0, 1)
+    # a summary in the folder, with its sha256
+    (tmp_path / layout.summary).parent.mkdir(parents=True)
+    (tmp_path / layout.summary).write_text('{"falsifier": {}}')
+    seen = registration.results_witness(layout, workdir=tmp_path)
+    assert seen["files"] == 1
+    assert seen["sha256"] == {
+        "analysis/summary.json": hashlib.sha256(b'{"falsifier": {}}').hexdigest()
+    }
+
+
+def test_stamps_disagree_with_a_registration_rewritten_after_them(tmp_path, config):
+    """Issue 42 item 8: the registration's sha256 in every stamp made after it; a record
+    rewritten and rehashed later is not the one they record."""
+    layout = Layout(tmp_path / "results" / "x")
+    data = registration.register(config, layout=layout, repo_root=REPO_ROOT)
+    current = data["current"]
+    assert current["sha256"] == registration.entry_sha256(current)
+    made = {"rule": "rollout:fast#00000", "registration_sha256": current["sha256"]}
+    later = {**made, "created_utc": current["registered_utc"]}
+    assert registration.stamp_problems(data, {"a.parquet": later, "states": {"rule": "s"}}) == []
+    # made before the registration it records: impossible for an honest run
+    early = {**made, "created_utc": "2000-01-01T00:00:00Z"}
+    (line,) = registration.stamp_problems(data, {"a.parquet": early})
+    assert "a.parquet was made on 2000-01-01T00:00:00Z under registration" in line
+    # the design edited and every hash taken again
+    forged = copy.deepcopy(data)
+    forged["current"]["design"]["sections"]["design"]["falsifier"]["threshold"] = 0.05
+    forged["current"]["design_sha256"] = registration.sha256_of(forged["current"]["design"])
+    forged["current"]["sha256"] = registration.entry_sha256(forged["current"])
+    forged["sha256"] = registration.sha256_of(registration._sealed_part(forged))
+    assert registration.problems(forged) == []  # consistent in itself
+    (line,) = registration.stamp_problems(forged, {"a.parquet": later})
+    assert line == (
+        f"a.parquet was made under registration {current['sha256'][:12]}, which the record does "
+        "not hold: the registration was rewritten after it"
+    )
+    # re-registered: what was made under the earlier one is in the record
+    again = registration.register(config, layout=layout, repo_root=REPO_ROOT, again=True)
+    assert registration.stamp_problems(again, {"a.parquet": later}) == []
+
+
+def test_the_plan_says_a_pilot_ran_when_it_had_no_discordant_pair(tmp_path, config):
+    """Issue 42 item 9: a pilot whose pairs all agreed gave the plan "no pilot"."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    layout = Layout(tmp_path / "results" / "x")
+    for name in ("slow", "fast"):
+        path = layout.development.rollout_table(name)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table({"success": [True] * 4}), path)
+    plan = registration.registered_plan(config, layout=layout)
+    assert "no pilot" not in plan["source"]
+    assert "the pilot's 4 pairs" in plan["source"] and "had none discordant" in plan["source"]
