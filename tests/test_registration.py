@@ -14,7 +14,7 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
 
-from mjtrial import cli, registration
+from mjtrial import cli, provenance, registration
 from mjtrial.diff import diff_runs, render
 from mjtrial.layout import Layout
 from mjtrial.report.registration import falsifier_clause, registration_lines
@@ -184,6 +184,9 @@ def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, 
     assert "its design is not the one its sha256 was taken of" in "; ".join(verdict.reasons)
     (results / "registration.json").write_text(good)
 
+    # issue 42 item 5: registered again after the results, and rebuilt: the report said
+    # "registered ... before any rollout"; the record keeps what results existed, for ever
+    seen = provenance.file_sha256(results / "analysis" / "summary.json")
     monkeypatch.chdir(work)
     assert cli.main(["register", "--again", "--reason", "threshold from the pilot"]) == 0
     data = json.loads((results / "registration.json").read_text())
@@ -192,12 +195,48 @@ def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, 
     manifest = json.loads((results / "manifest.json").read_text())["registration"]
     assert manifest["deviations"] == [] and not manifest["before_any_rollout"]
     assert len(manifest["earlier"]) == 1
+    witnessed = manifest["results_when_registered"]
+    assert witnessed["existed"] and witnessed["sha256"]["analysis/summary.json"] == seen
+    report = (results / "report.md").read_text()
+    assert "before any rollout" not in report
+    assert "after results existed" in report and f"sha256 `{seen[:12]}`" in report
     assert check().ok
 
     text = render(diff_runs(first_run, results))
     assert text.index("Registration") < text.index("How they were made")
     assert "REGISTERED DESIGN CHANGED" in text
     assert "design.falsifier.threshold: 0.0 -> 0.05" in text
+
+    # issue 42 item 8: the registration edited and every hash taken again: the outputs made
+    # before it record another registration; Snakemake refuses to start, verify names it
+    good = (results / "registration.json").read_bytes()
+    forged = registration.read(results / "registration.json")
+    forged["current"]["design"]["sections"]["analysis"]["confidence"] = 0.9
+    forged["current"]["design_sha256"] = registration.sha256_of(forged["current"]["design"])
+    forged["current"]["sha256"] = registration.entry_sha256(forged["current"])
+    registration._write(forged, results / "registration.json", repo_root=work)
+    assert registration.problems(registration.read(results / "registration.json")) == []
+    proc = run_snakemake(work, check=False)
+    assert proc.returncode != 0
+    assert "the registration was rewritten after it; no job was started" in proc.stderr
+    verdict = check()[f"{RESULTS}/registration.json"]
+    assert verdict.status is Status.TAMPERED
+    assert "which the record does not hold" in "; ".join(verdict.reasons)
+    (results / "registration.json").write_bytes(good)
+
+    # issue 42 item 6: the registration deleted, the design changed, --forceall: registered
+    # anew "before any rollout"; the results in the folder were there to see
+    (results / "registration.json").unlink()
+    edit_config(work, lambda c: c["design"]["falsifier"].update(threshold=0.1))
+    run_snakemake(work, "--forceall")
+    data = registration.read(results / "registration.json")
+    assert data["earlier"] == []  # what was deleted is gone ...
+    witnessed = data["current"]["results_when_registered"]
+    assert witnessed["existed"] and witnessed["files"] > 0 and witnessed["records"] > 0
+    manifest = json.loads((results / "manifest.json").read_text())["registration"]
+    assert manifest["before_any_rollout"] is False  # ... and the new one says when it came
+    report = (results / "report.md").read_text()
+    assert "before any rollout" not in report and "after results existed" in report
 
 
 def test_plan_of_a_registered_design_reads_the_pilot(tmp_path, config, capsys):
@@ -326,3 +365,78 @@ def test_the_plan_says_a_pilot_ran_when_it_had_no_discordant_pair(tmp_path, conf
     plan = registration.registered_plan(config, layout=layout)
     assert "no pilot" not in plan["source"]
     assert "the pilot's 4 pairs" in plan["source"] and "had none discordant" in plan["source"]
+
+
+def _swap_seeds(config):
+    states = config["states"]
+    states["seed"], states["development_seed"] = states["development_seed"], states["seed"]
+
+
+@pytest.fixture(scope="module")
+def piloted_then_run(tmp_path_factory):
+    """The guide's way in: a dry run, a cheap pilot (`--config 'pilot={n: 4}'`), a run the
+    states job refuses (the seeds swapped: the evaluation states would be the pilot's), then
+    the clean run. Whether a registration existed after each step."""
+    work = copy_workflow(tmp_path_factory.mktemp("piloted"))
+
+    def small(config):
+        config["states"]["n"] = 12
+        config["rollout"]["shard_size"] = 5
+        config["analysis"]["n_resamples"] = 200
+        config["recording"]["episodes"] = "none"
+
+    edit_config(work, small)
+    registered = work / RESULTS / "registration.json"
+    seen = {}
+    run_snakemake(work, "-n")
+    run_snakemake(work, "-n", "pilot")
+    seen["dry run"] = registered.exists()
+    run_snakemake(work, "pilot", "--config", "pilot={n: 4}")
+    seen["pilot"] = registered.exists()
+    edit_config(work, _swap_seeds)
+    refused = run_snakemake(work, check=False)
+    seen["refused by the states job"] = registered.exists()
+    edit_config(work, _swap_seeds)
+    assert refused.returncode != 0 and "the pilot" in refused.stderr, refused.stderr
+    run_snakemake(work)
+    return work, seen
+
+
+def test_the_design_is_registered_when_the_first_rollout_starts(piloted_then_run):
+    """Issue 42 item 9: a dry run, a pilot and a run the states job refused each wrote the
+    registration (a drafted config frozen as the design; the plan then said "no pilot")."""
+    work, seen = piloted_then_run
+    assert seen == {"dry run": False, "pilot": False, "refused by the states job": False}
+    results = work / RESULTS
+    data = registration.read(results / "registration.json")
+    current = data["current"]
+    # the plan reads the pilot that ran before it
+    assert "no pilot" not in current["plan"]["source"]
+    assert "pilot" in current["plan"]["source"] and "4 pairs" in current["plan"]["source"]
+    assert current["results_when_registered"]["existed"] is False
+    # after the states job, before every rollout; every stamp after it records it
+    manifest = json.loads((results / "manifest.json").read_text())
+    stamps = manifest["stamps"]
+    states = stamps[f"{RESULTS}/states.parquet"]
+    rollouts = [s for s in stamps.values() if s["rule"].startswith("rollout:")]
+    assert states["created_utc"] <= current["registered_utc"]
+    assert rollouts and all(current["registered_utc"] <= s["created_utc"] for s in rollouts)
+    assert manifest["registration"]["before_any_rollout"] is True
+    assert "registration_sha256" not in states  # made before it
+    carried = {p: s.get("registration_sha256") for p, s in stamps.items() if p != states}
+    carried = {p: sha for p, sha in carried.items() if not p.endswith("states.parquet")}
+    assert set(carried.values()) == {current["sha256"]}, carried
+    assert "Registered on" in (results / "report.md").read_text()
+    assert "before any rollout" in (results / "report.md").read_text()
+
+
+def test_a_clean_run_after_a_cheap_pilot_verifies(piloted_then_run):
+    """Issue 42 item 10: after `--config 'pilot={n: 4}'`, verify re-simulated the pilot as if
+    it had run all 12 development states: "no row for states [...]", NOT verified."""
+    work, _ = piloted_then_run
+    report = verify_results(
+        work / RESULTS, config_path=work / "config" / "config.yaml", repo_root=work, resimulate=2
+    )
+    assert report.ok, report.format()
+    development = Layout.of("research_mode").development
+    assert report.status_of(development.shard_table("fast", "00000").as_posix()) is Status.OK

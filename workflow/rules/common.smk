@@ -146,12 +146,13 @@ def note_design_deviation():
     if not LAYOUT.registration.exists() or (targets and targets <= DEVELOPMENT_TARGETS):
         return  # a pilot develops the design: what it tries is no deviation
     try:
-        entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
+        # a registration rewritten since outputs were made under it is no design to run
         rewritten = rewritten_registration(LAYOUT)
+        if rewritten:
+            sys.exit(f"mjtrial: {LAYOUT.registration}: {rewritten[0]}; no job was started")
+        entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
     except RegistrationError as err:
         sys.exit(f"mjtrial: {err}")
-    if rewritten:
-        sys.exit(f"mjtrial: {LAYOUT.registration}: {rewritten[0]}; no job was started")
     if entry is not None:
         keys = ", ".join(c["key"] for c in entry["changes"])
         print(
