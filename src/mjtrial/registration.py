@@ -106,6 +106,7 @@ def policy_files_sha256(config: Mapping[str, Any], *, repo_root: Path) -> dict[s
     """The sha256 of every file a design condition's policy runs (the graph, its contract and
     the graph's external data: `policy_file.policy_file_paths`), by path; a file missing is
     recorded as such (the config check says why)."""
+    # In here (the policy files' reader loads onnx): `mjtrial plan` reads registrations only.
     from mjtrial.conditions import policy_path
     from mjtrial.policy_file import policy_file_paths
 
@@ -230,7 +231,7 @@ def results_witness(layout: Layout, *, workdir: Path = Path(".")) -> dict[str, A
     `records`: how many of each; `sha256`: the key results' (`_KEY_RESULTS`, each table of
     `rollouts/`). What it cannot see: a folder deleted with Snakemake's records, or another
     experiment name (a renamed experiment starts a clean record)."""
-    from mjtrial.safekeeping import METADATA, record_subject
+    from mjtrial.safekeeping import METADATA, record_subject  # psutil: for registering only
 
     workdir = Path(workdir)
     root = layout.root if layout.root.is_absolute() else workdir / layout.root
