@@ -74,6 +74,7 @@ else:
 
     include: "workflow/rules/common.smk"
     include: "workflow/rules/states.smk"
+    include: "workflow/rules/register.smk"
     include: "workflow/rules/rollout.smk"
     include: "workflow/rules/stopping.smk"
     include: "workflow/rules/failures.smk"

@@ -173,7 +173,7 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
     for line in proc.stdout.splitlines():
         path = line.split()[1].rstrip(":") if line.startswith(("ok", "stale")) else None
         if path is None or path.endswith("/registration.json"):
-            continue  # no stage writes the registration: the workflow does, when it loads
+            continue  # no stage writes the registration: the register job, which has no code param
         assert (path in named) == (_stage_of(path) in importing), line
 
 

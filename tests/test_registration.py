@@ -3,7 +3,9 @@ a rerun, every later difference recorded as a deviation, with whether results ex
 
 from __future__ import annotations
 
+import base64
 import copy
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -12,7 +14,7 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
 
-from mjtrial import cli, registration
+from mjtrial import cli, provenance, registration
 from mjtrial.diff import diff_runs, render
 from mjtrial.layout import Layout
 from mjtrial.report.registration import falsifier_clause, registration_lines
@@ -53,6 +55,7 @@ def test_a_tampered_registration_names_what_was_changed(tmp_path, config):
     data["current"]["design"]["sections"]["states"]["n"] = 100
     assert registration.problems(data) == [
         "the registration: its design is not the one its sha256 was taken of",
+        "the registration: it is not the one its sha256 was taken of",
         "the registration history is not the one its sha256 was taken of",
     ]
 
@@ -181,6 +184,9 @@ def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, 
     assert "its design is not the one its sha256 was taken of" in "; ".join(verdict.reasons)
     (results / "registration.json").write_text(good)
 
+    # issue 42 item 5: registered again after the results, and rebuilt: the report said
+    # "registered ... before any rollout"; the record keeps what results existed, for ever
+    seen = provenance.file_sha256(results / "analysis" / "summary.json")
     monkeypatch.chdir(work)
     assert cli.main(["register", "--again", "--reason", "threshold from the pilot"]) == 0
     data = json.loads((results / "registration.json").read_text())
@@ -189,12 +195,48 @@ def test_a_run_registers_and_an_edit_after_the_results_is_a_deviation(tmp_path, 
     manifest = json.loads((results / "manifest.json").read_text())["registration"]
     assert manifest["deviations"] == [] and not manifest["before_any_rollout"]
     assert len(manifest["earlier"]) == 1
+    witnessed = manifest["results_when_registered"]
+    assert witnessed["existed"] and witnessed["sha256"]["analysis/summary.json"] == seen
+    report = (results / "report.md").read_text()
+    assert "before any rollout" not in report
+    assert "after results existed" in report and f"sha256 `{seen[:12]}`" in report
     assert check().ok
 
     text = render(diff_runs(first_run, results))
     assert text.index("Registration") < text.index("How they were made")
     assert "REGISTERED DESIGN CHANGED" in text
     assert "design.falsifier.threshold: 0.0 -> 0.05" in text
+
+    # issue 42 item 8: the registration edited and every hash taken again: the outputs made
+    # before it record another registration; Snakemake refuses to start, verify names it
+    good = (results / "registration.json").read_bytes()
+    forged = registration.read(results / "registration.json")
+    forged["current"]["design"]["sections"]["analysis"]["confidence"] = 0.9
+    forged["current"]["design_sha256"] = registration.sha256_of(forged["current"]["design"])
+    forged["current"]["sha256"] = registration.entry_sha256(forged["current"])
+    registration._write(forged, results / "registration.json", repo_root=work)
+    assert registration.problems(registration.read(results / "registration.json")) == []
+    proc = run_snakemake(work, check=False)
+    assert proc.returncode != 0
+    assert "the registration was rewritten after it; no job was started" in proc.stderr
+    verdict = check()[f"{RESULTS}/registration.json"]
+    assert verdict.status is Status.TAMPERED
+    assert "which the record does not hold" in "; ".join(verdict.reasons)
+    (results / "registration.json").write_bytes(good)
+
+    # issue 42 item 6: the registration deleted, the design changed, --forceall: registered
+    # anew "before any rollout"; the results in the folder were there to see
+    (results / "registration.json").unlink()
+    edit_config(work, lambda c: c["design"]["falsifier"].update(threshold=0.1))
+    run_snakemake(work, "--forceall")
+    data = registration.read(results / "registration.json")
+    assert data["earlier"] == []  # what was deleted is gone ...
+    witnessed = data["current"]["results_when_registered"]
+    assert witnessed["existed"] and witnessed["files"] > 0 and witnessed["records"] > 0
+    manifest = json.loads((results / "manifest.json").read_text())["registration"]
+    assert manifest["before_any_rollout"] is False  # ... and the new one says when it came
+    report = (results / "report.md").read_text()
+    assert "before any rollout" not in report and "after results existed" in report
 
 
 def test_plan_of_a_registered_design_reads_the_pilot(tmp_path, config, capsys):
@@ -270,3 +312,185 @@ def test_a_deleted_record_of_deviations_is_named_with_how_to_restore_it(built, t
     assert any(x.startswith(line) for x in dry.stderr.splitlines()), dry.stderr
     run_snakemake(work, "-R", f"{RESULTS}/manifest.json")
     assert check().ok, check().format()
+
+
+def test_a_policy_file_swapped_after_registration_is_a_deviation(tmp_path):
+    """Issue 42 item 7: the registration hashed the task and the model, not the policy graph and
+    contract a condition runs, so a policy swapped after the data was no deviation."""
+    work = copy_workflow(tmp_path)
+    config = yaml.safe_load((work / "config" / "cartpole_latency.yaml").read_text())
+    name = next(iter(config["conditions"]))
+    config["conditions"][name]["policy"] = "policies/cartpole_bc/seed-1.onnx"
+    registered = registration.design_record(config, repo_root=work)
+    files = registered["policy_files_sha256"]
+    assert set(files) == {"policies/cartpole_bc/seed-1.onnx", "policies/cartpole_bc/policy.yaml"}
+    graph = work / "policies" / "cartpole_bc" / "seed-1.onnx"
+    assert (
+        files["policies/cartpole_bc/seed-1.onnx"] == hashlib.sha256(graph.read_bytes()).hexdigest()
+    )
+    data = {"current": {"design": registered}}
+    shutil.copy(work / "policies" / "cartpole_bc" / "seed-2.onnx", graph)  # swapped
+    contract = work / "policies" / "cartpole_bc" / "policy.yaml"
+    contract.write_text(contract.read_text() + "\n# edited\n")
+    found = registration.deviations(data, registration.design_record(config, repo_root=work))
+    assert [c["key"] for c in found] == [
+        "policy_files_sha256.policies/cartpole_bc/policy.yaml",
+        "policy_files_sha256.policies/cartpole_bc/seed-1.onnx",
+    ]
+    # a design without a policy file is registered as before (no key of its own)
+    plain = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    assert "policy_files_sha256" not in registration.design_record(plain, repo_root=work)
+
+
+def test_the_results_a_registration_witnesses(tmp_path, config):
+    """Issue 42 item 6: results in the folder, or only in Snakemake's records of them (the
+    folder deleted), make a registration one made after results existed; the states, the
+    pilot's development folder and the logs do not."""
+    layout = Layout(Path("results") / "x")
+    (tmp_path / layout.root / "development").mkdir(parents=True)
+    (tmp_path / layout.development.states).write_bytes(b"pilot")
+    (tmp_path / layout.states).write_bytes(b"states")
+    (tmp_path / layout.log("states")).parent.mkdir()
+    (tmp_path / layout.log("states")).write_text("log")
+    assert registration.results_witness(layout, workdir=tmp_path) == {
+        "existed": False,
+        "files": 0,
+        "records": 0,
+        "sha256": {},
+    }
+    # Snakemake's record of a rollout table whose file is gone
+    metadata = tmp_path / ".snakemake" / "metadata"
+    metadata.mkdir(parents=True)
+    table = (layout.root / "rollouts" / "fast.parquet").as_posix()
+    (metadata / base64.urlsafe_b64encode(table.encode()).decode()).write_text("{}")
+    seen = registration.results_witness(layout, workdir=tmp_path)
+    assert (seen["existed"], seen["files"], seen["records"]) == (True, 0, 1)
+    # a summary in the folder, with its sha256
+    (tmp_path / layout.summary).parent.mkdir(parents=True)
+    (tmp_path / layout.summary).write_text('{"falsifier": {}}')
+    seen = registration.results_witness(layout, workdir=tmp_path)
+    assert seen["files"] == 1
+    assert seen["sha256"] == {
+        "analysis/summary.json": hashlib.sha256(b'{"falsifier": {}}').hexdigest()
+    }
+
+
+def test_stamps_disagree_with_a_registration_rewritten_after_them(tmp_path, config):
+    """Issue 42 item 8: the registration's sha256 in every stamp made after it; a record
+    rewritten and rehashed later is not the one they record."""
+    layout = Layout(tmp_path / "results" / "x")
+    data = registration.register(config, layout=layout, repo_root=REPO_ROOT)
+    current = data["current"]
+    assert current["sha256"] == registration.entry_sha256(current)
+    made = {"rule": "rollout:fast#00000", "registration_sha256": current["sha256"]}
+    later = {**made, "created_utc": current["registered_utc"]}
+    assert registration.stamp_problems(data, {"a.parquet": later, "states": {"rule": "s"}}) == []
+    # made before the registration it records: impossible for an honest run
+    early = {**made, "created_utc": "2000-01-01T00:00:00Z"}
+    (line,) = registration.stamp_problems(data, {"a.parquet": early})
+    assert "a.parquet was made on 2000-01-01T00:00:00Z under registration" in line
+    # the design edited and every hash taken again
+    forged = copy.deepcopy(data)
+    forged["current"]["design"]["sections"]["design"]["falsifier"]["threshold"] = 0.05
+    forged["current"]["design_sha256"] = registration.sha256_of(forged["current"]["design"])
+    forged["current"]["sha256"] = registration.entry_sha256(forged["current"])
+    forged["sha256"] = registration.sha256_of(registration._sealed_part(forged))
+    assert registration.problems(forged) == []  # consistent in itself
+    (line,) = registration.stamp_problems(forged, {"a.parquet": later})
+    assert line == (
+        f"a.parquet was made under registration {current['sha256'][:12]}, which the record does "
+        "not hold: the registration was rewritten after it"
+    )
+    # re-registered: what was made under the earlier one is in the record
+    again = registration.register(config, layout=layout, repo_root=REPO_ROOT, again=True)
+    assert registration.stamp_problems(again, {"a.parquet": later}) == []
+
+
+def test_the_plan_says_a_pilot_ran_when_it_had_no_discordant_pair(tmp_path, config):
+    """Issue 42 item 9: a pilot whose pairs all agreed gave the plan "no pilot"."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    layout = Layout(tmp_path / "results" / "x")
+    for name in ("slow", "fast"):
+        path = layout.development.rollout_table(name)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table({"success": [True] * 4}), path)
+    plan = registration.registered_plan(config, layout=layout)
+    assert "no pilot" not in plan["source"]
+    assert "the pilot's 4 pairs" in plan["source"] and "had none discordant" in plan["source"]
+
+
+def _swap_seeds(config):
+    states = config["states"]
+    states["seed"], states["development_seed"] = states["development_seed"], states["seed"]
+
+
+@pytest.fixture(scope="module")
+def piloted_then_run(tmp_path_factory):
+    """The guide's way in: a dry run, a cheap pilot (`--config 'pilot={n: 4}'`), a run the
+    states job refuses (the seeds swapped: the evaluation states would be the pilot's), then
+    the clean run. Whether a registration existed after each step."""
+    work = copy_workflow(tmp_path_factory.mktemp("piloted"))
+
+    def small(config):
+        config["states"]["n"] = 12
+        config["rollout"]["shard_size"] = 5
+        config["analysis"]["n_resamples"] = 200
+        config["recording"]["episodes"] = "none"
+
+    edit_config(work, small)
+    registered = work / RESULTS / "registration.json"
+    seen = {}
+    run_snakemake(work, "-n")
+    run_snakemake(work, "-n", "pilot")
+    seen["dry run"] = registered.exists()
+    run_snakemake(work, "pilot", "--config", "pilot={n: 4}")
+    seen["pilot"] = registered.exists()
+    edit_config(work, _swap_seeds)
+    refused = run_snakemake(work, check=False)
+    seen["refused by the states job"] = registered.exists()
+    edit_config(work, _swap_seeds)
+    assert refused.returncode != 0 and "the pilot" in refused.stderr, refused.stderr
+    run_snakemake(work)
+    return work, seen
+
+
+def test_the_design_is_registered_when_the_first_rollout_starts(piloted_then_run):
+    """Issue 42 item 9: a dry run, a pilot and a run the states job refused each wrote the
+    registration (a drafted config frozen as the design; the plan then said "no pilot")."""
+    work, seen = piloted_then_run
+    assert seen == {"dry run": False, "pilot": False, "refused by the states job": False}
+    results = work / RESULTS
+    data = registration.read(results / "registration.json")
+    current = data["current"]
+    # the plan reads the pilot that ran before it
+    assert "no pilot" not in current["plan"]["source"]
+    assert "pilot" in current["plan"]["source"] and "4 pairs" in current["plan"]["source"]
+    assert current["results_when_registered"]["existed"] is False
+    # after the states job, before every rollout; every stamp after it records it
+    manifest = json.loads((results / "manifest.json").read_text())
+    stamps = manifest["stamps"]
+    states = stamps[f"{RESULTS}/states.parquet"]
+    rollouts = [s for s in stamps.values() if s["rule"].startswith("rollout:")]
+    assert states["created_utc"] <= current["registered_utc"]
+    assert rollouts and all(current["registered_utc"] <= s["created_utc"] for s in rollouts)
+    assert manifest["registration"]["before_any_rollout"] is True
+    assert "registration_sha256" not in states  # made before it
+    carried = {p: s.get("registration_sha256") for p, s in stamps.items() if p != states}
+    carried = {p: sha for p, sha in carried.items() if not p.endswith("states.parquet")}
+    assert set(carried.values()) == {current["sha256"]}, carried
+    assert "Registered on" in (results / "report.md").read_text()
+    assert "before any rollout" in (results / "report.md").read_text()
+
+
+def test_a_clean_run_after_a_cheap_pilot_verifies(piloted_then_run):
+    """Issue 42 item 10: after `--config 'pilot={n: 4}'`, verify re-simulated the pilot as if
+    it had run all 12 development states: "no row for states [...]", NOT verified."""
+    work, _ = piloted_then_run
+    report = verify_results(
+        work / RESULTS, config_path=work / "config" / "config.yaml", repo_root=work, resimulate=2
+    )
+    assert report.ok, report.format()
+    development = Layout.of("research_mode").development
+    assert report.status_of(development.shard_table("fast", "00000").as_posix()) is Status.OK

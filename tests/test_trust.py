@@ -19,6 +19,7 @@ import pytest
 from conftest import REPO_ROOT, SNAKEMAKE, edit_config, error_lines, run_snakemake
 
 from mjtrial import provenance
+from mjtrial.diff import diff_runs, failures, render
 from mjtrial.stages.rollout import read_state_values
 from mjtrial.task import load_task
 
@@ -506,8 +507,15 @@ def test_two_clean_builds_give_identical_data(built, tmp_path):
     workdir = tmp_path / "again"
     shutil.copytree(built, workdir)
     shutil.rmtree(workdir / "results")
+    shutil.rmtree(workdir / ".snakemake", ignore_errors=True)  # a clean build: no records
     run_snakemake(workdir)
     assert_same_data(built / RESULTS, workdir / RESULTS)
+    # issue 42 item 13: the gate failed every pair of honest rebuilds, whose manifest and
+    # report differ only by when the design was registered (a record, as a stamp is)
+    diff = diff_runs(built / RESULTS, workdir / RESULTS)
+    assert failures(diff, "any") == [], render(diff)
+    assert diff["outputs"]["differ"] == []
+    assert {"manifest.json", "report.md"} <= set(diff["outputs"]["same_content"])
 
 
 def test_killed_run_recovers_to_the_uninterrupted_results(built, tmp_path):

@@ -89,6 +89,13 @@ def _register(args: argparse.Namespace) -> int:
         f"registered {layout.registration} on {current['registered_utc']} (design sha256 "
         f"{current['design_sha256'][:12]}; {len(data['earlier'])} earlier kept)"
     )
+    seen = current.get("results_when_registered") or {}
+    if seen.get("existed"):
+        print(
+            f"results existed ({seen['files']} file(s) in the folder, {seen['records']} of "
+            "Snakemake's records): the report and the manifest say it was registered after "
+            "results existed, for as long as it is the record"
+        )
     return 0
 
 

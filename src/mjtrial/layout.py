@@ -241,8 +241,8 @@ class Layout:
 
     @property
     def registration(self) -> Path:
-        """The registered design (`mjtrial.registration`): no rule's output, so Snakemake never
-        deletes or rebuilds it."""
+        """The registered design (`mjtrial.registration`): the `register` job's output, which
+        never registers over one (a registration Snakemake removed is put back)."""
         return self.root / "registration.json"
 
     @property

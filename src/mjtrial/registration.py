@@ -7,9 +7,16 @@ registration (`mjtrial register --again` moves the current one there, never drop
 `deviations.json` beside it holds each design that differed from the registration, first seen
 when a run started, with what changed and whether results existed then.
 
-The file is not an output of any rule, so Snakemake never deletes, rebuilds or `--forceall`s
-it: the Snakefile writes it when the workflow is loaded and nothing is registered (before any
-job can run), and notes a deviation in `onstart` (before any job removes the results it
+The design is registered once, when the first evaluation rollout is about to start: by the
+`register` job, which runs after the states job (after every check that can refuse the
+design) and before every rollout, never on a dry run nor for the `dev` and `pilot` targets. It
+never rewrites a registration: one that Snakemake removed to rerun the job (`--forceall`) is
+put back from the run's snapshot. Each registration records what results existed when it was
+made (`results_witness`: in the folder, in Snakemake's records, in the crate), so that a
+registration made after results, by `mjtrial register --again` or after the file was deleted,
+reads so for ever; and its own sha256 (`entry_sha256`), which every stamp made after it
+carries (`registration_sha256`): a registration rewritten later disagrees with the outputs
+made before it. A deviation is noted in `onstart` (before any job removes the results it
 deviates from). The manifest records the registration and the run's deviations, the seal
 records the file's sha256, `mjtrial verify` checks both.
 """
@@ -19,6 +26,8 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import os
+import shutil
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -39,6 +48,7 @@ REGISTERED_SECTIONS = (
     "failure_taxonomy",
     "analysis",
     "stopping",
+    "privileged_observations",
 )
 RULE = "register"
 # What a power plan assumes without a pilot (said in the plan and the report).
@@ -79,11 +89,34 @@ def design_record(config: Mapping[str, Any], *, repo_root: Path = REPO_ROOT) -> 
         if reference.endswith(".py")
         else reference
     )
-    return {
+    record = {
         "sections": json.loads(json.dumps(sections, default=str)),
         "task_files_sha256": task,
         "model_sha256": provenance.model_sha256(repo_root / config["model"]),
     }
+    policies = policy_files_sha256(config, repo_root=repo_root)
+    if policies:  # only when a condition names one: a design without is registered as before
+        record["policy_files_sha256"] = policies
+    return record
+
+
+def policy_files_sha256(config: Mapping[str, Any], *, repo_root: Path) -> dict[str, str]:
+    """The sha256 of every file a design condition's policy runs (the graph, its contract and
+    the graph's external data: `policy_file.policy_file_paths`), by path; a file missing is
+    recorded as such (the config check says why)."""
+    # In here (the policy files' reader loads onnx): `mjtrial plan` reads registrations only.
+    from mjtrial.conditions import policy_path
+    from mjtrial.policy_file import policy_file_paths
+
+    out: dict[str, str] = {}
+    for condition in (config.get("conditions") or {}).values():
+        policy = policy_path(condition or {})
+        if policy is None:
+            continue
+        for path in policy_file_paths(Path(repo_root) / policy):
+            key = provenance.repo_relative(path, Path(repo_root))
+            out[key] = provenance.file_sha256(path) if path.is_file() else "missing"
+    return dict(sorted(out.items()))
 
 
 def changes(registered: Any, now: Any, prefix: str = "") -> list[dict[str, Any]]:
@@ -131,6 +164,13 @@ def read(path: Path) -> dict[str, Any] | None:
     return data
 
 
+def entry_sha256(entry: Mapping[str, Any]) -> str:
+    """The sha256 of one registration as it was made (its design, time, plan, reason and the
+    results that existed; not when it was superseded): what every stamp made after it records
+    as `registration_sha256`."""
+    return sha256_of({k: v for k, v in entry.items() if k not in ("sha256", "superseded_utc")})
+
+
 def problems(data: Mapping[str, Any]) -> list[str]:
     """What is wrong with a registration read back: a record whose hash is not its content's."""
     out = []
@@ -138,6 +178,8 @@ def problems(data: Mapping[str, Any]) -> list[str]:
         which = "the registration" if i == 0 else f"earlier registration {i}"
         if sha256_of(entry.get("design")) != entry.get("design_sha256"):
             out.append(f"{which}: its design is not the one its sha256 was taken of")
+        if "sha256" in entry and entry_sha256(entry) != entry["sha256"]:
+            out.append(f"{which}: it is not the one its sha256 was taken of")
     if sha256_of(_sealed_part(data)) != data.get("sha256"):
         out.append("the registration history is not the one its sha256 was taken of")
     return out
@@ -151,16 +193,76 @@ def _entry(
     config: Mapping[str, Any], *, repo_root: Path, now: str, reason: str | None, layout: Layout
 ) -> dict[str, Any]:
     record = design_record(config, repo_root=repo_root)
-    return {
+    entry = {
         "registered_utc": now,
         "design_sha256": sha256_of(record),
         "reason": reason,
         "plan": registered_plan(config, layout=layout),
+        "results_when_registered": results_witness(layout, workdir=repo_root),
         "design": record,
+    }
+    return {**entry, "sha256": entry_sha256(entry)}
+
+
+# What is not a result in a results folder: the registration's own files, the states (drawn
+# before the registration, by the states job that checks the design), the development folder
+# (the pilot develops the design), the logs, and hidden files (the snapshot, temporaries).
+_NOT_RESULTS = ("registration.json", "deviations.json", "states.parquet")
+_NOT_RESULT_FOLDERS = ("development", "logs")
+# The results whose sha256 a registration keeps, when they exist: what was seen.
+_KEY_RESULTS = ("seal.json", "manifest.json", "analysis/summary.json", "report.md")
+
+
+def _is_result(rel: Path) -> bool:
+    parts = rel.parts
+    return bool(parts) and not (
+        any(p.startswith(".") for p in parts)
+        or (len(parts) == 1 and parts[0] in _NOT_RESULTS)
+        or parts[0] in _NOT_RESULT_FOLDERS
+    )
+
+
+def results_witness(layout: Layout, *, workdir: Path = Path(".")) -> dict[str, Any]:
+    """What results of the experiment exist now, wherever this checkout can see them: files in
+    the results folder (a crate's included), and Snakemake's records of outputs under it
+    (`.snakemake/metadata`, kept when the files are deleted). `existed`: any; `files`,
+    `records`: how many of each; `sha256`: the key results' (`_KEY_RESULTS`, each table of
+    `rollouts/`). What it cannot see: a folder deleted with Snakemake's records, or another
+    experiment name (a renamed experiment starts a clean record)."""
+    from mjtrial.safekeeping import METADATA, record_subject  # psutil: for registering only
+
+    workdir = Path(workdir)
+    root = layout.root if layout.root.is_absolute() else workdir / layout.root
+    files = (
+        sorted(p.relative_to(root) for p in root.rglob("*") if p.is_file()) if root.is_dir() else []
+    )
+    files = [rel for rel in files if _is_result(rel)]
+    records = []
+    metadata = workdir / METADATA
+    if metadata.is_dir():
+        try:
+            named = root.resolve().relative_to(workdir.resolve())
+        except ValueError:
+            named = None
+        for record in metadata.rglob("*"):
+            subject = record_subject(record, metadata) if record.is_file() else None
+            if named is not None and subject is not None and named in subject.parents:
+                if _is_result(subject.relative_to(named)):
+                    records.append(subject)
+    hashed = [*_KEY_RESULTS, *(r.as_posix() for r in files if r.parent == Path("rollouts"))]
+    return {
+        "existed": bool(files or records),
+        "files": len(files),
+        "records": len(records),
+        "sha256": {
+            rel: provenance.file_sha256(root / rel) for rel in hashed if (root / rel).is_file()
+        },
     }
 
 
-def _write(data: dict[str, Any], path: Path, *, repo_root: Path) -> None:
+def _write(data: dict[str, Any], path: Path, *, repo_root: Path, once: bool = False) -> bool:
+    """Write the registration; with `once`, only if there is none (an atomic link: of two jobs
+    that register at once, one writes). Returns whether it was written."""
     data = {**data, "sha256": sha256_of(_sealed_part(data))}
     stamp = provenance.make_stamp(
         rule=RULE,
@@ -169,7 +271,18 @@ def _write(data: dict[str, Any], path: Path, *, repo_root: Path) -> None:
         repo_dir=repo_root,
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    provenance.write_json(data, path, stamp)
+    if not once:
+        provenance.write_json(data, path, stamp)
+        return True
+    draft = path.with_name(f".{path.name}.{os.getpid()}.draft")
+    provenance.write_json(data, draft, stamp)
+    try:
+        os.link(draft, path)
+    except FileExistsError:
+        return False
+    finally:
+        draft.unlink(missing_ok=True)
+    return True
 
 
 def register(
@@ -203,11 +316,30 @@ def register(
 
 
 def ensure_registered(
-    config: Mapping[str, Any], *, layout: Layout, repo_root: Path = REPO_ROOT
+    config: Mapping[str, Any],
+    *,
+    layout: Layout,
+    repo_root: Path = REPO_ROOT,
+    saved: Path | None = None,
 ) -> dict[str, Any]:
-    """The registration, made now when there is none (the first run registers)."""
-    data = read(layout.registration)
-    return data if data is not None else register(config, layout=layout, repo_root=repo_root)
+    """The registration, made now when there is none (the `register` job, before the first
+    rollout). `saved`: the registration as it was when the run started (the run's snapshot),
+    put back when Snakemake removed it to rerun the job (`--forceall`): never registered anew."""
+    path = layout.registration
+    if not path.exists() and saved is not None and saved.is_file():
+        try:
+            os.link(saved, path)
+        except FileExistsError:
+            pass
+        except OSError:
+            shutil.copy2(saved, path)
+    data = read(path)
+    if data is not None:
+        return data
+    now = utc_now()
+    entry = _entry(config, repo_root=repo_root, now=now, reason=None, layout=layout)
+    _write({"current": entry, "earlier": []}, path, repo_root=repo_root, once=True)
+    return read(path) or {}
 
 
 def results_on_disk(layout: Layout, registered_config: Mapping[str, Any]) -> dict[str, Any]:
@@ -307,7 +439,11 @@ def registered_plan(
         discordant, source = pilot_discordance(layout, falsifier)
     if discordant is None:
         discordant = ASSUMED_DISCORDANT
-        source = "assumed: half the pairs discordant; no pilot (snakemake -c2 pilot)"
+        source = (
+            f"assumed: half the pairs discordant; {source}"
+            if source
+            else "assumed: half the pairs discordant; no pilot (snakemake -c2 pilot)"
+        )
     elif source is None:
         source = "stated (--discordant)"
     return power_plan(
@@ -324,7 +460,8 @@ def pilot_discordance(
 ) -> tuple[float | None, str | None]:
     """The pilot's share of discordant pairs between the falsifier's treatment and baseline
     (`development/rollouts/<condition>.parquet`), with where it comes from; (None, None)
-    without a pilot of both, or with no discordant pair in it."""
+    without a pilot of both; (None, what it was) when the pilot had no discordant pair (a
+    share of 0 plans nothing, and the plan says a pilot ran)."""
     tables = [layout.development.rollout_table(falsifier[k]) for k in ("treatment", "baseline")]
     if not all(t.exists() for t in tables):
         return None, None
@@ -338,9 +475,9 @@ def pilot_discordance(
     if len(treatment) != len(baseline) or not treatment:
         return None, None
     share = discordant_share(treatment, baseline)
-    if share == 0.0:
-        return None, None
     rel = layout.development.rollouts_dir().as_posix()
+    if share == 0.0:
+        return None, f"the pilot's {len(treatment)} pairs of {rel} had none discordant"
     return share, f"the pilot: {len(treatment)} pairs of {rel}"
 
 
@@ -378,16 +515,29 @@ def manifest_section(
         ),
         None,
     )
+    witnessed = current.get("results_when_registered") or {}
     return {
         "sha256": data.get("sha256"),
         "design_sha256": current["design_sha256"],
         "registered_utc": current["registered_utc"],
         "reason": current.get("reason"),
+        "results_when_registered": current.get("results_when_registered"),
         "earlier": [
-            {k: e.get(k) for k in ("registered_utc", "superseded_utc", "design_sha256", "reason")}
+            {
+                k: e.get(k)
+                for k in (
+                    "registered_utc",
+                    "superseded_utc",
+                    "design_sha256",
+                    "reason",
+                    "results_when_registered",
+                )
+            }
             for e in data.get("earlier", [])
         ],
-        "before_any_rollout": first is not None and current["registered_utc"] <= first,
+        "before_any_rollout": first is not None
+        and current["registered_utc"] <= first
+        and not witnessed.get("existed"),
         "deviations": deviations(data, record),
         "deviation_noted": noted,
         "plan": current.get("plan"),
@@ -417,3 +567,45 @@ def lost_deviation_note(layout: Layout) -> str | None:
         "that no job can rebuild; put the file back from a copy of the results folder, or "
         f"`snakemake -c2 -R {layout.manifest}` notes the deviation anew, as first run then"
     )
+
+
+def stamp_problems(data: Mapping[str, Any], stamps: Mapping[str, Any]) -> list[str]:
+    """Outputs whose stamp disagrees with the registration record: a stamp records the
+    registration it was made under (`registration_sha256`), which must be one the record holds,
+    made before the output and not superseded before it. A registration rewritten (and
+    rehashed) after outputs were made is not the one they record."""
+    entries = {}
+    for entry in [data["current"], *data.get("earlier", [])]:
+        if isinstance(entry, Mapping) and "sha256" in entry:
+            entries[entry["sha256"]] = entry
+    out = []
+    for path, stamp in sorted(stamps.items()):
+        held = stamp.get("registration_sha256") if isinstance(stamp, Mapping) else None
+        if held is None:
+            continue
+        entry = entries.get(held)
+        made = str(stamp.get("created_utc", ""))
+        if entry is None:
+            out.append(
+                f"{path} was made under registration {str(held)[:12]}, which the record does not "
+                "hold: the registration was rewritten after it"
+            )
+        elif made < entry["registered_utc"] or made > entry.get("superseded_utc", made):
+            out.append(
+                f"{path} was made on {made} under registration {held[:12]}, which the record "
+                f"dates {entry['registered_utc']} to {entry.get('superseded_utc', 'now')}"
+            )
+    return out
+
+
+def rewritten_registration(layout: Layout) -> list[str]:
+    """At a run's start: what the outputs' stamps (the manifest's copies) say against the
+    registration on disk (`stamp_problems`); [] without a registration or a manifest."""
+    data = read(layout.registration)
+    try:
+        manifest = json.loads(provenance.read_output_text(layout.manifest))
+    except (OSError, ValueError):
+        return []
+    if data is None or not isinstance(manifest, Mapping):
+        return []
+    return stamp_problems(data, manifest.get("stamps") or {})

@@ -53,7 +53,7 @@ def _hidden(rel: Path) -> bool:
     return any(part.startswith(".") for part in rel.parts)
 
 
-def _record_subject(record: Path, folder: Path) -> Path | None:
+def record_subject(record: Path, folder: Path) -> Path | None:
     """The output path a Snakemake metadata record or incomplete marker is about (its name is
     the path in urlsafe base64, split into parts of the file-name length, all but the last
     prefixed with "@")."""
@@ -67,7 +67,7 @@ def _record_subject(record: Path, folder: Path) -> Path | None:
 
 def record_path(folder: Path, subject: str) -> Path:
     """Where Snakemake keeps its record of the output `subject` (its path as Snakemake names
-    it) in `folder` (the metadata or incomplete folder): the inverse of `_record_subject`."""
+    it) in `folder` (the metadata or incomplete folder): the inverse of `record_subject`."""
     max_len = os.pathconf(folder, "PC_NAME_MAX") if os.name == "posix" else 255
     max_len = max_len or 255
     encoded = base64.urlsafe_b64encode(subject.encode()).decode()
@@ -133,7 +133,7 @@ class Snapshot:
         for record in records_dir.rglob("*"):
             if not record.is_file():
                 continue
-            subject = _record_subject(record, records_dir)
+            subject = record_subject(record, records_dir)
             if subject is not None and (subject == self.results or self.results in subject.parents):
                 found.setdefault(subject, []).append(record)
         return found
@@ -169,6 +169,12 @@ class Snapshot:
         except OSError:
             self.drop()
             raise
+
+    def saved(self, output: Path) -> Path | None:
+        """The snapshot's copy of `output` (a path relative to the working folder, as
+        Snakemake names it), when the snapshot holds one."""
+        copy = self.folder / _FILES / output
+        return copy if (self.folder / _COMPLETE).is_file() and copy.is_file() else None
 
     def restore(self, only: set[Path] | None = None, *, replaced: bool = False) -> list[Path]:
         """Put back every output of the snapshot that is missing now (of `only`, if given),

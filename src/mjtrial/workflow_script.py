@@ -13,6 +13,7 @@ import ctypes
 import gc
 import importlib
 import inspect
+import json
 import logging
 import os
 import resource
@@ -29,6 +30,7 @@ from types import CodeType, SimpleNamespace
 from typing import Any
 
 from mjtrial import provenance
+from mjtrial.layout import Layout
 from mjtrial.simenv import run_in_env
 from mjtrial.stages.stamping import make_stage_stamp
 
@@ -61,6 +63,34 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
         raise JobFailed(f"{rule}: a job in another MuJoCo's environment needs a process of its own")
     log_path = Path(snakemake.log[0])
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    registered = provenance.REGISTRATION_SHA256.set(registration_of(log_path))
+    try:
+        _run_job(snakemake, stage, rule, kwargs, log_path, in_process)
+    finally:
+        provenance.REGISTRATION_SHA256.reset(registered)
+
+
+def registration_of(log_path: Path) -> str | None:
+    """The sha256 of the registration the job runs under (`registration.entry_sha256`): that of
+    the results folder its log lies in (`<results>/logs/`), None before there is one (the
+    states job of a first run, the pilot's jobs under `development/`)."""
+    path = Layout(log_path.parent.parent).registration
+    try:
+        current = json.loads(provenance.read_output_text(path))["current"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    sha = current.get("sha256") if isinstance(current, dict) else None
+    return sha if isinstance(sha, str) else None
+
+
+def _run_job(
+    snakemake: Any,
+    stage: Callable[..., Any],
+    rule: str,
+    kwargs: dict[str, Any],
+    log_path: Path,
+    in_process: bool,
+) -> None:
     started = time.monotonic(), time.thread_time()
     stamp = make_stage_stamp(
         rule, snakemake.params.get("slice", {}), dict(snakemake.input.items()), repo_root=Path.cwd()

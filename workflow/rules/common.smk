@@ -27,6 +27,7 @@ from mjtrial.registration import (
     ensure_registered,
     lost_deviation_note,
     note_deviation,
+    rewritten_registration,
 )
 from mjtrial.simenv import build as build_env
 from mjtrial.simenv import lock_path, variant_version, version_recordings
@@ -119,22 +120,26 @@ def run_shard_folders_by_condition(wildcards):
     return shard_folders(CONDITIONS)
 
 
-# What only develops the design (its states, its pilot) registers nothing: the pilot's
+# What only develops the design (its states, its pilot) notes no deviation: the pilot's
 # discordance is what the registered power plan reads.
 DEVELOPMENT_TARGETS = {"dev", "pilot"}
 
 
-def register_design():
-    """The design is registered when the workflow is first loaded to build anything, before
-    any job (mjtrial.registration): not a rule's output, so no rerun, `--forceall` or config
-    edit ever rewrites it."""
-    targets = set(getattr(workflow.dag_settings, "targets", None) or ())
-    if not workflow.is_main_process or (targets and targets <= DEVELOPMENT_TARGETS):
-        return
-    try:
-        ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd())
-    except RegistrationError as err:
-        sys.exit(f"mjtrial: {err}")
+def register_design(log):
+    """The `register` job (register.smk): the design is registered once, before the first
+    evaluation rollout and after the states job's checks; a registration Snakemake removed to
+    rerun the job (`--forceall`) is put back from the run's snapshot, never made anew. Its log
+    says which."""
+    existed = LAYOUT.registration.exists()
+    saved = SAFEKEEPING.saved(LAYOUT.registration)
+    data = ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd(), saved=saved)
+    current = data["current"]
+    done = "put back" if saved is not None and not existed else "registered"
+    Path(log).parent.mkdir(parents=True, exist_ok=True)
+    Path(log).write_text(
+        f"{done} {LAYOUT.registration}: {current['registered_utc']}, design sha256 "
+        f"{current['design_sha256']}\n"
+    )
 
 
 def note_design_deviation():
@@ -144,6 +149,10 @@ def note_design_deviation():
     if not LAYOUT.registration.exists() or (targets and targets <= DEVELOPMENT_TARGETS):
         return  # a pilot develops the design: what it tries is no deviation
     try:
+        # a registration rewritten since outputs were made under it is no design to run
+        rewritten = rewritten_registration(LAYOUT)
+        if rewritten:
+            sys.exit(f"mjtrial: {LAYOUT.registration}: {rewritten[0]}; no job was started")
         entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
     except RegistrationError as err:
         sys.exit(f"mjtrial: {err}")
@@ -153,9 +162,6 @@ def note_design_deviation():
             f"mjtrial: the design deviates from its registration: {keys}",
             file=sys.stderr,
         )
-
-
-register_design()
 
 
 def say_lost_deviation_note():
@@ -402,6 +408,6 @@ def figure_outputs():
 
 
 def registered_design(wildcards):
-    """The registration, when there is one (the analysis marks what it did not plan
-    exploratory): written when the workflow loads, before any job."""
-    return str(LAYOUT.registration) if LAYOUT.registration.exists() else []
+    """The registration (the analysis marks what it did not plan exploratory), written by the
+    `register` job before the first rollout."""
+    return str(LAYOUT.registration)

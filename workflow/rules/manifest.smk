@@ -8,7 +8,7 @@ rule manifest:
         failures=[LAYOUT.failures, LAYOUT.failures_table] if RECORDED else [],
         summary=LAYOUT.summary,
         model=config["model"],
-        # the registered design (not a rule's output: written when the workflow loads)
+        # the registered design (the register job's, before the first rollout)
         registration=LAYOUT.registration,
     output:
         manifest=report(

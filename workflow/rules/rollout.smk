@@ -8,6 +8,8 @@ rule rollout:
         states=LAYOUT.states,
         model=config["model"],
         policy=policy_files,
+        # after the registration (register.smk); `ancient`: re-registering reruns no rollout
+        registration=ancient(LAYOUT.registration),
     output:
         **shard_recording_output(LAYOUT.shard_recordings("{condition}", "{shard}")),
         table=LAYOUT.shard_table("{condition}", "{shard}"),
@@ -66,6 +68,7 @@ use rule rollout as rollout_variant with:
         unpack(simulator_env),
         states=LAYOUT.states,
         model=config["model"],
+        registration=ancient(LAYOUT.registration),
     output:
         **shard_recording_output(
             LAYOUT.shard_recordings("{condition}", "{shard}", "{variant}")

@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from mjtrial import provenance, stats
+from mjtrial.diff.registration import without_registration_time
 from mjtrial.diff.source import Run
 from mjtrial.layout import NOMINAL, BenchmarkLayout
 
@@ -35,13 +36,17 @@ _RECORDING = re.compile(r".*\.rrd|.*/shard-\d+")
 
 def _content(run: Run, rel: str) -> bytes | None:
     """The output's content less its stamp (`provenance.content_without_stamp`); a manifest
-    also less its copies of every output's stamp."""
+    also less its copies of every output's stamp; and less when the design was registered
+    (`registration.without_registration_time`): a record of the run, as a stamp is, so two
+    builds of one commit compare the same (the registered design itself is compared)."""
     content = provenance.content_without_stamp(run.root / rel)
-    if content is not None and rel == run.layout.manifest.name:
+    if content is None:
+        return None
+    if rel == run.layout.manifest.name:
         obj = json.loads(content)
         obj.pop("stamps", None)
         content = json.dumps(obj, sort_keys=True).encode()
-    return content
+    return without_registration_time(run, rel, content)
 
 
 def not_as_sealed(run: Run) -> dict[str, list[str]]:

@@ -3,6 +3,7 @@ them changes what either run's results mean, before any number does."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from typing import Any
 
@@ -18,6 +19,49 @@ def _registration(run: Run) -> tuple[dict[str, Any] | None, list[str]]:
     recorded = manifest.get("registration") or {}
     deviations = [c["key"] for c in recorded.get("deviations", [])]
     return (data.get("current") if data else None), deviations
+
+
+# What records when (and so carries the time): a registration's times, its sha256s (each
+# taken over its time) and the witness of the results (another build's results' hashes).
+_WHEN = ("registered_utc", "superseded_utc", "sha256")
+
+
+def _times(run: Run) -> list[str]:
+    """Every time the run's registration file records, as the file and the report write it."""
+    data = run.json(run.layout.registration.name) or {}
+    entries = [data.get("current") or {}, *(data.get("earlier") or [])]
+    found = {str(e[k]) for e in entries if isinstance(e, Mapping) for k in _WHEN[:2] if k in e}
+    return sorted(found | {t.replace("T", " ").removesuffix("Z") + " UTC" for t in found})
+
+
+def _timeless(record: Any) -> Any:
+    """A registration record (the file's, or the manifest's) less what records when."""
+    if isinstance(record, Mapping):
+        return {k: _timeless(v) for k, v in record.items() if k not in _WHEN}
+    if isinstance(record, list):
+        return [_timeless(v) for v in record]
+    return record
+
+
+def without_registration_time(run: Run, rel: str, content: bytes) -> bytes:
+    """An output's content (less its stamp) less when its design was registered: the
+    registration file and the manifest's record of it less their times and the sha256s taken
+    over them, a report's text with the times written as `<registered>`. Two builds of one
+    commit registered at two times; the design registered is compared as before."""
+    layout = run.layout
+    if rel in (layout.registration.name, layout.manifest.name):
+        obj = json.loads(content)
+        if rel == layout.registration.name:
+            obj = _timeless(obj)
+        elif isinstance(obj.get("registration"), Mapping):
+            obj["registration"] = _timeless(obj["registration"])
+        return json.dumps(obj, sort_keys=True).encode()
+    if rel.endswith(".md"):
+        text = content.decode("utf-8", errors="replace")
+        for when in sorted(_times(run), key=len, reverse=True):
+            text = text.replace(when, "<registered>")
+        return text.encode()
+    return content
 
 
 def compare_registrations(a: Run, b: Run) -> dict[str, Any]:

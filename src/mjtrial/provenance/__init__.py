@@ -36,6 +36,7 @@ from mjtrial.provenance.rows import (
 from mjtrial.provenance.stamp import (
     RECORDING_FOLDER_BLUEPRINT,
     RECORDING_FOLDER_STAMP,
+    REGISTRATION_SHA256,
     STAMP_VERSION,
     NotRegularFileError,
     check_regular,
@@ -59,6 +60,7 @@ __all__ = [
     "ROWS_KEY",
     "RowsMismatchError",
     "STAMP_KEY",
+    "REGISTRATION_SHA256",
     "STAMP_VERSION",
     "MissingStampError",
     "NotRegularFileError",

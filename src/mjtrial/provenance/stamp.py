@@ -16,6 +16,7 @@ import os
 import platform
 import stat
 from collections.abc import Iterable, Mapping
+from contextvars import ContextVar
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from mjtrial.provenance.model_closure import model_closure
 __all__ = [
     "RECORDING_FOLDER_BLUEPRINT",
     "STAMP_VERSION",
+    "REGISTRATION_SHA256",
     "NotRegularFileError",
     "check_regular",
     "config_hash",
@@ -40,6 +42,10 @@ __all__ = [
 ]
 
 STAMP_VERSION = 1
+# The registration the running job was made under (its sha256, `registration.entry_sha256`),
+# set around the job's stage by `workflow_script.run_job`: every stamp the job makes records
+# it, so a registration rewritten later disagrees with the outputs made before it.
+REGISTRATION_SHA256: ContextVar[str | None] = ContextVar("registration_sha256", default=None)
 # The field that marks a dict as a stamp, holding STAMP_VERSION.
 _VERSION_FIELD = "mjtrial_stamp"
 _BLOCK = 1 << 20
@@ -452,6 +458,9 @@ def make_stamp(
         "platform": platform_fingerprint(),
         "extra": dict(extra or {}),
     }
+    registered = REGISTRATION_SHA256.get()
+    if registered is not None:
+        stamp["registration_sha256"] = registered
     return json.loads(json.dumps(stamp, allow_nan=False))
 
 

@@ -27,6 +27,8 @@ def falsifier_clause(manifest: Mapping[str, Any]) -> str:
             f"Registered on {when}, but this run's design deviates from the registration "
             "(see Registration): "
         )
+    if _existed(record):
+        return f"Registered on {when}, after results existed (see Registration): "
     if record["before_any_rollout"]:
         return f"Registered on {when}, before any rollout: "
     first = first_rollout(manifest.get("stamps") or {})
@@ -35,6 +37,23 @@ def falsifier_clause(manifest: Mapping[str, Any]) -> str:
         if first
         else f"Registered on {when}: "
     )
+
+
+def _existed(entry: Mapping[str, Any]) -> bool:
+    return bool((entry.get("results_when_registered") or {}).get("existed"))
+
+
+def _results_seen(entry: Mapping[str, Any]) -> str:
+    """What results existed when a registration was made (its `results_when_registered`)."""
+    seen = entry.get("results_when_registered") or {}
+    where = [
+        f"{seen.get('files', 0)} file(s) in the results folder",
+        f"{seen.get('records', 0)} of Snakemake's records of outputs",
+    ]
+    hashes = ", ".join(
+        f"`{rel}` sha256 `{sha[:12]}`" for rel, sha in (seen.get("sha256") or {}).items()
+    )
+    return f"{' and '.join(where)}" + (f" ({hashes})" if hashes else "")
 
 
 def _value(value: Any) -> str:
@@ -64,11 +83,19 @@ def registration_lines(manifest: Mapping[str, Any], summary: Mapping[str, Any]) 
         lines.append(f"The design was registered on {when} {where}.")
     if record.get("reason"):
         lines[-1] += f" Reason given: {record['reason']}."
+    if _existed(record):
+        lines.append(
+            f"**It was registered after results existed**: {_results_seen(record)} were there "
+            "when it was made, so it does not fix the design before the data."
+        )
     for earlier in record.get("earlier", []):
         lines.append(
-            f"It replaced a registration of {_date(earlier['registered_utc'])} (superseded on "
+            f"It replaced a registration of {_date(earlier['registered_utc'])} (design sha256 "
+            f"`{str(earlier.get('design_sha256'))[:12]}`, superseded on "
             f"{_date(earlier['superseded_utc'])}; kept in the file)."
         )
+        if _existed(earlier):
+            lines[-1] += f" It was made after results existed: {_results_seen(earlier)}."
     lines.append("")
     deviations = record["deviations"]
     if not deviations:

@@ -489,7 +489,7 @@ class _Checker:
             resimulate,
             [(NOMINAL, c) for c in self.config["conditions"]],
             recorded="none",
-            n=pilot_states(self.config),
+            n=self._piloted_states(),
         )
         tables = {c: self.layout.development.rollout_table(c) for c in self.config["conditions"]}
         if self.is_current(*tables.values()):
@@ -504,6 +504,20 @@ class _Checker:
                     ),
                 ),
             )
+
+    def _piloted_states(self) -> int:
+        """How many development states the pilot ran: its gathered tables' rows (a pilot run
+        with `--config 'pilot={n: 4}'` is checked as what it was, whatever the config says
+        now), else the config's `pilot.n`. A table edited to another length is caught by its
+        rows' record and by its shards."""
+        rows = []
+        for condition in self.config["conditions"]:
+            try:
+                rows.append(pq.read_metadata(self.layout.development.rollout_table(condition)))
+            except (OSError, ValueError):
+                continue
+        counts = {m.num_rows for m in rows}
+        return counts.pop() if len(counts) == 1 and 0 not in counts else pilot_states(self.config)
 
     def analysis(self) -> None:
         layout, conditions = self.layout, list(self.config["conditions"])

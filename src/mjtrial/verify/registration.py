@@ -20,10 +20,12 @@ from mjtrial.registration import (
     lost_deviation_note,
     problems,
     read,
+    stamp_problems,
 )
 from mjtrial.verify.chain import OutputResult, Status
 
 RULE = "register"
+_SHOWN = 3  # outputs named whose stamps disagree with the registration
 
 
 def _json(path: Path) -> dict[str, Any] | None:
@@ -68,6 +70,9 @@ def check_registration(
         deviations_seen(layout)
     except RegistrationError as err:
         reasons.append(str(err).removeprefix(f"{layout.root}/"))
+    # the registration each output was made under (its stamp's): a rewrite since disagrees
+    stamps = manifest.get("stamps")
+    reasons += stamp_problems(data, stamps if isinstance(stamps, Mapping) else {})[:_SHOWN]
     if isinstance(recorded, Mapping):
         if recorded.get("sha256") != data.get("sha256"):
             reasons.append("the manifest records another registration")
