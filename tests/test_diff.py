@@ -43,12 +43,12 @@ def _build(folder: Path, edit=None, model_edit=None) -> Path:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
-    """`a` as configured; `lift` with the fast lift as slow as the slow one (one config
+    """`a` as configured; `lift` with the fast lift nearly as slow as the slow one (one config
     value); `friction` with the pads' sliding friction 0.8 -> 0.5 in the model."""
     make = tmp_path_factory.mktemp
     return {
         "a": _build(make("a")),
-        "lift": _build(make("lift"), edit=lambda c: c["conditions"]["fast"].update(lift_time=1.5)),
+        "lift": _build(make("lift"), edit=lambda c: c["conditions"]["fast"].update(lift_time=1.2)),
         "friction": _build(
             make("friction"),
             model_edit=lambda t: t.replace('friction="0.8 0.003', 'friction="0.5 0.003'),
@@ -74,7 +74,7 @@ def test_one_config_value_names_the_key_the_condition_and_the_flips(runs, tmp_pa
     diff = json.loads(out)
     made = diff["made"]
     assert [r["key"] for r in made["config"]] == ["conditions.fast.lift_time"]
-    assert (made["config"][0]["a"], made["config"][0]["b"]) == (0.15, 1.5)
+    assert (made["config"][0]["a"], made["config"][0]["b"]) == (0.15, 1.2)
     assert not made["code"] and not made["model"] and not made["versions"]
     assert not made["platform"] and not made["commit"]
     # Every rollout stamp records the machine's CPU and the job's simulation threads.
