@@ -16,6 +16,7 @@ About a minute (the bootstrap is run once per table).
 
 from __future__ import annotations
 
+import argparse
 import math
 
 import numpy as np
@@ -69,6 +70,7 @@ def bootstrap_intervals(all_tables: np.ndarray) -> np.ndarray:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n")[0]).parse_args()
     print("1. Newcombe's interval (the summary's), exact coverage at 95 %")
     found = {}
     for n in (20, 50, 100):

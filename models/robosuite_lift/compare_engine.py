@@ -11,6 +11,7 @@ site's positions at each action compare. Runs in mjtrial's own environment (MuJo
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -60,7 +61,9 @@ def grip_positions(model: mujoco.MjModel, initial: np.ndarray, physics: np.ndarr
 
 
 def main() -> None:
-    reference = json.loads(Path(sys.argv[1] if len(sys.argv) > 1 else REFERENCE).read_text())
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("reference", nargs="?", type=Path, default=REFERENCE)
+    reference = json.loads(parser.parse_args().reference.read_text())
     task = load_task(REPO_ROOT / "tasks" / "robosuite_lift" / "task.py")
     bound = BoundTask.of(task, load_model(task.model))
     values = values_of(reference["states"])

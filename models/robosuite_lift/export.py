@@ -10,6 +10,7 @@ and checks that `lift.xml` compiles to the very model robosuite's env simulates.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import re
 import shutil
@@ -19,6 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import rsenv  # noqa: E402
 
+argparse.ArgumentParser(description=__doc__.split("\n")[0]).parse_args()  # --help, before work
 rsenv.ensure()
 
 import mujoco  # noqa: E402

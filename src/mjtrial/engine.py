@@ -46,7 +46,8 @@ BATCH_BYTES = 24 * 2**20
 MAX_BATCH = 256
 # A low-level controller's numpy calls are paid once per batch at every physics step: robosuite's
 # operational-space controller cost about 3 times less per episode in batches of 128 than of 19
-# (what BATCH_BYTES gives a 1,125-step Lift episode), so such batches hold at least this many.
+# (what BATCH_BYTES gives a 1,125-step episode of robosuite's Panda), so such batches hold at
+# least this many.
 LOW_LEVEL_BATCH = 64
 UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
 

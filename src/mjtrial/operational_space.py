@@ -1,9 +1,9 @@
-"""robosuite's arm and gripper controllers as a low-level controller (`mjtrial.low_level`), on a
+"""robosuite's arm and hand controllers as a low-level controller (`mjtrial.low_level`), on a
 batch of episodes at once.
 
 robosuite 1.5.2's default arm controller is OSC_POSE (`controllers/parts/arm/osc.py`,
-`utils/control_utils.py`), its default gripper controller GRIP (`controllers/parts/gripper/
-simple_grip.py`), with the defaults of `controllers/config/robots/default_panda.json`. Its
+`utils/control_utils.py`), its default hand controller GRIP (`simple_grip.py`), with the
+defaults of `controllers/config/robots/default_panda.json`. Its
 `env.step` runs, at every 2 ms physics step of a 50 ms action (`lite_physics`, the default):
 `mj_step1`, the robot's `control` (the goals set from the action at the first step of the
 action, the torques from the state at every step), `mj_step2`. This module is that arithmetic,
@@ -21,8 +21,8 @@ a few numpy calls per physics step instead of a few dozen per episode:
   (`pinv(J M^-1 J^T)`, position and orientation uncoupled), through J^T, plus `qfrc_bias`, plus
   the null-space torques pulling the joints toward their pose at the episode's start
   (kp 10, critically damped); clipped to the actuators' ctrlrange;
-- the gripper (`PandaGripper.format_action` then GRIP): at each action its command moves by
-  0.2 toward the action's sign, clipped to [-1, 1], for the two fingers as [-c, c]; the fingers'
+- the hand (the Panda hand's `format_action`, then GRIP): at each action its command moves by
+  0.2 toward the action's sign, clipped to [-1, 1], for its two actuators as [-c, c]; the two
   position actuators get the middle of their ctrlrange plus c times its half width.
 
 The batched products and inverses are numpy's stacked `matmul` and `inv`, which treat each
@@ -120,18 +120,18 @@ def rotation_of_axis_angle(vec: np.ndarray) -> np.ndarray:
 
 
 class OperationalSpace:
-    """robosuite's OSC_POSE arm controller and GRIP gripper controller on a batch of episodes
+    """robosuite's OSC_POSE arm controller and GRIP hand controller on a batch of episodes
     (the module's docstring says what is computed and when).
 
     The action has 7 columns: the grip site's position change (3) and rotation (3, axis-angle)
-    in [-1, 1] of `output_max`, in the robot base's frame, and the gripper command (> 0 closes).
+    in [-1, 1] of `output_max`, in the robot base's frame, and the hand's command (> 0 closes).
 
     Args:
       model: the nominal model (element ids; each episode's ranges are read at `reset`).
       site: the grip site the pose is controlled at (robosuite's `gripper0_right_grip_site`).
       base_site: the site whose frame is the action's (`robot0_right_center`).
       arm_actuators: the arm's torque actuators, one per joint, in the joints' order.
-      gripper_actuators: the two finger actuators (position servos), in robosuite's order.
+      hand_actuators: the hand's two actuators (position servos), in robosuite's order.
       settings: OSC_POSE's gains and scales (robosuite's defaults).
     """
 
@@ -144,12 +144,12 @@ class OperationalSpace:
         site: str,
         base_site: str,
         arm_actuators: Sequence[str],
-        gripper_actuators: Sequence[str],
+        hand_actuators: Sequence[str],
         settings: OscSettings = OscSettings(),
     ) -> None:
         self.reads = Reads(sites=(site, base_site), mass_matrix=True, bias=True)
         self.arm = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, arm_actuators)
-        self.gripper = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, gripper_actuators)
+        self.hand = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, hand_actuators)
         joints = model.actuator_trnid[self.arm, 0]
         self.qpos = model.jnt_qposadr[joints]
         self.dofs = model.jnt_dofadr[joints]
@@ -173,7 +173,7 @@ class OperationalSpace:
         n = len(models)
         self.arm_low = np.stack([m.actuator_ctrlrange[self.arm, 0] for m in models])
         self.arm_high = np.stack([m.actuator_ctrlrange[self.arm, 1] for m in models])
-        grip = np.stack([m.actuator_ctrlrange[self.gripper] for m in models])  # (n, 2, 2)
+        grip = np.stack([m.actuator_ctrlrange[self.hand] for m in models])  # (n, 2, 2)
         self.grip_low, self.grip_high = grip[:, :, 0], grip[:, :, 1]
         self.grip_bias = 0.5 * (grip[:, :, 1] + grip[:, :, 0])
         self.grip_weight = 0.5 * (grip[:, :, 1] - grip[:, :, 0])
@@ -240,5 +240,5 @@ class OperationalSpace:
         ctrl = np.zeros((n, self.nu))
         ctrl[:, self.arm] = np.clip(torques, self.arm_low, self.arm_high)
         grip = self.grip_bias + self.grip_weight * self.grip_command
-        ctrl[:, self.gripper] = np.clip(grip, self.grip_low, self.grip_high)
+        ctrl[:, self.hand] = np.clip(grip, self.grip_low, self.grip_high)
         return ctrl

@@ -73,7 +73,8 @@ def drop_asset_cache() -> None:
     """Empty MuJoCo's asset cache and hand the freed pages back. MuJoCo keeps every mesh and
     texture it decoded for the next compile in the process (up to 512 MB): worth it where
     models are compiled again, 110 MB held for nothing in a job process that compiled its
-    model once (robosuite's Lift: a rollout job's memory 353 -> 243 MB after its model)."""
+    model once (robosuite's exported Panda scene: a rollout job's memory 353 -> 243 MB after
+    its model)."""
     mujoco.mj_clearCache(mujoco.mj_getCache())
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)

@@ -158,7 +158,7 @@ def operational_space(model: mujoco.MjModel, params) -> OperationalSpace:
         site=GRIP_SITE,
         base_site=BASE_SITE,
         arm_actuators=ARM_ACTUATORS,
-        gripper_actuators=GRIPPER_ACTUATORS,
+        hand_actuators=GRIPPER_ACTUATORS,
     )
 
 

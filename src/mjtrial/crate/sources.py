@@ -56,8 +56,9 @@ def source_files(workdir: Path, read: Iterable[str] = ()) -> dict[str, Path]:
     workdir = Path(workdir)
     package = Path(mjtrial.__file__).resolve().parent
     read = list(read)
-    # of `models/` and `tasks/`, the folders the jobs read from (robosuite's Lift is 45 MB of
-    # meshes, which no other run needs); all of them when nothing says what was read
+    # of `models/` and `tasks/`, the folders the jobs read from (robosuite's exported arm
+    # model is 45 MB of meshes, which no other run needs); all of them when nothing says what
+    # was read
     used = {Path(rel).parts[:2] for rel in read if len(Path(rel).parts) > 2}
     files: dict[str, Path] = {}
     for name in WORKFLOW_SOURCES:

@@ -73,7 +73,8 @@ class Task:
         None
     )
     # False: the setup sets the episode's data only (a reset pose, as robosuite's), so every
-    # episode runs on the nominal model, no copy each (robosuite's Lift is 64 MB of meshes).
+    # episode runs on the nominal model, no copy each (robosuite's exported Panda scene is 64 MB
+    # of meshes).
     # The config check runs the setup on a copy and refuses one that changed the model.
     setup_edits_model: bool = True
     # `valid_state(values)`: (n,) True where a drawn state is allowed (values: state parameter
