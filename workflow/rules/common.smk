@@ -152,7 +152,9 @@ def note_design_deviation():
         # a registration rewritten since outputs were made under it is no design to run
         rewritten = rewritten_registration(LAYOUT)
         if rewritten:
-            sys.exit(f"mjtrial: {LAYOUT.registration}: {rewritten[0]}; no job was started")
+            sys.exit(
+                f"mjtrial: {LAYOUT.registration}: {rewritten[0]}; no job was started"
+            )
         entry = note_deviation(config, layout=LAYOUT, repo_root=Path.cwd())
     except RegistrationError as err:
         sys.exit(f"mjtrial: {err}")
