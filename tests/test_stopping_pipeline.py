@@ -59,6 +59,7 @@ def test_without_a_stopping_section_the_plan_is_every_shard_and_no_look(tmp_path
         counts[rule] = counts.get(rule, 0) + 1
     assert counts == {
         "states": 1,
+        "register": 1,
         "rollout": 6,
         "gather": 2,
         "failures": 1,

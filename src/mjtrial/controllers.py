@@ -9,6 +9,8 @@ designed on exactly the dynamics the experiment simulates, integrator and timest
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import mujoco
 import numpy as np
 import scipy.linalg
@@ -144,7 +146,15 @@ class JointImpedance:
 
     reads = Reads(bias=True)
 
-    def __init__(self, model, actuators, *, kp, kd, scale: float) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        actuators: Sequence[str],
+        *,
+        kp: float | Sequence[float],
+        kd: float | Sequence[float],
+        scale: float,
+    ) -> None:
         ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in actuators]
         for name, i in zip(actuators, ids, strict=True):
             if i < 0 or model.actuator_trntype[i] != mujoco.mjtTrn.mjTRN_JOINT:

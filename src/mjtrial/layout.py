@@ -81,6 +81,7 @@ STAGES: dict[str, Stage] = {
     s.name: s
     for s in (
         Stage("states", "states"),
+        Stage("register", "register"),  # the design, registered before the first rollout
         Stage("rollout", "rollout"),
         # a stopping rule's look after each shard (`stopping`; a checkpoint)
         Stage("look", "look"),

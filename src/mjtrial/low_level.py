@@ -27,7 +27,7 @@ import copy
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
@@ -300,7 +300,13 @@ class Stepper:
     """
 
     def __init__(
-        self, models, initial, make_controller: MakeController, *, nthread=1, pushes=None
+        self,
+        models: Sequence[mujoco.MjModel],
+        initial: np.ndarray,
+        make_controller: MakeController,
+        *,
+        nthread: int = 1,
+        pushes: Any = None,
     ) -> None:
         for m in models[:1]:
             check_model(m)
@@ -347,7 +353,9 @@ class PlainEpisode:
       controller: a fresh controller, reset here for this one episode.
     """
 
-    def __init__(self, model: mujoco.MjModel, initial: np.ndarray, controller) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, initial: np.ndarray, controller: LowLevelController
+    ) -> None:
         self.m = m = copy.copy(model)
         self.d = d = mujoco.MjData(m)
         mujoco.mj_setState(m, d, initial, FULLPHYSICS)

@@ -349,11 +349,13 @@ def run_in_process(
     threads: int,
     logs: Any,
     rule_name: str,
+    config: Any = None,
 ) -> None:
     """Run a workflow script in Snakemake's own process, from a rule's `run:` block.
 
     The script gets a `snakemake` object with the job's input, output, params, wildcards,
-    threads, log and rule name, as with `script:`. The script's code is compiled once per process.
+    threads, log and rule name (and the config, where the rule gives it), as with `script:`.
+    The script's code is compiled once per process.
     """
     job = SimpleNamespace(
         input=input,
@@ -363,6 +365,7 @@ def run_in_process(
         threads=threads,
         log=logs,
         rule=rule_name,
+        config=config,
         in_process=True,
     )
     exec(_compiled(str(Path(script).resolve())), {"snakemake": job, "__name__": "mjtrial_job"})

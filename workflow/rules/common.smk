@@ -24,7 +24,6 @@ from mjtrial.policy_file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.registration import (
     RegistrationError,
-    ensure_registered,
     lost_deviation_note,
     note_deviation,
     rewritten_registration,
@@ -123,23 +122,6 @@ def run_shard_folders_by_condition(wildcards):
 # What only develops the design (its states, its pilot) notes no deviation: the pilot's
 # discordance is what the registered power plan reads.
 DEVELOPMENT_TARGETS = {"dev", "pilot"}
-
-
-def register_design(log):
-    """The `register` job (register.smk): the design is registered once, before the first
-    evaluation rollout and after the states job's checks; a registration Snakemake removed to
-    rerun the job (`--forceall`) is put back from the run's snapshot, never made anew. Its log
-    says which."""
-    existed = LAYOUT.registration.exists()
-    saved = SAFEKEEPING.saved(LAYOUT.registration)
-    data = ensure_registered(config, layout=LAYOUT, repo_root=Path.cwd(), saved=saved)
-    current = data["current"]
-    done = "put back" if saved is not None and not existed else "registered"
-    Path(log).parent.mkdir(parents=True, exist_ok=True)
-    Path(log).write_text(
-        f"{done} {LAYOUT.registration}: {current['registered_utc']}, design sha256 "
-        f"{current['design_sha256']}\n"
-    )
 
 
 def note_design_deviation():

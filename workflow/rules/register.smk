@@ -14,4 +14,7 @@ rule register:
     # before the rollouts it precedes, whatever their priority (their physics steps)
     priority: 1_000_000_000
     run:
-        register_design(log[0])
+        # the design is the whole config: no params, whose change would rerun the job
+        run_script(
+            "register", input, output, params, wildcards, threads, log, rule, config
+        )

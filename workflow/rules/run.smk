@@ -18,14 +18,16 @@ from mjtrial.workflow_script import (
 mark_workflow_process()
 
 
-# The states jobs run first, alone, before the rollouts: the later stages' imports beside them
-# would only slow them (one interpreter lock; their wall was 2.5 times their CPU), so the
+# The states and register jobs run first, alone, before the rollouts: the later stages' imports
+# beside them would only slow them (one interpreter lock; their wall was 2.5 times their CPU), so the
 # imports begin with the first job after them that runs here (the first condition's gather,
 # while the slower condition's rollout still runs in its own process).
-FIRST_SCRIPTS = {"states"}
+FIRST_SCRIPTS = {"states", "register"}
 
 
-def run_script(script, input, output, params, wildcards, threads, log, rule_name):
+def run_script(
+    script, input, output, params, wildcards, threads, log, rule_name, config=None
+):
     """Run `workflow/scripts/<script>.py` for a job inside Snakemake's own process (a rule's
     `run:` block; profiles/default/config.yaml sets `force-use-threads`, or Snakemake would
     start a Snakemake process per such job). The light stages run so: a process of their own
@@ -42,6 +44,7 @@ def run_script(script, input, output, params, wildcards, threads, log, rule_name
         threads=threads,
         logs=log,
         rule_name=rule_name,
+        config=config,
     )
 
 

@@ -109,12 +109,13 @@ def _current(path: Path, repo_root: Path) -> bool:
 
 
 def _of_config(found: Any) -> Any:
-    """A deviations list less its changes of the task's files and the model: those the chain
-    already judges (an edited or added task file makes every output that read it stale), so a
-    manifest built before one is stale, not forged."""
+    """A deviations list less its changes of the task's files, the model and the policy files:
+    those the chain already judges (an edited or added task file, or a contract added beside a
+    policy graph, makes every output that read it stale), so a manifest built before one is
+    stale, not forged."""
     if not isinstance(found, list):
         return found
-    code = ("task_files_sha256", "model_sha256")
+    code = ("task_files_sha256", "model_sha256", "policy_files_sha256")
     return [
         c for c in found if not (isinstance(c, Mapping) and str(c.get("key", "")).startswith(code))
     ]
