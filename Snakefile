@@ -13,10 +13,16 @@ from mjtrial.config import (
     rerun_command,
     run_configuration,
 )
+from mjtrial.layout import COMPILED_MODELS
+from mjtrial.physics import keep_compiled_models
 
 # The code that runs must be the code this checkout stamps and hashes.
 if foreign_package(Path.cwd()):
     sys.exit(f"mjtrial: {foreign_package(Path.cwd())}")
+
+# The model compiled by the config check is kept for the jobs, which read it instead of
+# compiling it again (mjtrial.physics.load_model).
+keep_compiled_models(COMPILED_MODELS)
 
 # The config file is read here rather than with `configfile:` so that a YAML error or a
 # duplicated key is one line too. It is config/config.yaml, or a `--configfile` that names an

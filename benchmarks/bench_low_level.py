@@ -18,6 +18,7 @@ scripted policy, `close_steps` 3) three ways:
 
     python benchmarks/bench_low_level.py                      # 20 episodes, 3 repeats
     python benchmarks/bench_low_level.py --episodes 40 --robosuite
+    python benchmarks/bench_low_level.py --episodes 64 --batch 16 64   # other batch sizes
 
 It prints each way's CPU seconds per episode and wall seconds, and the engine's speed over the
 plain loop (wall, the medians of paired ratios over repeats that alternate their order) and
@@ -33,13 +34,14 @@ import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import iter_batches
+from mjtrial.engine import LOW_LEVEL_BATCH, iter_batches
 from mjtrial.low_level import PlainEpisode
 from mjtrial.physics import load_model
 from mjtrial.task import BoundTask, load_task
@@ -95,10 +97,15 @@ def plain_loop(bound: BoundTask, values, *, robosuite_arithmetic: bool) -> np.nd
     return np.array(heights)
 
 
-def engine(bound: BoundTask, values, nthread: int) -> np.ndarray:
+def engine(bound: BoundTask, values, nthread: int, batch_size: int | None = None) -> np.ndarray:
     out = []
     for batch in iter_batches(
-        bound, values, {"close_steps": CLOSE_STEPS}, thresholds={}, nthread=nthread
+        bound,
+        values,
+        {"close_steps": CLOSE_STEPS},
+        thresholds={},
+        nthread=nthread,
+        batch_size=batch_size,
     ):
         out.append(batch.outcome["success"])
     return np.concatenate(out)
@@ -143,6 +150,14 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--robosuite", action="store_true", help="also time robosuite's env")
+    parser.add_argument(
+        "--batch",
+        type=int,
+        nargs="*",
+        default=[],
+        help=f"also time the engine on 1 thread in batches of these sizes (its own: "
+        f"{LOW_LEVEL_BATCH})",
+    )
     args = parser.parse_args()
     task = load_task(TASK)
     bound = BoundTask.of(task, load_model(task.model))
@@ -158,14 +173,21 @@ def main() -> None:
         "engine, 1 thread": lambda: engine(bound, values, 1),
         "engine, 2 threads": lambda: engine(bound, values, 2),
     }
+    for size in args.batch:
+        runs[f"engine, 1 thread, batches of {size}"] = partial(engine, bound, values, 1, size)
     wall = {name: [] for name in runs}
     cpu = {name: [] for name in runs}
+    robosuite = []  # per repeat: the median of its episodes' CPU seconds
     for repeat in range(args.repeats):
         order = list(runs) if repeat % 2 == 0 else list(reversed(runs))
+        if args.robosuite and repeat % 2 == 1:
+            robosuite.append(statistics.median(robosuite_seconds(values, n)))
         for name in order:
             _, w, c = timed(runs[name])
             wall[name].append(w)
             cpu[name].append(c)
+        if args.robosuite and repeat % 2 == 0:
+            robosuite.append(statistics.median(robosuite_seconds(values, n)))
     print(
         f"{n} episodes of {scripted.episode_steps(CLOSE_STEPS) * N_SUBSTEPS} physics steps, "
         f"{args.repeats} repeats (medians)"
@@ -186,12 +208,12 @@ def main() -> None:
             f"({min(ratios):.2f}-{max(ratios):.2f})"
         )
     if args.robosuite:
-        seconds = robosuite_seconds(values, n)
-        per_episode = statistics.median(seconds)
-        ours = statistics.median(cpu["engine, 1 thread"]) / n
+        ratios = [r / (c / n) for r, c in zip(robosuite, cpu["engine, 1 thread"], strict=True)]
         print(
-            f"  robosuite's env (MuJoCo 3.9.0): {per_episode:.3f} s CPU/episode (median); "
-            f"the engine {per_episode / ours:.2f}x less CPU per episode"
+            f"  robosuite's env (MuJoCo 3.9.0): {statistics.median(robosuite):.3f} s CPU/episode "
+            f"(median of its episodes, then of repeats); the engine on 1 thread "
+            f"{statistics.median(ratios):.2f}x less CPU per episode "
+            f"({min(ratios):.2f}-{max(ratios):.2f}, paired by repeat)"
         )
 
 

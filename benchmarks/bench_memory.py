@@ -5,6 +5,7 @@ runs in a process of its own (the rollouts).
     python benchmarks/bench_memory.py                 # the built-in experiment, N = 200
     python benchmarks/bench_memory.py --n 4000        # about 3 minutes on 2 cores
     python benchmarks/bench_memory.py --n 4000 --keep /tmp/run   # keep the run's folder
+    python benchmarks/bench_memory.py --configfile config/robosuite_lift.yaml
 
 A sampler reads every process's `VmHWM` (its peak resident memory, kept by the kernel) every
 50 ms, so a process's peak is exact unless it was born and died between two samples; each job
@@ -76,6 +77,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=200, help="states (default 200)")
     parser.add_argument("--cores", type=int, default=2)
+    parser.add_argument(
+        "--configfile", default=CONFIG_FILE, help=f"the experiment (default {CONFIG_FILE})"
+    )
     parser.add_argument("--keep", type=Path, help="run in this folder and keep it")
     args = parser.parse_args()
 
@@ -86,16 +90,16 @@ def main() -> None:
         src = REPO_ROOT / name
         if src.exists():
             (shutil.copytree if src.is_dir() else shutil.copy)(src, work / name)
-    cfg = yaml.safe_load((work / CONFIG_FILE).read_text())
+    cfg = yaml.safe_load((work / args.configfile).read_text())
     cfg["states"]["n"] = args.n
-    (work / CONFIG_FILE).write_text(yaml.safe_dump(cfg, sort_keys=False))
+    (work / args.configfile).write_text(yaml.safe_dump(cfg, sort_keys=False))
 
     snakemake = str(Path(sys.executable).parent / "snakemake")
     peaks: dict[int, tuple[str, float]] = {}
     stop = threading.Event()
     started = time.perf_counter()
     proc = subprocess.Popen(
-        [snakemake, f"-c{args.cores}", "--quiet", "all"],
+        [snakemake, f"-c{args.cores}", "--quiet", "all", "--configfile", args.configfile],
         cwd=work,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -132,7 +136,10 @@ def main() -> None:
         if (m := re.search(r"\(rss (\d+) MB", line))
     }
 
-    print(f"clean snakemake -c{args.cores}, N = {args.n}: {wall:.1f} s; bar {BAR_MB} MB a process")
+    print(
+        f"clean snakemake -c{args.cores} --configfile {args.configfile}, N = {args.n}: "
+        f"{wall:.1f} s; bar {BAR_MB} MB a process"
+    )
     print(f"\n{'process':<60} {'peak MB':>8}")
     print(f"{'snakemake (its own process, with the in-process jobs)':<60} {main_peak:8.0f}")
     for _pid, (name, mb) in sorted(jobs.items(), key=lambda kv: -kv[1][1])[:5]:

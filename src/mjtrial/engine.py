@@ -47,8 +47,11 @@ MAX_BATCH = 256
 # A low-level controller's numpy calls are paid once per batch at every physics step: robosuite's
 # operational-space controller cost about 3 times less per episode in batches of 128 than of 19
 # (what BATCH_BYTES gives a 1,125-step episode of robosuite's Panda), so such batches hold at
-# least this many.
-LOW_LEVEL_BATCH = 64
+# least this many. Each episode holds its own MjData throughout (about 1.7 MB for the Panda's
+# scene, its contacts' arena touched): a rollout job of robosuite's Lift peaked at 421 MB with
+# 64, within the 400 MB bar with 32, and its CPU per episode did not tell 32 from 64
+# (`benchmarks/bench_memory.py`, `benchmarks/bench_low_level.py --batch`).
+LOW_LEVEL_BATCH = 32
 UNCLASSIFIED = "unclassified"  # a failure that none of the task's categories describes
 
 

@@ -17,6 +17,9 @@ from pathlib import Path
 from typing import Any
 
 RESULTS_DIR = "results"
+# Models compiled by the workflow's processes, kept for the next (`physics.load_model`): in
+# Snakemake's folder of the working folder, beside its own records; deleting it costs a compile.
+COMPILED_MODELS = Path(".snakemake") / "mjtrial-compiled-models"
 # Where `mjtrial replay` writes by default: beside the results, never inside a sealed folder.
 REPLAYS_DIR = "replays"
 CRATE_FILE = "ro-crate-metadata.json"  # RO-Crate's name for a crate's metadata file

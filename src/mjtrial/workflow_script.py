@@ -30,7 +30,7 @@ from types import CodeType, SimpleNamespace
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.layout import Layout
+from mjtrial.layout import COMPILED_MODELS, Layout
 from mjtrial.simenv import run_in_env
 from mjtrial.stages.stamping import make_stage_stamp
 
@@ -59,6 +59,9 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     if not in_process:
         run_in_env(snakemake)  # a variant's other MuJoCo version: its own environment's Python
         die_with_workflow()
+        from mjtrial.physics import keep_compiled_models  # after run_in_env: imports MuJoCo
+
+        keep_compiled_models(COMPILED_MODELS)  # the model Snakemake's process compiled
     elif snakemake.input.get("simulator_env"):
         raise JobFailed(f"{rule}: a job in another MuJoCo's environment needs a process of its own")
     log_path = Path(snakemake.log[0])
