@@ -177,34 +177,48 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str]) -> li
 
 
 class _Gather:
-    """Fills a `PhysicsView`'s row from an episode's data after `mj_step1`."""
+    """Fills a `PhysicsView`'s rows from the episodes' data after `mj_step1`. Each row's
+    (view, data) array pairs and MuJoCo calls are made once: MjData's arrays are views of its
+    buffers, so a step costs a copy per field, not an attribute lookup and a new view each
+    (a third of the Panda's per-episode step, with the controller, was this bookkeeping)."""
 
-    def __init__(self, model: mujoco.MjModel, reads: Reads, view: PhysicsView) -> None:
-        self.sites = _ids(model, mujoco.mjtObj.mjOBJ_SITE, reads.sites)
-        self.bodies = _ids(model, mujoco.mjtObj.mjOBJ_BODY, reads.bodies)
-        self.reads, self.view = reads, view
+    def __init__(self, models, datas, reads: Reads, view: PhysicsView) -> None:
+        model = models[0]
+        sites = _ids(model, mujoco.mjtObj.mjOBJ_SITE, reads.sites)
+        bodies = _ids(model, mujoco.mjtObj.mjOBJ_BODY, reads.bodies)
+        self.time = view.time
+        self.copies: list[list[tuple[np.ndarray, np.ndarray]]] = []
+        self.calls: list[list[tuple[Callable[..., None], tuple]]] = []
+        for i, (m, d) in enumerate(zip(models, datas, strict=True)):
+            copies = [(view.qpos[i], d.qpos), (view.qvel[i], d.qvel)]
+            calls: list[tuple[Callable[..., None], tuple]] = []
+            for k, site in enumerate(sites):
+                copies += [(view.site_xpos[i, k], d.site_xpos[site])]
+                copies += [(view.site_xmat[i, k], d.site_xmat[site])]
+                calls.append(
+                    (mujoco.mj_jacSite, (m, d, view.site_jacp[i, k], view.site_jacr[i, k], site))
+                )
+            for k, body in enumerate(bodies):
+                copies += [(view.body_xpos[i, k], d.xpos[body])]
+                copies += [(view.body_xquat[i, k], d.xquat[body])]
+                calls.append(
+                    (mujoco.mj_jacBody, (m, d, view.body_jacp[i, k], view.body_jacr[i, k], body))
+                )
+            if reads.mass_matrix:
+                calls.append((mujoco.mj_fullM, (m, d, view.mass_matrix[i])))
+            if reads.bias:
+                copies.append((view.bias[i], d.qfrc_bias))
+            if reads.actuator_length:
+                copies.append((view.actuator_length[i], d.actuator_length))
+            self.copies.append(copies)
+            self.calls.append(calls)
 
-    def row(self, i: int, m: mujoco.MjModel, d: mujoco.MjData) -> None:
-        v, reads = self.view, self.reads
-        v.time[i] = d.time
-        v.qpos[i] = d.qpos
-        v.qvel[i] = d.qvel
-        if self.sites:
-            v.site_xpos[i] = d.site_xpos[self.sites]
-            v.site_xmat[i] = d.site_xmat[self.sites]
-            for k, site in enumerate(self.sites):
-                mujoco.mj_jacSite(m, d, v.site_jacp[i, k], v.site_jacr[i, k], site)
-        if self.bodies:
-            v.body_xpos[i] = d.xpos[self.bodies]
-            v.body_xquat[i] = d.xquat[self.bodies]
-            for k, body in enumerate(self.bodies):
-                mujoco.mj_jacBody(m, d, v.body_jacp[i, k], v.body_jacr[i, k], body)
-        if reads.mass_matrix:
-            mujoco.mj_fullM(m, d, v.mass_matrix[i])
-        if reads.bias:
-            v.bias[i] = d.qfrc_bias
-        if reads.actuator_length:
-            v.actuator_length[i] = d.actuator_length
+    def row(self, i: int, d: mujoco.MjData) -> None:
+        self.time[i] = d.time
+        for target, source in self.copies[i]:
+            target[...] = source  # a third of np.copyto's call
+        for call, args in self.calls[i]:
+            call(*args)
 
 
 def checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
@@ -240,9 +254,15 @@ class _Slice:
         self.controller.reset(models)
         model = models[0]
         self.view = PhysicsView.empty(model, self.controller.reads, len(rows))
-        self.gather = _Gather(model, self.controller.reads, self.view)
+        self.gather = _Gather(models, datas, self.controller.reads, self.view)
         self.halted = np.zeros(len(rows), dtype=bool)
-        self.no_warning = np.zeros_like(datas[0].warning.number).tobytes()
+        self.live = [True] * len(rows)  # ~halted, as a list: read per row and step
+        # per episode: its model, data, row of the outputs, and the data's arrays written or
+        # read at every step (views of its buffers)
+        self.episodes = [
+            (m, d, int(row), d.ctrl, d.sensordata, d.warning.number)
+            for m, d, row in zip(models, datas, rows, strict=True)
+        ]
         self.pushes = _push_steps(pushes, rows)
         self.nu = model.nu
 
@@ -257,35 +277,41 @@ class _Slice:
     ) -> None:
         """Physics steps first .. first + n_steps - 1 of the slice's episodes, the controller
         between `mj_step1` and `mj_step2` of each; writes their rows of the outputs."""
-        models, datas, rows, gather = self.models, self.datas, self.rows, self.gather
+        rows, gather, live, episodes = self.rows, self.gather, self.live, self.episodes
+        step1, step2, get_state = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_getState
         action = action[rows]
         for j in range(first, first + n_steps):
-            for i, (m, d) in enumerate(zip(models, datas, strict=True)):
-                if not self.halted[i]:
-                    mujoco.mj_step1(m, d)
-                    gather.row(i, m, d)
+            for i, (m, d, *_) in enumerate(episodes):
+                if live[i]:
+                    step1(m, d)
+                    gather.row(i, d)
             with np.errstate(all="ignore"):  # a halted row's stale view is not used
                 ctrl = self.controller(self.view, action, j == first)
             ctrl = np.asarray(ctrl, dtype=np.float64)
             if ctrl.shape != (len(rows), self.nu):
                 checked_controls(ctrl, len(rows), self.nu)
-            live = ~self.halted
-            if not np.isfinite(ctrl[live]).all():
-                checked_controls(ctrl[live], int(live.sum()), self.nu)
-            # a halted episode repeats its last controls, as its frozen state
-            applied[rows, j] = np.where(live[:, None], ctrl, applied[rows, j - 1])
-            for i, (m, d) in enumerate(zip(models, datas, strict=True)):
-                row = rows[i]
+            if all(live):
+                if not np.isfinite(ctrl).all():
+                    checked_controls(ctrl, len(rows), self.nu)
+                applied[rows, j] = ctrl
+            else:
+                alive = ~self.halted
+                if not np.isfinite(ctrl[alive]).all():
+                    checked_controls(ctrl[alive], int(alive.sum()), self.nu)
+                # a halted episode repeats its last controls, as its frozen state
+                applied[rows, j] = np.where(alive[:, None], ctrl, applied[rows, j - 1])
+            for i, (m, d, row, d_ctrl, d_sensordata, warnings) in enumerate(episodes):
                 if live[i]:
-                    d.ctrl[:] = ctrl[i]
+                    d_ctrl[...] = ctrl[i]
                     if self.pushes is not None:
                         body, start, stop, wrench = self.pushes
                         d.xfrc_applied[body] = wrench[i] if start[i] <= j < stop[i] else 0.0
-                    mujoco.mj_step2(m, d)
-                    if d.warning.number.tobytes() != self.no_warning:
+                    step2(m, d)
+                    if warnings.any():
+                        live[i] = False
                         self.halted[i] = True
-                mujoco.mj_getState(m, d, physics[row, j], FULLPHYSICS)
-                sensordata[row, j] = d.sensordata
+                get_state(m, d, physics[row, j], FULLPHYSICS)
+                sensordata[row, j] = d_sensordata
 
 
 class Stepper:
@@ -425,13 +451,13 @@ def check_rows_alone(
     rng = np.random.default_rng(0)
     probe = make()
     view = PhysicsView.empty(model, probe.reads, n_rows)
-    gather = _Gather(model, probe.reads, view)
-    data = mujoco.MjData(model)
-    for i in range(n_rows):
+    datas = [mujoco.MjData(model) for _ in range(n_rows)]
+    gather = _Gather([model] * n_rows, datas, probe.reads, view)
+    for i, data in enumerate(datas):
         mujoco.mj_setState(model, data, initial, FULLPHYSICS)
         data.qvel[:] += rng.normal(scale=0.1, size=model.nv)
         mujoco.mj_step1(model, data)
-        gather.row(i, model, data)
+        gather.row(i, data)
     actions = rng.uniform(-1.0, 1.0, size=(4, n_rows, probe.n_inputs))
     probe.reset([model] * n_rows)
     together = [
