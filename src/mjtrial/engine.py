@@ -48,7 +48,7 @@ MAX_BATCH = 256
 # operational-space controller cost about 3 times less per episode in batches of 128 than of 19
 # (what BATCH_BYTES gives a 1,125-step episode of robosuite's Panda), so such batches hold at
 # least this many. Each episode holds its own MjData throughout (about 1.7 MB for the Panda's
-# scene, its contacts' arena touched): a rollout job of robosuite's Lift peaked at 421 MB with
+# scene, its contacts' arena touched): a rollout job on that scene peaked at 421 MB with
 # 64, within the 400 MB bar with 32, and its CPU per episode did not tell 32 from 64
 # (`benchmarks/bench_memory.py`, `benchmarks/bench_low_level.py --batch`).
 LOW_LEVEL_BATCH = 32

@@ -77,7 +77,7 @@ def load_model(
     `compiled_in`: a folder that keeps compiled models (`compiled_file`; by default the one
     `keep_compiled_models` named, if any), read from there when this model's files were
     compiled by this MuJoCo before, else kept there. A process that
-    compiles robosuite's Lift (40 MB of OBJ meshes) holds 330 MB at its peak and takes 2 s;
+    compiles robosuite's Panda scene (40 MB of OBJ meshes) holds 330 MB at its peak and takes 2 s;
     one that reads its MJB, 170 MB and 0.5 s. The MJB is MuJoCo's own copy of the compiled
     model, so the episodes are the same (`tests/test_physics.py`)."""
     path = Path(path)
@@ -136,7 +136,7 @@ def compiled_sha256(model: mujoco.MjModel) -> str:
     named in an included file, its absolute path (`model.paths`); the asset's content is in the
     MJB itself (vertices, texels), so the path adds nothing but the folder the files lie in.
     """
-    # one buffer, blanked in place: a copy per step made robosuite's Lift (a 64 MB MJB) cost
+    # one buffer, blanked in place: a copy per step made robosuite's Panda scene (a 64 MB MJB) cost
     # Snakemake's process 190 MB more at its config check
     mjb = bytearray(mujoco.mj_sizeModel(model))
     mujoco.mj_saveModel(model, None, np.frombuffer(mjb, dtype=np.uint8))
