@@ -12,7 +12,7 @@ The snapshot lives inside the results folder (`<results>/.snapshot/`, hidden): o
 own filesystem, so hard links work wherever the results are (a symlink to another disk
 included), and gone with the folder when a user deletes it, so nothing is ever put back into
 a folder deleted since. Outputs are always replaced by rename, never edited in place
-(`mjtrial.atomic`), so hard links keep the old bytes at no cost; where links cannot be made,
+(`mjtrial.files.atomic`), so hard links keep the old bytes at no cost; where links cannot be made,
 copies are. Snakemake also rewrites a job's metadata record (its params, which decide reruns)
 when the job starts, so the records of the outputs are copied too and put back with them: a
 restored output is then exactly as up to date as it was.
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import psutil
 
-from mjtrial.atomic import temp_path_for
+from mjtrial.files.atomic import temp_path_for
 
 SNAPSHOT = ".snapshot"  # inside the results folder
 METADATA = Path(".snakemake") / "metadata"

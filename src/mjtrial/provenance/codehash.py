@@ -18,10 +18,11 @@ from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
 
-from mjtrial import REPO_ROOT, atomic
+from mjtrial import REPO_ROOT
+from mjtrial.files import atomic
 
 PACKAGE = "mjtrial"
-PACKAGE_DIR = Path(__file__).resolve().parent
+PACKAGE_DIR = Path(__file__).resolve().parents[1]  # src/mjtrial, this file being in provenance/
 
 
 def module_file(name: str) -> Path | None:

@@ -11,13 +11,13 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.conditions import model_edits
-from mjtrial.contacts import describe_contact_changes
-from mjtrial.engine import iter_batches
-from mjtrial.simenv import model_overrides, variant_version
+from mjtrial.design.conditions import model_edits
+from mjtrial.sim.contacts import describe_contact_changes
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.simenv import model_overrides, variant_version
 from mjtrial.studies.variants import resolved_values, variant_model
 from mjtrial.task import BoundTask, Task, TaskError
-from mjtrial.task_checks import (
+from mjtrial.task.checks import (
     episodes_sha256,
     nominal_episode_sha256,
 )

@@ -9,9 +9,9 @@ import tempfile
 from pathlib import Path
 
 from mjtrial import foreign_package, provenance
-from mjtrial.cli_plan import _plan
-from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
-from mjtrial.scaffold import ScaffoldError, new_task
+from mjtrial.cli.plan import _plan
+from mjtrial.cli.scaffold import ScaffoldError, new_task
+from mjtrial.files.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout
 
 PROFILE_NAME = "Provenance Run Crate 0.5 on RO-Crate 1.1"
 
@@ -28,8 +28,8 @@ def _provenance(args: argparse.Namespace) -> int:
 
 def _register(args: argparse.Namespace) -> int:
     # Imported here (mujoco, jsonschema through the config check): `mjtrial plan` need not.
-    from mjtrial import registration
     from mjtrial.config import ConfigError
+    from mjtrial.design import registration
     from mjtrial.verify import load_checked_config
 
     repo_root = Path.cwd()
@@ -250,7 +250,7 @@ def _is_benchmark_file(config_path: Path) -> bool:
     # Imported here (jsonschema, mujoco through the config module): `mjtrial plan` need not
     # pay for them.
     from mjtrial.benchmark.config import is_benchmark
-    from mjtrial.config_files import read_config_file
+    from mjtrial.config.read import read_config_file
 
     return config_path.is_file() and is_benchmark(read_config_file(config_path))
 
@@ -267,8 +267,8 @@ def _verify_benchmark(
     # Imported here (mujoco, cma, scipy): `mjtrial plan` need not pay for them.
     from mjtrial.benchmark.config import check_benchmark_config
     from mjtrial.benchmark.verify import verify_benchmark
-    from mjtrial.config_files import read_config_file
-    from mjtrial.layout import BenchmarkLayout
+    from mjtrial.config.read import read_config_file
+    from mjtrial.files.layout import BenchmarkLayout
 
     config = read_config_file(config_path)
     tasks = check_benchmark_config(config, source=str(config_path), repo_root=repo_root)
@@ -292,7 +292,7 @@ def _verify_benchmark(
 def _crate(args: argparse.Namespace) -> int:
     # Imported here: the crate reads stamps (rerun-sdk) and uses the rocrate library, which
     # `mjtrial plan` need not load.
-    from mjtrial.config_files import ConfigError, read_config_file
+    from mjtrial.config.read import ConfigError, read_config_file
     from mjtrial.crate.archive import (
         ArchiveError,
         check_crate,
@@ -377,7 +377,7 @@ def _new_task(args: argparse.Namespace) -> int:
 
 def _policy_check(args: argparse.Namespace) -> int:
     # imported here: onnxruntime's import would slow every other command
-    from mjtrial.policy_check import check_policy_file, parse_settings, policy_check_task
+    from mjtrial.policy_files.check import check_policy_file, parse_settings, policy_check_task
     from mjtrial.task import TaskError
 
     try:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mjtrial.physics import FULLPHYSICS, STATE_QPOS
+from mjtrial.sim.physics import FULLPHYSICS, STATE_QPOS
 
 # The mocap bodies' target poses as rollout controls, after the ctrl and the applied wrenches.
 MOCAP_SPEC = mujoco.mjtState.mjSTATE_MOCAP_POS.value | mujoco.mjtState.mjSTATE_MOCAP_QUAT.value

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 # The config sections that make the design, stored verbatim (their keys need not be known
 # here: a section added to the config, as `stopping`, is registered when present).
@@ -105,8 +105,8 @@ def policy_files_sha256(config: Mapping[str, Any], *, repo_root: Path) -> dict[s
     the graph's external data: `policy_file.policy_file_paths`), by path; a file missing is
     recorded as such (the config check says why)."""
     # In here (the policy files' reader loads onnx): `mjtrial plan` reads registrations only.
-    from mjtrial.conditions import policy_path
-    from mjtrial.policy_file import policy_file_paths
+    from mjtrial.design.conditions import policy_path
+    from mjtrial.policy_files.file import policy_file_paths
 
     out: dict[str, str] = {}
     for condition in (config.get("conditions") or {}).values():
@@ -229,7 +229,7 @@ def results_witness(layout: Layout, *, workdir: Path = Path(".")) -> dict[str, A
     `records`: how many of each; `sha256`: the key results' (`_KEY_RESULTS`, each table of
     `rollouts/`). What it cannot see: a folder deleted with Snakemake's records, or another
     experiment name (a renamed experiment starts a clean record)."""
-    from mjtrial.safekeeping import METADATA, record_subject  # psutil: for registering only
+    from mjtrial.files.safekeeping import METADATA, record_subject  # psutil: for registering only
 
     workdir = Path(workdir)
     root = layout.root if layout.root.is_absolute() else workdir / layout.root
@@ -430,7 +430,7 @@ def registered_plan(
     share of discordant pairs between the falsifier's conditions), else from `discordant`,
     else from ASSUMED_DISCORDANT, each said in the plan's `source`."""
     # In here: the Snakefile registers once, and need not load the planning otherwise.
-    from mjtrial.power import power_plan
+    from mjtrial.stats.power import power_plan
 
     falsifier = config["design"]["falsifier"]
     alpha = round(1.0 - float(config["analysis"]["confidence"]), 12)
@@ -467,7 +467,7 @@ def pilot_discordance(
         return None, None
     import pyarrow.parquet as pq  # the pilot's tables: read when planning only
 
-    from mjtrial.power import discordant_share  # as pyarrow, for planning only
+    from mjtrial.stats.power import discordant_share  # as pyarrow, for planning only
 
     treatment, baseline = (
         pq.read_table(t, columns=["success"]).column(0).to_pylist() for t in tables

@@ -3,7 +3,7 @@ file that the graph names by a path relative to its own folder).
 
 onnxruntime reads them when it opens the graph, so a run's result depends on them as on the
 `.onnx` file: they are inputs of the jobs that run the graph, stamped and copied with it
-(`mjtrial.policy_file.policy_file_paths`).
+(`mjtrial.policy_files.file.policy_file_paths`).
 
 The graph is read here at the protobuf wire level, not with the `onnx` package: that package is
 not a dependency of a run (onnxruntime is), and its `onnx.load` would hold a 400 MB graph's

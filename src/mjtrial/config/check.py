@@ -17,10 +17,9 @@ import jsonschema
 import mujoco
 import yaml
 
-from mjtrial import REPO_ROOT, budget, sequential
-from mjtrial.comparisons import comparisons_error
-from mjtrial.conditions import all_conditions, model_edits, policy_path, sweep_base
-from mjtrial.config_files import (  # noqa: F401 - read from here by the workflow and the CLI
+from mjtrial import REPO_ROOT
+from mjtrial.config import budget
+from mjtrial.config.read import (  # noqa: F401 - read from here by the workflow and the CLI
     MAX_CONFIG_BYTES,
     MAX_CONFIG_VALUES,
     ConfigError,
@@ -31,17 +30,20 @@ from mjtrial.config_files import (  # noqa: F401 - read from here by the workflo
     rerun_command,
     run_configuration,
 )
-from mjtrial.config_studies import _changes_nothing, _check_variant_applies, _unstable
-from mjtrial.layout import CONFIG_FILE, NOMINAL, Layout
-from mjtrial.physics import ModelError, load_model
-from mjtrial.policy_file import PolicyFileError, contract_path, load_policy_file, policy_task
+from mjtrial.config.studies import _changes_nothing, _check_variant_applies, _unstable
+from mjtrial.design.conditions import all_conditions, model_edits, policy_path, sweep_base
+from mjtrial.design.states import ConstraintError, probe_constraint
+from mjtrial.files.layout import CONFIG_FILE, NOMINAL, Layout
+from mjtrial.policy_files.file import PolicyFileError, contract_path, load_policy_file, policy_task
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
-from mjtrial.simenv import model_overrides, variant_version
-from mjtrial.states import ConstraintError, probe_constraint
+from mjtrial.sim.physics import ModelError, load_model
+from mjtrial.sim.simenv import model_overrides, variant_version
+from mjtrial.stats import sequential
+from mjtrial.stats.comparisons import comparisons_error
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import BodyMass, BoundTask, ModelCheckError, Task, TaskError, call, load_task
-from mjtrial.task_checks import (
+from mjtrial.task.checks import (
     alike_conditions,
     check_observations,
     nominal_episode_sha256,

@@ -42,9 +42,9 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import MAX_BATCH
-from mjtrial.onnx_data import GraphFormatError, external_data
-from mjtrial.physics import ModelError, load_model
+from mjtrial.policy_files.onnx_data import GraphFormatError, external_data
+from mjtrial.sim.engine import MAX_BATCH
+from mjtrial.sim.physics import ModelError, load_model
 from mjtrial.task import ClosedLoop, Control, MocapAction, Task, TaskError, address
 
 if TYPE_CHECKING:
@@ -149,9 +149,9 @@ def contract_path(onnx_file: Path) -> Path:
 
 
 def data_files(onnx_file: Path) -> list[Path]:
-    """The external data files the graph loads (`mjtrial.onnx_data`), each a file inside the
-    graph's folder; `PolicyFileError` (one line naming the graph, the tensor and the location)
-    for one that is missing or elsewhere, or not an initializer of the main graph (a node
+    """The external data files the graph loads (`mjtrial.policy_files.onnx_data`), each a file
+    inside the graph's folder; `PolicyFileError` (one line naming the graph, the tensor and the
+    location) for one that is missing or elsewhere, or not an initializer of the main graph (a node
     attribute's or a subgraph's: onnxruntime 1.31.1 reads those relative to the working folder,
     not the graph's, measured)."""
     try:
@@ -428,7 +428,7 @@ class OnnxPolicy:
         self.low, self.high = np.asarray(ctrl_range, dtype=np.float64).T  # (k,) each
         self.half_span = (self.high - self.low) / 2.0
         # a column relative to its joints is a step from their positions: given raw, and its
-        # ctrl clipped (by MuJoCo) only once the positions are added (`mjtrial.actuation`)
+        # ctrl clipped (by MuJoCo) only once the positions are added (`mjtrial.sim.actuation`)
         self.absolute = np.array([not isinstance(a, RelativeColumn) for a in contract.actuators])
         self.nu, self.n_mocap = nu, n_mocap
         self.outputs = [contract.output, *(r.output for r in contract.recurrent)]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-TEMPLATE = Path(__file__).with_name("templates") / "new_task"
+TEMPLATE = Path(__file__).resolve().parents[1] / "templates" / "new_task"
 PLACEHOLDER = "new_task"
 # A Python identifier in lower case: it names a folder, a module-like task and results/<name>.
 NAME = re.compile(r"[a-z][a-z0-9_]*\Z")

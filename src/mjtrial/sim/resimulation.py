@@ -1,8 +1,8 @@
 """Episodes re-simulated by `mjtrial verify`, each alone: in this process, or in the
-environment of the MuJoCo version a variant names (`mjtrial.simenv`).
+environment of the MuJoCo version a variant names (`mjtrial.sim.simenv`).
 
 A variant on another MuJoCo version ran its rollouts in that version's Python; verify runs the
-same functions there (`python -m mjtrial.resimulation REQUEST`, as the workflow's rollout jobs
+same functions there (`python -m mjtrial.sim.resimulation REQUEST`, as the workflow's rollout jobs
 start again in that Python), one process per condition for all its sampled episodes and its
 nominal episode, and compares what comes back as it compares every variant's. This module
 imports no more than the rollout stage does: it starts in a fresh interpreter.
@@ -45,7 +45,7 @@ def resimulated_outcome(
     repo_root: Path,
 ) -> pa.Table:
     """The rollout table's rows of the states `ids` (in that order) under a condition, each
-    episode alone: not the batch it ran in (`mjtrial.engine.batch_size_for` rows or the
+    episode alone: not the batch it ran in (`mjtrial.sim.engine.batch_size_for` rows or the
     shard's), so a result that depends on its batch is not confirmed."""
     bound = condition_task(condition_slice, model_file, repo_root=repo_root)
     every = read_state_values(states_path, bound.task)

@@ -1,5 +1,5 @@
 """`mjtrial plan`: a sample size before a run, or a registered design's power from its pilot;
-split from `mjtrial.cli` by size."""
+split from the rest of `mjtrial.cli` by size."""
 
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ import sys
 from pathlib import Path
 
 from mjtrial import stats
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 
 def _registered_plan(args: argparse.Namespace) -> int:
     """`mjtrial plan RESULTS_DIR`: the registered design's power, from its pilot now."""
-    from mjtrial import registration  # the registered design (no MuJoCo): planning only
-    from mjtrial.power import plan_lines
+    from mjtrial.design import registration  # the registered design (no MuJoCo): planning only
+    from mjtrial.stats.power import plan_lines
 
     layout = Layout(Path(args.results_dir))
     try:

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from mjtrial.layout import CONFIG_FILE
+from mjtrial.files.layout import CONFIG_FILE
 
 # A config is a few hundred lines; anything far larger is a mistake or an attack (a YAML
 # "billion laughs" document expands a few lines of aliases into billions of values).

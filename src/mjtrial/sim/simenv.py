@@ -26,9 +26,9 @@ from typing import Any
 from uv import find_uv_bin
 
 from mjtrial import REPO_ROOT
-from mjtrial.atomic import write_text_atomic
-from mjtrial.conditions import sensitivity_conditions, variant_names
-from mjtrial.layout import NOMINAL, Layout, evaluation_shard_size, shard_ids
+from mjtrial.design.conditions import sensitivity_conditions, variant_names
+from mjtrial.files.atomic import write_text_atomic
+from mjtrial.files.layout import NOMINAL, Layout, evaluation_shard_size, shard_ids
 
 ENVS = Path("envs")  # in the working folder (git ignores it)
 VERSION_KEY = "mujoco"  # a variant's key naming its MuJoCo version

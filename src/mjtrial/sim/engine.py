@@ -20,9 +20,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from mjtrial import closed_loop, phases
-from mjtrial.low_level import ControllerError, MakeController
-from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
+from mjtrial.sim import closed_loop, phases
+from mjtrial.sim.low_level import ControllerError, MakeController
+from mjtrial.sim.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 from mjtrial.task import (
     NONFINITE_ACTION,
     UNHEALTHY,

@@ -14,10 +14,10 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 
-from mjtrial.engine import batch_size_for, episode_steps, iter_batches
-from mjtrial.policy_file import PolicyFile, RelativeColumn, load_policy_file, policy_task
+from mjtrial.policy_files.file import PolicyFile, RelativeColumn, load_policy_file, policy_task
+from mjtrial.sim.engine import batch_size_for, episode_steps, iter_batches
 from mjtrial.task import BoundTask, Task, TaskError, load_task
-from mjtrial.task_checks import nominal_values
+from mjtrial.task.checks import nominal_values
 
 TIMED_CALLS = 200  # calls per timed batch size (the median is reported)
 

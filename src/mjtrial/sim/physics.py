@@ -16,8 +16,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjtrial.atomic import atomic_path
-from mjtrial.contacts import MIXED_GEOM_FIELDS, contact_digest_values
+from mjtrial.files.atomic import atomic_path
+from mjtrial.sim.contacts import MIXED_GEOM_FIELDS, contact_digest_values
 
 # Layout of an mjSTATE_FULLPHYSICS vector: time, qpos, qvel, act, ...
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value

@@ -21,7 +21,7 @@ reference does the same at each control instant, so the two agree bit for bit th
 plain loop that never resets it differs in the last bits.
 
 Actions: the policy's output columns drive the actuators' ctrl and mocap bodies' targets
-(`mjtrial.actuation`); a mocap target goes to `mujoco.rollout` as a control, held until the
+(`mjtrial.sim.actuation`); a mocap target goes to `mujoco.rollout` as a control, held until the
 next control instant.
 
 Timing: a control instant every `steps_per_control` physics steps; the observation used at
@@ -50,9 +50,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from mjtrial.actuation import MOCAP_SPEC, Actuation, body_poses, initial_targets, qpos_of
-from mjtrial.low_level import MakeController, PlainEpisode, Stepper
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.actuation import MOCAP_SPEC, Actuation, body_poses, initial_targets, qpos_of
+from mjtrial.sim.low_level import MakeController, PlainEpisode, Stepper
+from mjtrial.sim.physics import FULLPHYSICS
 
 # What mujoco.rollout's control columns hold: the actuators' ctrl, then every body's applied
 # wrench (force, torque in the world frame), so pushes travel with the controls.
@@ -73,7 +73,7 @@ def failed_episodes(policy: BatchPolicy, n: int) -> np.ndarray | None:
     """(n,) the episodes the policy marked failed since its reset, or None if it marks none.
 
     A policy may judge its own actions: one with a `failed_episodes()` method ((n_episodes,)
-    bool, as a policy file marks its non-finite actions: `mjtrial.policy_file.OnnxPolicy`) has
+    bool, as a policy file marks its non-finite actions: `mjtrial.policy_files.file.OnnxPolicy`) has
     those episodes failed (`ClosedLoopBatch.failed_action`) instead of the run stopped."""
     marked = getattr(policy, "failed_episodes", None)
     return None if marked is None else np.array(marked(), dtype=bool).reshape(n)
@@ -184,7 +184,7 @@ class ClosedLoopBatch:
       mocap: (n_episodes, n_controls, nmocap, 7) the mocap targets (pos, quat w-x-y-z) set at
         each instant, or None when the policy moves no mocap body.
       applied: (n_episodes, n_steps, nu) the controls at each physics step when a low-level
-        controller computed them (`mjtrial.low_level`; `ctrl` then holds the policy's actions,
+        controller computed them (`mjtrial.sim.low_level`; `ctrl` then holds the policy's actions,
         (n_episodes, n_controls, n_inputs)), else None: `ctrl` held over each control period.
     """
 
@@ -205,7 +205,7 @@ class ClosedLoopBatch:
 
 def _checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
     """The policy's answer (n, nu), nu its output columns (every actuator's ctrl unless the
-    task declares actions: `mjtrial.actuation`)."""
+    task declares actions: `mjtrial.sim.actuation`)."""
     ctrl = np.asarray(ctrl, dtype=np.float64)
     if ctrl.shape != (n, nu):
         raise PolicyError(f"policy: expected controls of shape ({n}, {nu}), got {ctrl.shape}")
@@ -260,7 +260,7 @@ def run_batch(
         that moves mocap bodies has their targets sent to `mujoco.rollout` as controls, from
         each episode's start pose (its model's, `actuation.initial_targets`).
       low_level: builds the low-level controller the policy's actions go to, run at every
-        physics step (`mjtrial.low_level`) on as many threads as `datas` has entries; None: the
+        physics step (`mjtrial.sim.low_level`) on as many threads as `datas` has entries; None: the
         actions drive the actuators (`actuation`) and `mujoco.rollout` steps the physics.
       carry_warmstart: carry each episode's solver warm start from one control period to the
         next, as a suite's own `mj_step` loop does (`mujoco.rollout` starts each call from a
@@ -624,7 +624,7 @@ def check_replayed(policy: BatchPolicy, observations: np.ndarray, controls: np.n
     controls, what a reset and k calls on that row alone give) replays each episode through it:
     a policy file does (`policy_file.OnnxPolicy.alone`, its graph called on the row alone at
     every instant and the arithmetic around it once per episode), and so do the built-in
-    controllers (`mjtrial.controllers`, the whole episode in one pass).
+    controllers (`mjtrial.sim.controllers`, the whole episode in one pass).
 
     Args:
       policy: the batch's policy (reset here; its memory is per episode from a reset on).

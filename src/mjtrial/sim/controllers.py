@@ -1,6 +1,6 @@
 """Controllers a task can use: LQR gains from MuJoCo's own linearization, a linear feedback
 policy on encoder readings with velocities by finite differences, and low-level controllers run
-at every physics step (`mjtrial.low_level`): joint impedance with gravity compensation.
+at every physics step (`mjtrial.sim.low_level`): joint impedance with gravity compensation.
 
 The gains come from `mujoco.mjd_transitionFD` (the discrete-time transition Jacobians of the
 model at an operating point) and scipy's discrete algebraic Riccati solver, so the controller is
@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-from mjtrial.low_level import PhysicsView, Reads
+from mjtrial.sim.low_level import PhysicsView, Reads
 
 
 def lqr_gain(
@@ -127,7 +127,7 @@ class StateFeedback:
 
 
 class JointImpedance:
-    """A low-level controller (`mjtrial.low_level`): joint-space impedance with gravity and
+    """A low-level controller (`mjtrial.sim.low_level`): joint-space impedance with gravity and
     Coriolis compensation, at every physics step,
     tau = kp (q_goal - q) - kd qdot + qfrc_bias, ctrl = tau / gear clipped to the ctrlrange.
 

@@ -32,7 +32,7 @@ from typing import Any, Protocol
 import mujoco
 import numpy as np
 
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.physics import FULLPHYSICS
 
 
 @dataclass(frozen=True)

@@ -245,14 +245,15 @@ class Layout:
 
     @property
     def registration(self) -> Path:
-        """The registered design (`mjtrial.registration`): the `register` job's output, which
+        """The registered design (`mjtrial.design.registration`): the `register` job's output, which
         never registers over one (a registration Snakemake removed is put back)."""
         return self.root / "registration.json"
 
     @property
     def deviations(self) -> Path:
         """Each design that differed from the registration, noted when a run first started
-        with it (`mjtrial.registration.note_deviation`): no rule's output, no rule's input."""
+        with it (`mjtrial.design.registration.note_deviation`): no rule's output, no rule's
+        input."""
         return self.root / "deviations.json"
 
     @property

@@ -16,10 +16,10 @@ from dataclasses import replace
 import mujoco
 import numpy as np
 
-from mjtrial.closed_loop import PolicyError, check_batch_independence
-from mjtrial.engine import iter_batches, low_level_of
-from mjtrial.low_level import ControllerError, check_rows_alone
-from mjtrial.physics import compiled_sha256, simulated_sha256
+from mjtrial.sim.closed_loop import PolicyError, check_batch_independence
+from mjtrial.sim.engine import iter_batches, low_level_of
+from mjtrial.sim.low_level import ControllerError, check_rows_alone
+from mjtrial.sim.physics import compiled_sha256, simulated_sha256
 from mjtrial.task import (
     BoundTask,
     ClosedLoop,

@@ -15,8 +15,8 @@ from typing import Any
 import mujoco
 import psutil
 
-from mjtrial import engine
-from mjtrial.layout import evaluation_shard_size, shard_ids
+from mjtrial.files.layout import evaluation_shard_size, shard_ids
+from mjtrial.sim import engine
 from mjtrial.task import BoundTask, call
 
 # Steps of one episode: the preflight steps every condition's nominal episode, and a batch holds

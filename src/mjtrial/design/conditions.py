@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from typing import Any
 
 MODEL_EDITS = "model"  # a condition's edits of the model, beside its protocol parameters
-POLICY = "policy"  # a condition's policy file (`mjtrial.policy_file`), replacing the task's
+POLICY = "policy"  # a condition's policy file (`mjtrial.policy_files.file`), replacing the task's
 
 
 def model_edits(condition: Mapping[str, Any]) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""robosuite's arm and hand controllers as a low-level controller (`mjtrial.low_level`), on a
+"""robosuite's arm and hand controllers as a low-level controller (`mjtrial.sim.low_level`), on a
 batch of episodes at once.
 
 robosuite 1.5.2's default arm controller is OSC_POSE (`controllers/parts/arm/osc.py`,
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mjtrial.low_level import PhysicsView, Reads
+from mjtrial.sim.low_level import PhysicsView, Reads
 
 NULLSPACE_KP = 10.0  # robosuite's `nullspace_torques` default joint_kp
 GRIPPER_SPEED = 0.2  # robosuite's PandaGripper.speed: command change per action
