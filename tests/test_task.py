@@ -361,7 +361,7 @@ def test_the_old_state_qpos_import_still_works_with_a_deprecation_warning():
     import mjtrial.sim.physics
     import mjtrial.task
 
-    with pytest.warns(DeprecationWarning, match=r"mjtrial\.physics\.STATE_QPOS"):
+    with pytest.warns(DeprecationWarning, match=r"mjtrial\.sim\.physics\.STATE_QPOS"):
         from mjtrial.task import STATE_QPOS
     assert STATE_QPOS == mjtrial.sim.physics.STATE_QPOS
     with pytest.raises(AttributeError, match="NO_SUCH_NAME"):
