@@ -13,15 +13,15 @@ from mjtrial.config import (
     rerun_command,
     run_configuration,
 )
-from mjtrial.layout import COMPILED_MODELS
-from mjtrial.physics import keep_compiled_models
+from mjtrial.files.layout import COMPILED_MODELS
+from mjtrial.sim.physics import keep_compiled_models
 
 # The code that runs must be the code this checkout stamps and hashes.
 if foreign_package(Path.cwd()):
     sys.exit(f"mjtrial: {foreign_package(Path.cwd())}")
 
 # The model compiled by the config check is kept for the jobs, which read it instead of
-# compiling it again (mjtrial.physics.load_model).
+# compiling it again (mjtrial.sim.physics.load_model).
 keep_compiled_models(COMPILED_MODELS)
 
 # The config file is read here rather than with `configfile:` so that a YAML error or a
@@ -117,7 +117,7 @@ rule all:
         **ALL_TARGETS,
 
 
-# No good result is lost (mjtrial.safekeeping): the results are snapshot before any job runs,
+# No good result is lost (mjtrial.files.safekeeping): the results are snapshot before any job runs,
 # and whatever a failed job removed is put back as it was.
 onstart:
     on_start()

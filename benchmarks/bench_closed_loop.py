@@ -3,7 +3,7 @@
 The baseline is the plain loop: one `MjData` per episode, the same policy called once per
 control step on that episode's observation, `mj_step` in a Python loop in between, the push
 set per step, success checked at every step of the last second, nothing recorded.
-The engine runs the same episodes in lockstep batches (`mjtrial.closed_loop.run_batch`) and
+The engine runs the same episodes in lockstep batches (`mjtrial.sim.closed_loop.run_batch`) and
 records every physics step's state besides. Episodes: the cart-pole of `tasks/cartpole_latency/`,
 2.5 s, a 10 ms control period (5 steps of 2 ms), 20 ms of sensing latency, a push on the pole.
 
@@ -38,9 +38,9 @@ from alternating import print_rates, time_alternating
 from mujoco import rollout
 
 from mjtrial import REPO_ROOT
-from mjtrial.closed_loop import Pushes, Timing, run_batch
-from mjtrial.controllers import EncoderFeedback, lqr_gain
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.closed_loop import Pushes, Timing, run_batch
+from mjtrial.sim.controllers import EncoderFeedback, lqr_gain
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import BoundTask, Observation, ProtocolParameter, load_task
 
 MODEL = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"

@@ -30,7 +30,7 @@ import pyarrow.parquet as pq
 import yaml
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 RESULTS = Path("results") / "research_mode"
 SHARD_SIZE = 1000

@@ -7,7 +7,7 @@ the plain loop: one model whose goal is set in place for each episode, one `MjDa
 policy called once per control step on that episode's observation (encoder angles as they were
 60 ms ago, the goal), `mj_step` in a Python loop in between, the success test (fingertip within
 the tolerance at every step of the last 0.5 s) evaluated as the steps go, nothing recorded. The
-engine is what the rollout stage runs (`mjtrial.engine.iter_batches`: per-episode models, the
+engine is what the rollout stage runs (`mjtrial.sim.engine.iter_batches`: per-episode models, the
 policy on lockstep batches, every physics step's state kept, the task's measures and failure
 categories). Both must give the same successes.
 
@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import iter_batches
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, load_task
 
 TASK_FILE = REPO_ROOT / "tasks" / "reacher_goal" / "task.py"

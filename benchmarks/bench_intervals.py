@@ -23,7 +23,7 @@ import numpy as np
 from scipy.stats import multinomial
 
 from mjtrial import analysis, stats
-from mjtrial.comparisons import Comparison
+from mjtrial.stats.comparisons import Comparison
 
 RATES = (0.5, 0.6, 0.7, 0.9, 0.95, 0.99)
 CORRELATIONS = (0.0, 0.4, 0.8)

@@ -41,9 +41,9 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import LOW_LEVEL_BATCH, iter_batches
-from mjtrial.low_level import PlainEpisode
-from mjtrial.physics import load_model
+from mjtrial.sim.engine import LOW_LEVEL_BATCH, iter_batches
+from mjtrial.sim.low_level import PlainEpisode
+from mjtrial.sim.physics import load_model
 from mjtrial.task import BoundTask, load_task
 
 sys.path.insert(0, str(REPO_ROOT / "tasks"))

@@ -29,7 +29,7 @@ import psutil
 import yaml
 
 from mjtrial import REPO_ROOT
-from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
+from mjtrial.files.layout import CONFIG_FILE, RESULTS_DIR, Layout
 
 BAR_MB = 400
 COPIED = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")

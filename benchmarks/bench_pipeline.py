@@ -33,13 +33,13 @@ from gantry_lift.states import STATE_PARAMETERS, states_from_table
 from mujoco import rollout
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
-from mjtrial.physics import load_model
+from mjtrial.design.states import generate_initial_states
+from mjtrial.files.layout import CONFIG_FILE, RESULTS_DIR, Layout
 from mjtrial.replay import replay_episode
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
-from mjtrial.states import generate_initial_states
 
 
 def timed(fn):

@@ -2,11 +2,11 @@
 writes around the same onnxruntime session.
 
 The policy is a tanh MLP (observations -> 64 -> 64 -> 1, random weights, `ctrlrange` scaling)
-exported with the `onnx` package, read through its contract (`mjtrial.policy_file`). The
+exported with the `onnx` package, read through its contract (`mjtrial.policy_files.file`). The
 baseline is the plain loop: one `MjData` per episode, the session called once per control step
 on that episode's observation (a batch of one), `mj_step` in a Python loop in between, the push
 set per step, success checked at every step of the last second, nothing recorded. The engine is
-what the pipeline calls, `mjtrial.engine.iter_batches` in its batches (`engine.batch_size_for`),
+what the pipeline calls, `mjtrial.sim.engine.iter_batches` in its batches (`engine.batch_size_for`),
 which also records every physics step, replays each batch's first instants in other batches
 (`closed_loop.check_replayed`) and computes the task's measures and categories. Episodes: the
 cart-pole of `tasks/cartpole_latency/` under its defaults (3 s, a 10 ms control period),
@@ -40,9 +40,9 @@ from alternating import print_rates, time_alternating
 from onnx import TensorProto, helper, numpy_helper
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import batch_size_for, episode_steps, iter_batches
-from mjtrial.physics import FULLPHYSICS
-from mjtrial.policy_file import load_policy_file, policy_task
+from mjtrial.policy_files.file import load_policy_file, policy_task
+from mjtrial.sim.engine import batch_size_for, episode_steps, iter_batches
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import BoundTask, load_task
 
 TASK = REPO_ROOT / "tasks" / "cartpole_latency" / "task.py"

@@ -29,11 +29,12 @@ import pyarrow as pa
 import yaml
 from rerun.chunk import ChunkStore
 
-from mjtrial import REPO_ROOT, engine, recording
-from mjtrial.atomic import fsync_file
-from mjtrial.layout import CONFIG_FILE
+from mjtrial import REPO_ROOT, recording
+from mjtrial.files.atomic import fsync_file
+from mjtrial.files.layout import CONFIG_FILE
 from mjtrial.recording.arrow import chunks as recording_chunks
 from mjtrial.recording.write import EpisodeStores
+from mjtrial.sim import engine
 from mjtrial.stages.condition import condition_parameters, condition_task
 from mjtrial.stages.rollout import (
     condition_batches,

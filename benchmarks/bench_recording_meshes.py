@@ -26,11 +26,11 @@ import numpy as np
 from rerun.chunk import ChunkStore, RrdReader
 
 from mjtrial import REPO_ROOT
-from mjtrial.physics import FULLPHYSICS
 from mjtrial.recording import write_condition_recordings, write_failures_rrd
 from mjtrial.recording.names import MESH_STORE_FILE
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import EpisodeRecord, EpisodeStores, RecordingSpec
+from mjtrial.sim.physics import FULLPHYSICS
 
 FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
 STAMP = {"mjtrial_stamp": 1, "rule": "bench_recording_meshes"}

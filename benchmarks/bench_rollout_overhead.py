@@ -14,7 +14,7 @@ write) against the same episodes' physics alone, inputs prepared beforehand:
 One thread each, as a rollout job runs (`threads: 1`). Job and baseline alternate which runs
 first every repeat (the machine is shared and noisy); the figures are the medians of the paired
 ratios job / baseline, wall and CPU, and the job's phases (its log's `# phases:` line,
-`mjtrial.phases`) of the last repeat.
+`mjtrial.sim.phases`) of the last repeat.
 
 With `--processes`, each side also runs as a job does, in a process of its own: the job is
 workflow/scripts/rollout.py's work (`pyarrow_without_pandas`, then `run_shard`) in a fresh
@@ -48,9 +48,10 @@ import numpy as np
 import yaml
 from mujoco import rollout
 
-from mjtrial import REPO_ROOT, closed_loop
-from mjtrial.conditions import POLICY
-from mjtrial.phases import PHASES_PREFIX
+from mjtrial import REPO_ROOT
+from mjtrial.design.conditions import POLICY
+from mjtrial.sim import closed_loop
+from mjtrial.sim.phases import PHASES_PREFIX
 from mjtrial.stages.condition import condition_parameters, condition_task
 from mjtrial.stages.rollout import read_state_values, run_shard
 from mjtrial.stages.stamping import config_slice

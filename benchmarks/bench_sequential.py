@@ -1,4 +1,4 @@
-"""Benchmark: stopping early with the registered stopping rule (`mjtrial.sequential`), against
+"""Benchmark: stopping early with the registered stopping rule (`mjtrial.stats.sequential`), against
 the fixed-N design it replaces. Every figure but the first is exact, not simulated.
 
 1. **The gantry's question** (config/config.yaml: slow against fast lift): its N = 200 paired
@@ -35,8 +35,9 @@ import numpy as np  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 from scipy.stats import binom  # noqa: E402
 
-from mjtrial import REPO_ROOT, sequential  # noqa: E402
-from mjtrial.layout import Layout  # noqa: E402
+from mjtrial import REPO_ROOT  # noqa: E402
+from mjtrial.files.layout import Layout  # noqa: E402
+from mjtrial.stats import sequential  # noqa: E402
 
 ALPHA = 0.025  # the guide's: the one-sided level of a fixed-N verdict at confidence 0.95
 MAX_N = 200

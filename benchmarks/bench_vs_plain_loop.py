@@ -51,12 +51,12 @@ from gantry_lift.protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, hold_steps
 from gantry_lift.states import STATE_PARAMETERS, states_from_table
 
 from mjtrial import REPO_ROOT
-from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout
-from mjtrial.physics import load_model
+from mjtrial.design.states import generate_initial_states
+from mjtrial.files.layout import CONFIG_FILE, RESULTS_DIR, Layout
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
-from mjtrial.states import generate_initial_states
 
 WORKFLOW = ("Snakefile", "workflow", "config", "models", "tasks", "profiles")
 RESOURCES = re.compile(r"# resources: wall ([\d.]+) s, cpu ([\d.]+) s")

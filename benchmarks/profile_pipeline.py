@@ -9,7 +9,7 @@ the same command, alternating which runs first; then prints, from the last build
 - each job: when it started (s after Snakemake did), its wall and CPU time and, for a job in a
   process of its own, the share its interpreter's start and imports took (the log's
   `# stage entered:` line) ;
-- inside each rollout job, its phases (the log's `# phases:` line, `mjtrial.phases`): task and
+- inside each rollout job, its phases (the log's `# phases:` line, `mjtrial.sim.phases`): task and
   states, stamp, episode setup, physics (`mujoco.rollout`), recording (main thread, and the
   writer thread's own CPU, which overlaps the next batch's physics), measures + outcome, table
   + row hash, write table;
@@ -39,7 +39,7 @@ import yaml  # noqa: E402
 from bench_vs_plain_loop import copy_workflow, run_plain_loop, run_snakemake  # noqa: E402
 
 from mjtrial import REPO_ROOT  # noqa: E402
-from mjtrial.layout import CONFIG_FILE, RESULTS_DIR, Layout  # noqa: E402
+from mjtrial.files.layout import CONFIG_FILE, RESULTS_DIR, Layout  # noqa: E402
 
 RESOURCES = re.compile(r"# resources: wall ([\d.]+) s, cpu ([\d.]+) s(, in snakemake)?")
 ENTERED = re.compile(r"# stage entered: wall ([\d.]+) s, cpu ([\d.]+) s")

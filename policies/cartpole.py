@@ -7,7 +7,7 @@ The policies read the task's encoder observations [cart_position, pole_angle] on
 velocities are finite differences between control instants, computed inside the graph from a
 recurrent state `memory` = [previous cart_position, previous pole_angle, started] that the
 runtime feeds back and resets to zeros at each episode's start, so the first instant's
-velocity is zero, as the designed LQR's (`mjtrial.controllers.EncoderFeedback`).
+velocity is zero, as the designed LQR's (`mjtrial.sim.controllers.EncoderFeedback`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ import mujoco
 import numpy as np
 import yaml
 
-from mjtrial.closed_loop import BatchPolicy, replay_splits
-from mjtrial.engine import iter_batches
-from mjtrial.physics import STATE_QPOS
+from mjtrial.sim.closed_loop import BatchPolicy, replay_splits
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import STATE_QPOS
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import draw_states
 from mjtrial.task import BoundTask, Task
@@ -108,7 +108,7 @@ def run(
     condition with the engine. Returns (success, alive): per episode (n,) bool and the
     fraction of its physics steps before the pole passed `fall_angle` or the cart left the
     track (1.0 if neither), a graded score for episodes that fail. `replay_check` off: a
-    search's scores (`mjtrial.engine.iter_batches`)."""
+    search's scores (`mjtrial.sim.engine.iter_batches`)."""
     if rows is not None:
         values = {k: np.asarray(v)[rows] for k, v in values.items()}
     limits = thresholds(bound)
@@ -270,7 +270,7 @@ class Recorder:
     def episodes(self, n_controls: int) -> list[list[tuple[np.ndarray, np.ndarray]]]:
         """The calls of whole batches of episodes (`n_controls` instants from a reset), less the
         engine's replays: after a batch of n > 1 rows it replays each row alone, from a reset of
-        its own (`mjtrial.closed_loop.replay_splits`), n lists that repeat what is recorded."""
+        its own (`mjtrial.sim.closed_loop.replay_splits`), n lists that repeat what is recorded."""
         out, replays = [], 0
         for calls in self.calls:
             if replays:

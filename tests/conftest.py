@@ -25,7 +25,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="session")
 def gantry_model():
     from mjtrial import model_path
-    from mjtrial.physics import load_model
+    from mjtrial.sim.physics import load_model
 
     return load_model(model_path("gantry_gripper"))
 
@@ -36,7 +36,7 @@ def evaluation_states():
     import yaml
     from gantry_lift.states import STATE_PARAMETERS, states_from_table
 
-    from mjtrial.states import generate_initial_states
+    from mjtrial.design.states import generate_initial_states
 
     config = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())
     s = config["states"]

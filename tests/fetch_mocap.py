@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 from conftest import REPO_ROOT
 
-from mjtrial.closed_loop import Timing
+from mjtrial.sim.closed_loop import Timing
 from mjtrial.task import (
     ClosedLoop,
     Control,

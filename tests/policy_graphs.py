@@ -159,7 +159,7 @@ def save_with_external_data(
 
 def onnx_external_locations(path: Path) -> set[str]:
     """The external data locations of a saved graph, as the `onnx` package lists them (the
-    reference for `mjtrial.onnx_data`)."""
+    reference for `mjtrial.policy_files.onnx_data`)."""
     from onnx.external_data_helper import ExternalDataInfo, _get_all_tensors, uses_external_data
 
     model = onnx.load(str(path), load_external_data=False)

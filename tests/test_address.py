@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from policy_graphs import tanh_mlp, write
 
-from mjtrial.physics import compiled_sha256, load_model, load_spec
-from mjtrial.policy_file import PolicyFileError, load_policy_file
+from mjtrial.policy_files.file import PolicyFileError, load_policy_file
 from mjtrial.report.actuators import actuator_lines
+from mjtrial.sim.physics import compiled_sha256, load_model, load_spec
 from mjtrial.studies.variants import SPEC_ELEMENTS, apply_overrides, variant_model
 from mjtrial.task import ModelValue, TaskError, address, load_task
 

@@ -10,7 +10,7 @@ import pytest
 
 from mjtrial import analysis, stats
 from mjtrial.analysis import band_index, band_labels, format_table, judge_falsifier, summarize
-from mjtrial.comparisons import Comparison
+from mjtrial.stats.comparisons import Comparison
 
 ANALYSIS = {
     "n_resamples": 2000,

@@ -1,4 +1,4 @@
-"""Tests for mjtrial.atomic: outputs appear whole or not at all."""
+"""Tests for mjtrial.files.atomic: outputs appear whole or not at all."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from mjtrial.atomic import (
+from mjtrial.files.atomic import (
     atomic_directory,
     atomic_path,
     temp_path_for,
@@ -139,7 +139,7 @@ def test_directory_failure_keeps_the_old_one_and_no_temp(tmp_path: Path, error) 
 def test_fsync_files_flushes_every_file_once(tmp_path, monkeypatch):
     import threading
 
-    from mjtrial import atomic
+    from mjtrial.files import atomic
 
     paths = [tmp_path / f"f{i}.txt" for i in range(40)]
     for p in paths:

@@ -22,7 +22,7 @@ from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial import provenance
 from mjtrial.cli import main
-from mjtrial.layout import BenchmarkLayout
+from mjtrial.files.layout import BenchmarkLayout
 
 CONFIG = "config/benchmark.yaml"
 LAYOUT = BenchmarkLayout.of("benchmark")
@@ -118,7 +118,7 @@ def test_the_fixed_method_equals_the_plain_reference_on_the_evaluation_states(be
     from gantry_lift.simulate import reference_episode
     from gantry_lift.states import states_from_table
 
-    from mjtrial.physics import load_model
+    from mjtrial.sim.physics import load_model
 
     model = load_model(REPO_ROOT / "models" / "gantry_gripper" / "scene.xml")
     states = states_from_table(pq.read_table(bench / LAYOUT.task("gantry_lift").states))
@@ -369,7 +369,7 @@ def test_the_solvability_check_runs_the_corners_under_the_reference_and_lists_fa
     from gantry_lift.simulate import reference_episode
     from gantry_lift.states import InitialState
 
-    from mjtrial.physics import load_model
+    from mjtrial.sim.physics import load_model
 
     table = pq.read_table(bench / LAYOUT.solvability("gantry_lift")).to_pylist()
     assert len(table) == 16 and {r["probe"] for r in table} == {"corners"}

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from conftest import REPO_ROOT
 
-from mjtrial import engine, provenance
+from mjtrial import provenance
 from mjtrial.benchmark.config import check_benchmark_config, train_slice
 from mjtrial.config import read_config_file
+from mjtrial.sim import engine
 from mjtrial.stages.condition import condition_task, thresholds_of
 from mjtrial.stages.rollout import read_state_values
 from mjtrial.stages.stamping import config_slice

@@ -16,12 +16,12 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
-from mjtrial import closed_loop
 from mjtrial.benchmark import tuning
 from mjtrial.benchmark.tuning import tune, tuned_parameter_record
-from mjtrial.controllers import EncoderFeedback
-from mjtrial.engine import iter_batches
-from mjtrial.states import generate_initial_states
+from mjtrial.design.states import generate_initial_states
+from mjtrial.sim import closed_loop
+from mjtrial.sim.controllers import EncoderFeedback
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, load_task
 
 GANTRY_CONFIG = yaml.safe_load((REPO_ROOT / "config" / "config.yaml").read_text())

@@ -18,8 +18,8 @@ import yaml
 from conftest import REPO_ROOT
 
 from mjtrial.config import ConfigError, check_config
-from mjtrial.engine import iter_batches
-from mjtrial.physics import FULLPHYSICS, simulated_sha256
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import FULLPHYSICS, simulated_sha256
 from mjtrial.task import (
     BoundTask,
     ModelValue,
@@ -28,7 +28,7 @@ from mjtrial.task import (
     TaskError,
     load_task,
 )
-from mjtrial.task_checks import run_task_code
+from mjtrial.task.checks import run_task_code
 
 FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
 OBJECT = "object0"  # Fetch's free object (joint `object0:joint`)

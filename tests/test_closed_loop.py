@@ -13,7 +13,7 @@ import scipy.linalg
 from conftest import REPO_ROOT
 from mujoco import rollout
 
-from mjtrial.closed_loop import (
+from mjtrial.sim.closed_loop import (
     PolicyError,
     Pushes,
     Timing,
@@ -22,8 +22,8 @@ from mjtrial.closed_loop import (
     reference_episode,
     run_batch,
 )
-from mjtrial.controllers import EncoderFeedback, StateFeedback, lqr_gain
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.controllers import EncoderFeedback, StateFeedback, lqr_gain
+from mjtrial.sim.physics import FULLPHYSICS
 
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
 STEPS_PER_CONTROL = 5

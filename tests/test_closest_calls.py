@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO_ROOT
 
 from mjtrial.closest_calls import CLOSEST, HIGHEST, choose, margins
-from mjtrial.engine import iter_batches
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, Margin, TaskError, load_task
 
 CARTPOLE_TASK = "tasks/cartpole_latency/task.py"
@@ -127,7 +127,7 @@ def test_a_margin_naming_no_measure_is_refused_at_load(tmp_path):
 def test_the_scaffolds_margin_agrees_with_its_success_test(tmp_path):
     """`mjtrial new-task`'s task declares a margin; on episodes that both pass and fail, every
     sign is its success test's (`margins` raises otherwise)."""
-    from mjtrial.scaffold import new_task
+    from mjtrial.cli.scaffold import new_task
 
     new_task("slide", repo_root=tmp_path)
     task = load_task(tmp_path / "tasks" / "slide" / "task.py")

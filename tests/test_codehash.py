@@ -20,8 +20,8 @@ import pytest
 from conftest import REPO_ROOT
 from test_pipeline import planned_jobs
 
-from mjtrial import codehash
-from mjtrial.layout import BENCHMARK_STAGES, PILOT_STAGES, STAGES
+from mjtrial.files.layout import BENCHMARK_STAGES, PILOT_STAGES, STAGES
+from mjtrial.provenance import codehash
 from mjtrial.stages.stamping import stage_code
 
 
@@ -29,7 +29,8 @@ def test_imports_are_read_wherever_they_stand():
     source = """
 import os
 import mjtrial.stats
-from mjtrial import layout, REPO_ROOT
+from mjtrial import REPO_ROOT
+from mjtrial.files import layout
 from mjtrial.stages.rollout import run_shard
 import numpy as np
 
@@ -39,7 +40,7 @@ def later():
 """
     assert codehash.imported_modules(source) == {
         "mjtrial.stats",
-        "mjtrial.layout",
+        "mjtrial.files.layout",
         "mjtrial",  # REPO_ROOT is a name in the package, not a module
         "mjtrial.stages.rollout",
         "mjtrial.taxonomy",
@@ -141,7 +142,7 @@ def test_touching_every_file_reruns_nothing(own_package):
 
 def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(own_package):
     workdir, env = own_package
-    module = "mjtrial.stats"
+    module = "mjtrial.stats.paired"
     importing = {
         stage
         for stage in STAGES
@@ -151,7 +152,7 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
         )
     }
     assert importing, f"no stage imports {module}: pick another module for this test"
-    with open(workdir / "src" / "mjtrial" / "stats.py", "a") as f:
+    with open(workdir / "src" / "mjtrial" / "stats" / "paired.py", "a") as f:
         f.write("\n# an edit\n")
 
     built_in = importing - {"sensitivity", "dose_response", *BENCHMARK_STAGES, *PILOT_STAGES}
@@ -222,12 +223,13 @@ def test_the_kept_import_statements_give_the_closure_parsing_gives(monkeypatch, 
     ]
     assert _fresh_closure(monkeypatch, cache_file, roots) == parsed  # ... and read
     # the cache is what is read: an entry for the module's content is taken as it stands
-    kept[key] = [["mjtrial.budget", 0, []]]
+    kept[key] = [["mjtrial.config.budget", 0, []]]
     cache_file.write_text(json.dumps(kept))
-    assert "mjtrial.budget" in _fresh_closure(monkeypatch, cache_file, {"mjtrial.stages.rollout"})
+    closure = _fresh_closure(monkeypatch, cache_file, {"mjtrial.stages.rollout"})
+    assert "mjtrial.config.budget" in closure
     # an edited module has another key: its kept statements are never used
     assert kept.pop(key)
-    kept[hashlib.sha256(rollout + b"\n").hexdigest()] = [["mjtrial.budget", 0, []]]
+    kept[hashlib.sha256(rollout + b"\n").hexdigest()] = [["mjtrial.config.budget", 0, []]]
     cache_file.write_text(json.dumps(kept))
     assert _fresh_closure(monkeypatch, cache_file, roots) == parsed
     # a damaged cache is only slower

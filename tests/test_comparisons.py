@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mjtrial.comparisons import Comparison, exploratory, planned_comparisons
+from mjtrial.stats.comparisons import Comparison, exploratory, planned_comparisons
 
 FALSIFIER = {"treatment": "slow", "baseline": "fast"}
 CONDITIONS = ["fast", "medium", "slow"]

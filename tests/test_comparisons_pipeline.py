@@ -14,8 +14,8 @@ from conftest import edit_config, run_snakemake
 from scipy.stats import binomtest
 from statsmodels.stats.multitest import multipletests
 
-from mjtrial.layout import Layout
-from mjtrial.registration import register
+from mjtrial.design.registration import register
+from mjtrial.files.layout import Layout
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.stamping import config_slice
 from mjtrial.verify import verify_results

@@ -10,9 +10,9 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT
-from mjtrial.layout import COMPILED_MODELS
-from mjtrial.physics import compiled_sha256, keep_compiled_models, load_model
+from mjtrial.files.layout import COMPILED_MODELS
 from mjtrial.provenance import model_sha256
+from mjtrial.sim.physics import compiled_sha256, keep_compiled_models, load_model
 
 LIFT = REPO_ROOT / "models" / "robosuite_lift" / "lift.xml"  # robosuite's, meshes and textures
 MANIPULATOR = REPO_ROOT / "tests" / "models" / "dm_manipulator"  # dm_control's, includes

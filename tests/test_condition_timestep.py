@@ -14,9 +14,9 @@ import yaml
 from conftest import REPO_ROOT, SNAKEMAKE, copy_workflow, run_snakemake
 
 from mjtrial import recording
-from mjtrial.physics import load_model
 from mjtrial.replay import replay_episode
 from mjtrial.report.traces import sample_traces
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.condition import condition_task
 from mjtrial.stages.stamping import config_slice
 from mjtrial.task import BoundTask, load_task

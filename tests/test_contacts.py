@@ -13,15 +13,15 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
-from mjtrial.contacts import (
+from mjtrial.report.setup import _contact_edit_lines
+from mjtrial.sim.contacts import (
     collision_pairs,
     contact_digest_values,
     contact_lines,
     describe_contact_changes,
     pair_contacts,
 )
-from mjtrial.physics import load_model
-from mjtrial.report.setup import _contact_edit_lines
+from mjtrial.sim.physics import load_model
 from mjtrial.task import ModelValue, StateParameter, load_task
 
 FETCH = Path(__file__).resolve().parents[1] / "tasks/fetch_pick/assets/fetch/pick_and_place.xml"

@@ -21,7 +21,7 @@ import pytest
 
 from mjtrial import cli, provenance
 from mjtrial.crate import validation
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.verify import Status, verify_results
 
 LAYOUT = Layout.of("research_mode")
@@ -124,8 +124,8 @@ def test_the_copy_of_the_sources_is_the_workflow_and_the_code_that_ran(built, en
         assert copy.read_bytes() == script.read_bytes()
     # The package that ran: what the stamps record of each module.
     code = provenance.read_stamp(built / LAYOUT.summary)["extra"]["code"]
-    stats = built / LAYOUT.source / "src" / "mjtrial" / "stats.py"
-    assert sha256(stats) == code["mjtrial.stats"]
+    stats = built / LAYOUT.source / "src" / "mjtrial" / "stats" / "paired.py"
+    assert sha256(stats) == code["mjtrial.stats.paired"]
     # No git checkout in the test copy: the version names the copy's own digest.
     assert workflow["version"].startswith("sha256:" + provenance.file_sha256(built / LAYOUT.source))
 
@@ -365,11 +365,11 @@ def test_a_missing_crate_is_missing(work):
 
 
 def test_an_edited_copy_of_the_sources_is_tampered(work):
-    stats = work / LAYOUT.source / "src" / "mjtrial" / "stats.py"
+    stats = work / LAYOUT.source / "src" / "mjtrial" / "stats" / "paired.py"
     stats.write_text(stats.read_text() + "\n# an edit\n")
     report = verify(work)
     assert report[SOURCE].status is Status.TAMPERED
-    assert "source/src/mjtrial/stats.py: its sha256 differs" in report[SOURCE].reasons[0]
+    assert "source/src/mjtrial/stats/paired.py: its sha256 differs" in report[SOURCE].reasons[0]
     assert "is not the code analysis ran" in report[SOURCE].reasons[0]
     assert report[CRATE].status is Status.OK  # the edit is the copy's
 

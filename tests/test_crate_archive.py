@@ -18,7 +18,7 @@ from rocrate.rocrate import ROCrate
 
 from mjtrial import cli
 from mjtrial.crate import validation
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 LAYOUT = Layout.of("research_mode")
 
@@ -37,7 +37,7 @@ def test_the_archive_holds_the_results_their_crate_and_the_sources(built, archiv
     with zipfile.ZipFile(archive) as z:
         names = set(z.namelist())
         top = json.loads(z.read("ro-crate-metadata.json"))
-    for source in ("Snakefile", "pyproject.toml", "README.md", "src/mjtrial/cli.py"):
+    for source in ("Snakefile", "pyproject.toml", "README.md", "src/mjtrial/cli/__init__.py"):
         assert source in names
     assert "workflow/rules/crate.smk" in names and "tasks/gantry_lift/task.py" in names
     sealed = json.loads((built / LAYOUT.seal).read_text())["outputs"]

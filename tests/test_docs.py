@@ -30,7 +30,7 @@ def test_the_docs_build_strict(tmp_path):
     # every package name a task or the new-task template imports is in the API reference
     pages = " ".join(p.read_text() for p in (tmp_path / "site" / "api").rglob("*.html"))
     imported = _imported_names()
-    assert ("mjtrial.physics", "STATE_QPOS") in imported  # the reacher's and cart-pole's
+    assert ("mjtrial.sim.physics", "STATE_QPOS") in imported  # the reacher's and cart-pole's
     missing = [f"{m}.{n}" for m, n in sorted(imported) if f'id="{m}.{n}"' not in pages]
     assert missing == []
 
@@ -51,7 +51,7 @@ def test_every_recording_path_in_the_guides_is_in_its_shards_folder():
     the guides without the shard's folder names no file."""
     import re
 
-    from mjtrial.layout import Layout
+    from mjtrial.files.layout import Layout
 
     shard = Layout.of("research_mode").shard_recordings("fast", "00000").as_posix()
     assert shard.endswith("rollouts/fast/shard-00000")

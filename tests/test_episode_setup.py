@@ -17,10 +17,10 @@ from conftest import REPO_ROOT
 from fetch_mocap import FETCH, NOMINAL, fetch_setup, fetch_task
 from mujoco import rollout
 
-from mjtrial.engine import iter_batches
-from mjtrial.physics import FULLPHYSICS
 from mjtrial.recording import write_condition_recordings
 from mjtrial.recording.names import body_entity, logged_steps
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.stages.rollout import episode_records, recording_spec
 from mjtrial.task import BoundTask, TaskError
 
@@ -141,7 +141,7 @@ def test_the_recording_draws_the_mocap_target_at_every_logged_step(tmp_path):
 
 
 def test_the_preflight_runs_the_setup_and_names_its_exception():
-    from mjtrial.task_checks import run_task_code
+    from mjtrial.task.checks import run_task_code
 
     allowed = {"object_x": "test", "object_y": "test"}
     run_task_code(
@@ -163,7 +163,7 @@ def test_verify_resimulates_a_mocap_task_alone_as_its_rollout_ran(tmp_path):
     """The rollout stage's batches and verify's re-simulation (each episode alone, from the
     states file, the task loaded from its file) give the same rows, a measure read from the
     mocap targets included."""
-    from mjtrial.resimulation import resimulated_outcome
+    from mjtrial.sim.resimulation import resimulated_outcome
     from mjtrial.stages.rollout import (
         condition_batches,
         condition_task,
@@ -256,7 +256,7 @@ def _counted(model, data, values, calls=[]):  # noqa: B006 - module state, on pu
 def test_the_preflight_refuses_a_setup_that_is_not_a_function_of_its_arguments(setup):
     """Its episode differs between two setups of one state: the pairs' conditions would run
     different episodes. One line naming the task file and the function (issue 42, item 11)."""
-    from mjtrial.task_checks import check_setup_is_a_function, run_task_code
+    from mjtrial.task.checks import check_setup_is_a_function, run_task_code
 
     task = fetch_task(setup=setup, source=Path("tasks/fetch/task.py"))
     expected = (

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import REPO_ROOT
 
-from mjtrial.engine import iter_batches
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import (
     BoundTask,
     MocapPosition,

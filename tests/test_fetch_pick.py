@@ -19,7 +19,7 @@ import yaml
 from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial.cli import main
-from mjtrial.physics import FULLPHYSICS, load_model
+from mjtrial.sim.physics import FULLPHYSICS, load_model
 from mjtrial.task import BoundTask, load_task
 
 FOLDER = REPO_ROOT / "tasks" / "fetch_pick"

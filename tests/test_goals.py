@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO_ROOT
 
 from mjtrial.task import GOAL, BoundTask, Episodes, StateParameter, TaskError, load_task
-from mjtrial.task_checks import read_by_task, run_task_code
+from mjtrial.task.checks import read_by_task, run_task_code
 
 SHORT = {"fast": {"latency": 0.0, "duration": 1.5}}
 CARTPOLE_THRESHOLDS = {"fall_angle": 0.5}

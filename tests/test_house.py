@@ -11,7 +11,7 @@ import sys
 import pytest
 from conftest import REPO_ROOT
 
-from mjtrial import codehash
+from mjtrial.provenance import codehash
 
 PACKAGE = REPO_ROOT / "src" / "mjtrial"
 MAX_LINES = 700
@@ -90,12 +90,14 @@ def test_cycle_search_finds_a_cycle():
     """The search on hand-made sources: a cycle through a module imported inside a function."""
     sources = {
         "mjtrial.stats": "import numpy",
-        "mjtrial.verify": "from mjtrial import stats\ndef f():\n    from mjtrial import states",
-        "mjtrial.states": "from mjtrial.verify import check_stamps",
+        "mjtrial.verify": (
+            "from mjtrial import stats\ndef f():\n    from mjtrial.design import states"
+        ),
+        "mjtrial.design.states": "from mjtrial.verify import check_stamps",
     }
     graph = {k: codehash.imported_modules(v, module=k) for k, v in sources.items()}
-    assert find_cycle(graph) == ["mjtrial.states", "mjtrial.verify", "mjtrial.states"]
-    del sources["mjtrial.states"]
+    assert find_cycle(graph) == ["mjtrial.design.states", "mjtrial.verify", "mjtrial.design.states"]
+    del sources["mjtrial.design.states"]
     graph = {k: codehash.imported_modules(v, module=k) for k, v in sources.items()}
     assert find_cycle(graph) is None
 
@@ -171,7 +173,7 @@ def test_the_recording_share_benchmark_runs_the_stage_as_the_pipeline_does(monke
     monkeypatch.syspath_prepend(str(REPO_ROOT / "benchmarks"))
     from bench_vs_plain_loop import logging_share
 
-    from mjtrial.layout import CONFIG_FILE
+    from mjtrial.files.layout import CONFIG_FILE
 
     config = yaml.safe_load((REPO_ROOT / CONFIG_FILE).read_text())
     (share,) = logging_share(config, 3, 1)

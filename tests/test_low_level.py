@@ -1,4 +1,4 @@
-"""A low-level controller at the physics rate (`mjtrial.low_level`): the engine's episodes equal
+"""A low-level controller at the physics rate (`mjtrial.sim.low_level`): the engine's episodes equal
 the plain `mj_step1` / controller / `mj_step2` loop's bit for bit, whatever the batch and the
 threads, on a third-party arm (dm_control's manipulator, byte for byte)."""
 
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from mujoco import rollout
 
-from mjtrial import closed_loop
-from mjtrial.controllers import JointImpedance
-from mjtrial.low_level import ControllerError, Reads, check_rows_alone
-from mjtrial.physics import FULLPHYSICS, load_model
+from mjtrial.sim import closed_loop
+from mjtrial.sim.controllers import JointImpedance
+from mjtrial.sim.low_level import ControllerError, Reads, check_rows_alone
+from mjtrial.sim.physics import FULLPHYSICS, load_model
 
 MANIPULATOR = Path(__file__).parent / "models" / "dm_manipulator" / "manipulator.xml"
 ARM = ("root", "shoulder", "elbow", "wrist")

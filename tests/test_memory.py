@@ -12,8 +12,9 @@ import sys
 
 import numpy as np
 
-from mjtrial import REPO_ROOT, engine
-from mjtrial.engine import iter_batches
+from mjtrial import REPO_ROOT
+from mjtrial.sim import engine
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, load_task
 
 # Libraries no job of Snakemake's process needs: pycma (which imports scipy.stats and

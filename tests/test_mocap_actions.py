@@ -27,8 +27,8 @@ import pytest
 from conftest import REPO_ROOT
 from mujoco import rollout
 
-from mjtrial.closed_loop import Timing, reference_episode, run_batch
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.closed_loop import Timing, reference_episode, run_batch
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import Control, MocapAction, TaskError
 from mjtrial.task.actions import bind_actions
 
@@ -285,8 +285,8 @@ def test_a_policy_file_drives_both_fingers_from_one_column_and_the_mocap(tmp_pat
     from fetch_mocap import fetch_task
     from policy_graphs import tanh_mlp, write
 
-    from mjtrial.engine import iter_batches
-    from mjtrial.policy_file import load_policy_file, policy_task
+    from mjtrial.policy_files.file import load_policy_file, policy_task
+    from mjtrial.sim.engine import iter_batches
     from mjtrial.task import BoundTask
 
     path = write(
@@ -334,7 +334,7 @@ def test_a_contract_column_over_actuators_of_different_ranges_is_refused(tmp_pat
     from fetch_mocap import fetch_task
     from policy_graphs import tanh_mlp, write
 
-    from mjtrial.policy_file import PolicyFileError, load_policy_file
+    from mjtrial.policy_files.file import PolicyFileError, load_policy_file
     from mjtrial.task import TaskError
 
     task = fetch_task()
@@ -380,8 +380,8 @@ def test_one_column_drives_two_fingers_with_opposite_signs(tmp_path):
     from fetch_mocap import fetch_task
     from policy_graphs import tanh_mlp, write
 
-    from mjtrial.engine import iter_batches
-    from mjtrial.policy_file import load_policy_file, policy_task
+    from mjtrial.policy_files.file import load_policy_file, policy_task
+    from mjtrial.sim.engine import iter_batches
     from mjtrial.task import BoundTask
 
     task = fetch_task(model=_mirrored_fetch(tmp_path))
@@ -432,7 +432,7 @@ def test_a_signed_column_must_share_one_range_and_give_a_sign_per_actuator(tmp_p
     from fetch_mocap import fetch_task
     from policy_graphs import tanh_mlp, write
 
-    from mjtrial.policy_file import PolicyFileError, load_policy_file
+    from mjtrial.policy_files.file import PolicyFileError, load_policy_file
 
     task = fetch_task()  # both fingers [0, 0.2]: times (1, -1) they are two ranges
     kwargs = dict(
@@ -474,8 +474,8 @@ def test_a_contract_column_relative_to_its_joints_runs_as_the_task_s_relative_co
     from fetch_mocap import fetch_task
     from policy_graphs import tanh_mlp, write
 
-    from mjtrial.engine import iter_batches
-    from mjtrial.policy_file import load_policy_file, policy_task
+    from mjtrial.policy_files.file import load_policy_file, policy_task
+    from mjtrial.sim.engine import iter_batches
     from mjtrial.task import BoundTask
 
     path = write(
@@ -539,7 +539,7 @@ def test_a_non_finite_number_in_a_contract_s_actions_is_one_line(tmp_path, chang
     from fetch_mocap import fetch_task
     from policy_graphs import tanh_mlp, write
 
-    from mjtrial.policy_file import PolicyFileError, load_policy_file
+    from mjtrial.policy_files.file import PolicyFileError, load_policy_file
 
     contract = {
         "task": "fetch_mocap",

@@ -8,7 +8,7 @@ import pytest
 from gantry_lift.model_spec import ModelSpec
 
 from mjtrial import MODELS_DIR, model_path
-from mjtrial.physics import ModelError, load_model
+from mjtrial.sim.physics import ModelError, load_model
 
 MODELS = sorted(p.name for p in MODELS_DIR.iterdir() if (p / "scene.xml").is_file())
 

@@ -16,10 +16,10 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
-from mjtrial.conditions import condition_record
 from mjtrial.config import ConfigError, check_config
-from mjtrial.physics import compiled_sha256
+from mjtrial.design.conditions import condition_record
 from mjtrial.report.labels import setting
+from mjtrial.sim.physics import compiled_sha256
 from mjtrial.stages.manifest import condition_edits
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import load_task

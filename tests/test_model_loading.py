@@ -20,8 +20,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.physics import ModelError, compiled_sha256, load_model, load_spec
 from mjtrial.provenance.model_closure import model_closure
+from mjtrial.sim.physics import ModelError, compiled_sha256, load_model, load_spec
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.states import build_states
 from mjtrial.studies.variants import nominal_model_hash, variant_model

@@ -16,7 +16,7 @@ from conftest import SNAKEMAKE, run_snakemake
 from PIL import Image
 
 from mjtrial import cli, provenance
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.replay import OutputRefused, check_output, replay_episode
 from mjtrial.verify import Status, verify_results
 

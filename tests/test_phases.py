@@ -1,11 +1,11 @@
-"""The rollout job's phase clock (mjtrial.phases) and the end of a run's scheduler timers."""
+"""The rollout job's phase clock (mjtrial.sim.phases) and the end of a run's scheduler timers."""
 
 from __future__ import annotations
 
 import threading
 import time
 
-from mjtrial import phases
+from mjtrial.sim import phases
 from mjtrial.workflow_script import cancel_scheduler_timers
 
 

@@ -22,8 +22,8 @@ from gantry_lift.states import states_from_table
 from scipy.stats import binomtest
 
 from mjtrial import provenance
-from mjtrial.layout import Layout
-from mjtrial.physics import load_model
+from mjtrial.files.layout import Layout
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states

@@ -196,7 +196,7 @@ def test_snakemake_html_report_holds_figures_and_summary(built, tmp_path):
 def test_evaluation_states_come_from_the_evaluation_seed(built):
     from gantry_lift.states import STATE_PARAMETERS
 
-    from mjtrial.states import generate_initial_states
+    from mjtrial.design.states import generate_initial_states
 
     config = yaml.safe_load((built / "config" / "config.yaml").read_text())
     s = config["states"]

@@ -13,10 +13,10 @@ import yaml
 from conftest import REPO_ROOT, copy_workflow
 from policy_graphs import doubled_above, shifted_above, tanh_mlp, write
 
-from mjtrial import policy_file
 from mjtrial.cli import main
 from mjtrial.config import ConfigError, check_config
-from mjtrial.policy_file import PolicyFileError, load_policy_file
+from mjtrial.policy_files import file as policy_file
+from mjtrial.policy_files.file import PolicyFileError, load_policy_file
 from mjtrial.task import BoundTask, load_task
 
 TASK_FILE = str(REPO_ROOT / "tasks" / "cartpole_latency" / "task.py")

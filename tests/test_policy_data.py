@@ -1,6 +1,6 @@
 """A policy graph's external data (tensors stored in files beside the `.onnx`): listed as the
 `onnx` package lists them, and every such file tracked as the graph is: an input of the jobs
-that run it, stamped, copied with the run (`mjtrial.policy_file.policy_file_paths`)."""
+that run it, stamped, copied with the run (`mjtrial.policy_files.file.policy_file_paths`)."""
 
 from __future__ import annotations
 
@@ -21,13 +21,13 @@ from policy_graphs import (
 )
 
 from mjtrial import provenance
-from mjtrial.onnx_data import external_data
-from mjtrial.policy_file import (
+from mjtrial.policy_files.file import (
     PolicyFileError,
     load_policy_file,
     policy_file_paths,
     policy_inputs,
 )
+from mjtrial.policy_files.onnx_data import external_data
 from mjtrial.task import load_task
 
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)

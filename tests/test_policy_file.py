@@ -24,9 +24,9 @@ from policy_graphs import encoder_lqr, sqrt_of_angle, tanh_mlp, write
 
 from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
-from mjtrial.engine import iter_batches
-from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
+from mjtrial.policy_files.file import PolicyFileError, load_policy_file, policy_task
 from mjtrial.replay import replay_episode
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import NONFINITE_ACTION, BoundTask, load_task
 
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)
@@ -409,9 +409,9 @@ def test_policy_check_compares_every_batch_the_engine_splits_the_episodes_into(
     1, and the invariant LQR graph still agrees with each episode run alone."""
     import mujoco
 
-    from mjtrial import engine
     from mjtrial.cli import main
-    from mjtrial.physics import load_model
+    from mjtrial.sim import engine
+    from mjtrial.sim.physics import load_model
 
     size = mujoco.mj_sizeModel(
         load_model(REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml")

@@ -14,8 +14,8 @@ from test_sensors import THRESHOLDS, _encoder_task, _states
 from mjtrial.benchmark.config import checkpoint_files
 from mjtrial.benchmark.tuning import check_search
 from mjtrial.cli import main
-from mjtrial.engine import iter_batches
-from mjtrial.policy_file import PolicyFileError, load_policy_file, policy_task
+from mjtrial.policy_files.file import PolicyFileError, load_policy_file, policy_task
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, load_task
 
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)

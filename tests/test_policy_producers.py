@@ -143,7 +143,7 @@ def test_shipped_network_balances_as_trained_whatever_the_batch(path, developmen
     """Every development state in batches of 200 (the engine replays each batch's first
     instants in other batches and raises if a row differs), then a few in batches of 3: the
     same trajectories bit for bit; the rate is the one the training recorded."""
-    from mjtrial.engine import iter_batches
+    from mjtrial.sim.engine import iter_batches
     from policies import cartpole
 
     bound, values = development

@@ -14,10 +14,10 @@ from conftest import REPO_ROOT
 from mujoco import rollout
 from policy_graphs import tanh_mlp, write
 
-from mjtrial.closed_loop import Timing, reference_episode, run_batch
-from mjtrial.engine import iter_batches
-from mjtrial.physics import FULLPHYSICS, load_model
-from mjtrial.policy_file import PolicyFileError, load_policy_file
+from mjtrial.policy_files.file import PolicyFileError, load_policy_file
+from mjtrial.sim.closed_loop import Timing, reference_episode, run_batch
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import FULLPHYSICS, load_model
 from mjtrial.task import (
     BoundTask,
     ClosedLoop,
@@ -28,7 +28,7 @@ from mjtrial.task import (
     TaskError,
     load_task,
 )
-from mjtrial.task_checks import run_task_code
+from mjtrial.task.checks import run_task_code
 
 FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
 REACHER = REPO_ROOT / "tasks" / "reacher_goal" / "task.py"

@@ -1,4 +1,4 @@
-"""Power before the run (mjtrial.power) against independent references: the exact power by
+"""Power before the run (mjtrial.stats.power) against independent references: the exact power by
 enumerating every paired table with scipy's binomial test, and a Monte Carlo simulation of
 paired outcomes with numpy."""
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest, multinomial
 
-from mjtrial import power, stats
+from mjtrial import stats
+from mjtrial.stats import power
 
 
 def enumerated_power(pairs: int, delta: float, discordant: float, alpha: float) -> float:

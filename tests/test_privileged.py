@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from mjtrial.controllers import StateFeedback, lqr_gain
+from mjtrial.sim.controllers import StateFeedback, lqr_gain
 
 import importlib.util, sys
 spec = importlib.util.spec_from_file_location(

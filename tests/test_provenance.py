@@ -395,7 +395,7 @@ def test_provenance_imports_no_other_mjtrial_module() -> None:
                 imported.add(node.module)
     ours = {m for m in imported if m.split(".")[0] == "mjtrial"}
     assert ours == {
-        "mjtrial.atomic",
+        "mjtrial.files.atomic",
         "mjtrial.provenance.formats",
         "mjtrial.provenance.model_closure",
         "mjtrial.provenance.rows",

@@ -18,7 +18,6 @@ from gantry_lift.simulate import iter_episode_batches
 from gantry_lift.states import InitialState
 
 from mjtrial import model_path
-from mjtrial.physics import load_model
 from mjtrial.provenance import read_stamp
 from mjtrial.recording import (
     EpisodeRecord,
@@ -34,6 +33,7 @@ from mjtrial.recording import (
 from mjtrial.recording import route as route_mod
 from mjtrial.recording import write as write_mod
 from mjtrial.recording.write import RecordingSpec
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.rollout import recording_spec
 from mjtrial.task import BoundTask, load_task
 

@@ -12,12 +12,12 @@ import pytest
 from conftest import REPO_ROOT
 from rerun.chunk import RrdReader
 
-from mjtrial.physics import FULLPHYSICS
 from mjtrial.recording import read_episode, write_condition_recordings, write_failures_rrd
 from mjtrial.recording.names import MESH_STORE_FILE, body_entity
 from mjtrial.recording.read import is_mesh_store, recording_chunks
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import EpisodeRecord, RecordingSpec
+from mjtrial.sim.physics import FULLPHYSICS
 
 FETCH = REPO_ROOT / "tasks" / "fetch_pick" / "assets" / "fetch" / "pick_and_place.xml"
 N_STEPS, LOG_EVERY, N_EPISODES = 300, 5, 3

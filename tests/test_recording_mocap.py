@@ -12,9 +12,9 @@ import pytest
 import rerun as rr
 from conftest import REPO_ROOT
 
-from mjtrial.engine import iter_batches
 from mjtrial.recording import write_condition_recordings
 from mjtrial.recording.names import body_entity
+from mjtrial.sim.engine import iter_batches
 from mjtrial.stages.rollout import episode_records, recording_spec
 from mjtrial.task import BoundTask, MocapPosition, StateParameter, load_task
 

@@ -11,10 +11,10 @@ from gantry_lift.simulate import iter_episode_batches
 from gantry_lift.states import InitialState
 
 from mjtrial import model_path
-from mjtrial.physics import load_model
 from mjtrial.recording import logged_steps, mujoco_to_rerun_quat, rerun_to_mujoco_quat
 from mjtrial.recording.arrow import archetype_columns, check_rerun_version, chunks
 from mjtrial.recording.scene import BodyPoses, static_scene
+from mjtrial.sim.physics import load_model
 
 # --------------------------------------------------------------------------------------------
 # Quaternions

@@ -1,4 +1,4 @@
-"""The registered design (mjtrial.registration): frozen at the first run, never rewritten by
+"""The registered design (mjtrial.design.registration): frozen at the first run, never rewritten by
 a rerun, every later difference recorded as a deviation, with whether results existed."""
 
 from __future__ import annotations
@@ -14,9 +14,10 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
 
-from mjtrial import cli, provenance, registration
+from mjtrial import cli, provenance
+from mjtrial.design import registration
 from mjtrial.diff import diff_runs, render
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.verify import Status, verify_results
 

@@ -17,12 +17,12 @@ import yaml
 from gantry_lift.protocol import PROTOCOL
 
 from mjtrial import provenance, report
-from mjtrial.layout import FIGURES, RESULTS_DIR, Layout, shard_ids, shard_range
-from mjtrial.physics import load_model
+from mjtrial.files.layout import FIGURES, RESULTS_DIR, Layout, shard_ids, shard_range
 from mjtrial.recording import read_episode
 from mjtrial.report.figures import CONDITION_PALETTE, condition_colors
 from mjtrial.report.text import render_report
 from mjtrial.report.traces import TRACES_PER_OUTCOME, sample_traces
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.analysis import run_analysis
 from mjtrial.stages.manifest import write_manifest
 from mjtrial.stages.rollout import gather_condition, run_shard

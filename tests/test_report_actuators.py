@@ -192,7 +192,7 @@ def test_servos_with_damping_or_a_gear_say_so():
 def test_a_tendons_limited_joints_are_what_stops_it():
     """The gantry's gripper: one servo on a fixed tendon over the two finger joints, each
     declared `range="0 0.05"` in the MJCF; the line names those ranges."""
-    from mjtrial.physics import load_model
+    from mjtrial.sim.physics import load_model
 
     mjcf = (ROOT / "models/gantry_gripper/gantry_gripper.xml").read_text()
     for finger, axis in (("left_finger", "0 1 0"), ("right_finger", "0 -1 0")):

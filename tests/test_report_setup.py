@@ -84,8 +84,8 @@ def test_the_rates_are_the_physics_and_the_policys_under_each_condition():
     import yaml
     from conftest import REPO_ROOT
 
-    from mjtrial.physics import load_model
     from mjtrial.report.setup import _rate_lines
+    from mjtrial.sim.physics import load_model
     from mjtrial.task import load_task
 
     config = yaml.safe_load((REPO_ROOT / "config" / "cartpole_latency.yaml").read_text())
@@ -109,7 +109,7 @@ def test_the_rates_are_the_physics_and_the_policys_under_each_condition():
 
 
 def test_policy_check_says_a_signed_columns_signs():
-    from mjtrial.policy_check import _actuator
+    from mjtrial.policy_files.check import _actuator
 
     assert _actuator(("left", "right"), (1, -1)) == "[+left, -right]"
     assert _actuator(("left", "right")) == "[left, right]"

@@ -15,10 +15,10 @@ import yaml
 from test_report_model import FETCH, _documented_pairs
 
 from mjtrial.analysis import summarize
-from mjtrial.physics import load_model
 from mjtrial.report.actuators import actuator_lines
 from mjtrial.report.model import collision_pairs, contact_lines
 from mjtrial.report.text import _mistakes, _results, _scope_limits
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stats import newcombe_paired_interval
 from mjtrial.task import load_task

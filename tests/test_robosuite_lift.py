@@ -11,8 +11,9 @@ from mujoco import rollout
 from robosuite_lift import osc_reference
 from robosuite_lift.task import TASK, ScriptedLift, operational_space
 
-from mjtrial import REPO_ROOT, closed_loop
-from mjtrial.physics import FULLPHYSICS, load_model
+from mjtrial import REPO_ROOT
+from mjtrial.sim import closed_loop
+from mjtrial.sim.physics import FULLPHYSICS, load_model
 from mjtrial.task import BoundTask, load_task
 
 TIMING = closed_loop.Timing(steps_per_control=25, n_controls=12)  # 0.6 s: the approach

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from mjtrial import safekeeping
-from mjtrial.safekeeping import INCOMPLETE, METADATA, Snapshot, remove_stale_temporaries
+from mjtrial.files import safekeeping
+from mjtrial.files.safekeeping import INCOMPLETE, METADATA, Snapshot, remove_stale_temporaries
 
 RESULTS = Path("results/x")
 
@@ -170,7 +170,7 @@ def test_a_killed_runs_temporaries_go_even_when_nothing_is_put_back(workdir):
     """Survey case 6 as CI met it: the kill came while a job filled its temporary folder, and
     every output came back from the snapshot, so the next run had nothing to do and no start
     to clear it at. The recovery itself removes it; a live run's temporaries stay."""
-    from mjtrial.atomic import temp_path_for
+    from mjtrial.files.atomic import temp_path_for
 
     snap = snapshot(workdir)
     snap.take()

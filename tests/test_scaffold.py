@@ -14,7 +14,7 @@ import yaml
 from conftest import REPO_ROOT, WORKFLOW_FILES, error_lines, run_snakemake
 
 from mjtrial.cli import main
-from mjtrial.scaffold import ScaffoldError, new_task
+from mjtrial.cli.scaffold import ScaffoldError, new_task
 
 NAME = "push_block"
 CONFIG = f"config/{NAME}.yaml"

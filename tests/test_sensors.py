@@ -17,9 +17,9 @@ import yaml
 from conftest import REPO_ROOT
 from mujoco import rollout
 
-from mjtrial.closed_loop import Observer, Timing, reference_episode, run_batch
-from mjtrial.engine import iter_batches
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.closed_loop import Observer, Timing, reference_episode, run_batch
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import BoundTask, Observation, ProtocolParameter, TaskError, load_task
 
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "task.py"
@@ -465,7 +465,7 @@ def test_noisy_episodes_re_simulated_alone_as_verify_does_equal_their_rows(noisy
     calls (a whole run's verify needs the report and the crate besides)."""
     import pyarrow.parquet as pq
 
-    from mjtrial.layout import Layout
+    from mjtrial.files.layout import Layout
     from mjtrial.stages.rollout import (
         condition_batches,
         condition_task,
@@ -509,7 +509,7 @@ def test_the_manifest_and_report_say_what_errors_an_observation_has(noisy_run):
 
 
 def test_a_sensor_without_a_source_is_privileged():
-    from mjtrial.task_checks import check_observations
+    from mjtrial.task.checks import check_observations
 
     task = _encoder_task()
     hidden = Observation.sensor("pole_angle", "pole_encoder", source=None)

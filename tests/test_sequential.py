@@ -1,4 +1,4 @@
-"""The stopping rule's test (mjtrial.sequential): the e-value against the mixture integral
+"""The stopping rule's test (mjtrial.stats.sequential): the e-value against the mixture integral
 computed another way, its martingale property under the null, the error rate over simulated
 null experiments, and the record of looks; the config's stopping section checked in one line."""
 
@@ -14,8 +14,8 @@ from conftest import REPO_ROOT
 from scipy import integrate
 from scipy.special import betainc, betaln
 
-from mjtrial import sequential
 from mjtrial.config import ConfigError, check_config
+from mjtrial.stats import sequential
 
 SOURCE = "config/config.yaml"
 BASE = yaml.safe_load((REPO_ROOT / SOURCE).read_text())

@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import SNAKEMAKE, edit_config, run_snakemake
 
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.recording import list_recordings
 from mjtrial.replay import read_episode
 from mjtrial.stages.failures import choose_failures

@@ -24,7 +24,7 @@ from test_verify_recompute import nudge_final_x
 
 from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
-from mjtrial.layout import NOMINAL, Layout
+from mjtrial.files.layout import NOMINAL, Layout
 from mjtrial.studies.sensitivity import flipped_episodes
 from mjtrial.verify import Status, verify_results
 

@@ -7,7 +7,7 @@ import pyarrow as pa
 import pytest
 from gantry_lift.states import STATE_PARAMETERS, states_from_table
 
-from mjtrial.states import generate_initial_states
+from mjtrial.design.states import generate_initial_states
 
 RANGES = {"dx": [-0.018, 0.018], "dy": [-0.012, 0.012], "yaw": [-0.6, 0.6], "mass": [0.05, 0.6]}
 
@@ -126,7 +126,7 @@ def test_a_normal_and_a_truncated_normal_are_one_draw_each_in_order():
 
 
 def test_valid_states_are_redrawn_from_the_same_distributions():
-    from mjtrial.states import draw_valid_states
+    from mjtrial.design.states import draw_valid_states
 
     distributions = {"dx": {"kind": "normal", "mean": 0.0, "std": 0.01}}
     table, rejected = draw_valid_states(

@@ -25,6 +25,7 @@ from mjtrial.stats import (
     iqm_ci,
     mcnemar,
     mcnemar_pairs_needed,
+    paired,
     paired_difference_ci,
     wilson_interval,
 )
@@ -283,9 +284,9 @@ def test_bootstrap_matches_manual_percentile_reference(sample):
 def test_bootstrap_blocking_does_not_change_result(sample, monkeypatch):
     full = bootstrap_ci(sample, n_resamples=1001, confidence=0.95, seed=5)
     # Force blocks of 3 rows (and a ragged last block).
-    monkeypatch.setattr(stats, "_MAX_BLOCK_ELEMENTS", 3 * sample.size)
+    monkeypatch.setattr(paired, "_MAX_BLOCK_ELEMENTS", 3 * sample.size)
     assert bootstrap_ci(sample, n_resamples=1001, confidence=0.95, seed=5) == full
-    monkeypatch.setattr(stats, "_MAX_BLOCK_ELEMENTS", 1)
+    monkeypatch.setattr(paired, "_MAX_BLOCK_ELEMENTS", 1)
     assert bootstrap_ci(sample, n_resamples=1001, confidence=0.95, seed=5) == full
 
 

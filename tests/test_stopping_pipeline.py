@@ -17,8 +17,8 @@ from conftest import REPO_ROOT, copy_workflow, edit_config, run_snakemake
 from scipy.special import betainc, betaln
 
 from mjtrial import provenance
-from mjtrial.layout import Layout
-from mjtrial.sequential import calibrated_threshold
+from mjtrial.files.layout import Layout
+from mjtrial.stats.sequential import calibrated_threshold
 from mjtrial.verify import Status, verify_results
 
 LAYOUT = Layout.of("research_mode")

@@ -13,7 +13,7 @@ from test_pipeline import planned_jobs
 
 from mjtrial import provenance
 from mjtrial.crate import validation
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.verify import Status, verify_results
 
 LAYOUT = Layout.of("research_mode")

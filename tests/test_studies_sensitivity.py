@@ -147,7 +147,7 @@ def test_the_study_reads_every_condition_under_every_variant(tmp_path):
 
     from conftest import copy_workflow, edit_config, run_snakemake
 
-    from mjtrial.conditions import sensitivity_conditions
+    from mjtrial.design.conditions import sensitivity_conditions
 
     workdir = copy_workflow(tmp_path)
 

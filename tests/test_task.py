@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from conftest import REPO_ROOT
 
-from mjtrial import closed_loop
-from mjtrial.engine import iter_batches
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim import closed_loop
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import (
     BoundTask,
     Custom,
@@ -27,7 +27,7 @@ from mjtrial.task import (
     TaskError,
     load_task,
 )
-from mjtrial.task_checks import check_observations, run_task_code
+from mjtrial.task.checks import check_observations, run_task_code
 
 CARTPOLE_TASK = "tasks/cartpole_latency/task.py"
 THRESHOLDS = {"fall_angle": 0.5}
@@ -358,12 +358,12 @@ def test_a_policy_that_depends_on_its_batch_fails_the_rollout_in_one_line(cartpo
 
 
 def test_the_old_state_qpos_import_still_works_with_a_deprecation_warning():
-    import mjtrial.physics
+    import mjtrial.sim.physics
     import mjtrial.task
 
-    with pytest.warns(DeprecationWarning, match=r"mjtrial\.physics\.STATE_QPOS"):
+    with pytest.warns(DeprecationWarning, match=r"mjtrial\.sim\.physics\.STATE_QPOS"):
         from mjtrial.task import STATE_QPOS
-    assert STATE_QPOS == mjtrial.physics.STATE_QPOS
+    assert STATE_QPOS == mjtrial.sim.physics.STATE_QPOS
     with pytest.raises(AttributeError, match="NO_SUCH_NAME"):
         mjtrial.task.NO_SUCH_NAME  # noqa: B018
 

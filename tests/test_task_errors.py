@@ -9,7 +9,7 @@ import pytest
 from conftest import REPO_ROOT
 
 from mjtrial.task import BoundTask, TaskError, load_task
-from mjtrial.task_checks import run_task_code
+from mjtrial.task.checks import run_task_code
 
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "task.py"
 

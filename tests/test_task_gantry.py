@@ -1,4 +1,4 @@
-"""The gantry as a task (`tasks/gantry_lift/task.py`) run by `mjtrial.engine` equals the engine
+"""The gantry as a task (`tasks/gantry_lift/task.py`) run by `mjtrial.sim.engine` equals the engine
 the pipeline ran before tasks existed (`gantry_lift.simulate` with `gantry_lift.taxonomy`),
 bit for bit: every column of the rollout table, on evaluation states, both conditions; and its
 final states equal the literal `mj_step` reference stepper's."""
@@ -12,10 +12,10 @@ from gantry_lift import taxonomy
 from gantry_lift.protocol import PROTOCOL, control_sequence
 from gantry_lift.simulate import episode_outcomes, iter_episode_batches, reference_episode
 
-from mjtrial.engine import iter_batches
+from mjtrial.sim.engine import iter_batches
 from mjtrial.stages.rollout import rollout_columns
 from mjtrial.task import BoundTask, load_task
-from mjtrial.task_checks import run_task_code
+from mjtrial.task.checks import run_task_code
 
 THRESHOLDS = {
     "lifted_height": 0.03,

@@ -11,7 +11,7 @@ import pytest
 from mujoco import rollout
 from test_closed_loop import STEPS_PER_CONTROL, _episodes, _policy, encoders
 
-from mjtrial.closed_loop import PolicyError, Timing, check_replayed, run_batch
+from mjtrial.sim.closed_loop import PolicyError, Timing, check_replayed, run_batch
 
 LATE = 25  # the first control instant at which the policy below may depend on its batch
 

@@ -11,7 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial.cli import main
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 LAYOUT = Layout.of("research_mode")
 

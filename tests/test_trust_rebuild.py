@@ -14,7 +14,7 @@ from conftest import SNAKEMAKE, edit_config, run_snakemake
 from test_nothing_lost import digest
 from test_trust import assert_same_data
 
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.task import task_files
 from mjtrial.verify import Status, verify_results
 

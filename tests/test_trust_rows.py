@@ -19,7 +19,7 @@ from conftest import copy_workflow, edit_config, error_lines, run_snakemake
 
 from mjtrial import provenance
 from mjtrial.cli import main
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.verify import Status, verify_results
 from mjtrial.verify.recompute import sample_ids
 

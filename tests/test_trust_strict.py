@@ -8,7 +8,7 @@ from test_verify import PREFIX, VERSIONS, chain, check
 
 from mjtrial import provenance
 from mjtrial.cli import main
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 from mjtrial.verify import verify_results
 
 LAYOUT = Layout.of("research_mode")

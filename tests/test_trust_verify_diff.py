@@ -12,7 +12,7 @@ from mjtrial.cli import main
 from mjtrial.diff.gate import render
 from mjtrial.diff.made import how_made
 from mjtrial.diff.source import Run
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 LAYOUT = Layout.of("research_mode")
 

@@ -16,8 +16,8 @@ from conftest import REPO_ROOT
 
 from mjtrial import provenance
 from mjtrial.config import ConfigError, check_config
+from mjtrial.design.states import draw_valid_states
 from mjtrial.stages.states import REDRAWN, build_states, draw_counted_states
-from mjtrial.states import draw_valid_states
 from mjtrial.task import NotAFunctionError, TaskError
 
 RANGES = {"a": [-1.0, 1.0], "b": [0.0, 2.0]}
@@ -219,7 +219,7 @@ def test_a_constraint_that_rejects_every_round_of_n_stops_in_one_line():
 def test_verify_names_states_it_cannot_recompute_for_such_a_constraint_irreproducible(tmp_path):
     """The states of a run whose `valid_state` is not a function of the states cannot be
     recomputed: verify says so (irreproducible), never that the file was tampered with."""
-    from mjtrial.layout import Layout
+    from mjtrial.files.layout import Layout
     from mjtrial.verify.recompute import _Checker
 
     layout = Layout(tmp_path / "results" / "x")

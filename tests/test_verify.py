@@ -17,7 +17,7 @@ import pytest
 from conftest import edit_config, run_snakemake
 
 from mjtrial import cli, provenance
-from mjtrial.layout import STAGES
+from mjtrial.files.layout import STAGES
 from mjtrial.stages.stamping import config_slice
 from mjtrial.verify import (
     Current,

@@ -18,7 +18,8 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import edit_config, run_snakemake
 
-from mjtrial import provenance, resimulation
+from mjtrial import provenance
+from mjtrial.sim import resimulation
 from mjtrial.verify import Status, verify_results
 from mjtrial.verify.recompute import (
     json_difference,

@@ -18,8 +18,8 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT, model_path
-from mjtrial.physics import load_model
-from mjtrial.states import generate_initial_states
+from mjtrial.design.states import generate_initial_states
+from mjtrial.sim.physics import load_model
 
 # The gantry's own modules live in its task package, tasks/gantry_lift.
 sys.path.insert(0, str(REPO_ROOT / "tasks"))

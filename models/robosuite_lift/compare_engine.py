@@ -1,6 +1,6 @@
 """mjtrial's engine against robosuite's own env, on the reference episodes.
 
-Runs `tasks/robosuite_lift/` through `mjtrial.engine.iter_batches` (the policy at 20 Hz,
+Runs `tasks/robosuite_lift/` through `mjtrial.sim.engine.iter_batches` (the policy at 20 Hz,
 `OperationalSpace` at every physics step, as a rollout job runs it) from the initial states of
 `tests/data/robosuite_lift_reference.json` (robosuite 1.5.2's env, written by
 `reference_runs.py`), under each of its conditions, and prints how the outcomes and the grip
@@ -20,8 +20,8 @@ import mujoco
 import numpy as np
 
 from mjtrial import REPO_ROOT
-from mjtrial.engine import iter_batches
-from mjtrial.physics import FULLPHYSICS, load_model
+from mjtrial.sim.engine import iter_batches
+from mjtrial.sim.physics import FULLPHYSICS, load_model
 from mjtrial.task import BoundTask, load_task
 
 sys.path.insert(0, str(REPO_ROOT / "tasks"))

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
+
+from mjtrial import _moved
 
 __version__ = "0.1.0"
 
@@ -10,6 +13,14 @@ __version__ = "0.1.0"
 # install finds them here.
 REPO_ROOT = Path(__file__).resolve().parents[2]
 MODELS_DIR = REPO_ROOT / "models"
+
+# The modules that moved into subpackages answer to their old names until 0.5, with a warning
+# (mjtrial._moved).
+_moved.install()
+
+
+def __getattr__(name: str) -> ModuleType:
+    return _moved.old_attribute(name)
 
 
 def foreign_package(checkout: Path) -> str | None:

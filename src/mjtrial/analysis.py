@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from mjtrial import stats
-from mjtrial.comparisons import Comparison, exploratory, planned_comparisons
-from mjtrial.conditions import MODEL_EDITS, POLICY
+from mjtrial.design.conditions import MODEL_EDITS, POLICY
+from mjtrial.stats.comparisons import Comparison, exploratory, planned_comparisons
 from mjtrial.task import UNHEALTHY
 
 VERDICT_SURVIVES = "survives"
@@ -45,8 +45,8 @@ RESULT_KEYS = ("n", "successes", "rate", "wilson_low", "wilson_high", "unhealthy
 
 def condition_settings(record: Mapping[str, Any]) -> dict[str, Any]:
     """The protocol parameters a condition's summary record carries, in config order (its
-    edits of the model, if any, are under `model`: `mjtrial.conditions.MODEL_EDITS`; its policy
-    file under `policy`: `POLICY`)."""
+    edits of the model, if any, are under `model`: `mjtrial.design.conditions.MODEL_EDITS`;
+    its policy file under `policy`: `POLICY`)."""
     return {k: v for k, v in record.items() if k not in (*RESULT_KEYS, MODEL_EDITS, POLICY)}
 
 
@@ -230,7 +230,7 @@ def judge_falsifier(
 ) -> dict[str, Any]:
     """Verdict of the preregistered falsifier: one decision with one error budget.
 
-    - With a stopping rule (`stopping`, `mjtrial.sequential.stopping_record`): survives when
+    - With a stopping rule (`stopping`, `mjtrial.stats.sequential.stopping_record`): survives when
       its test rejected no difference at some look, the last at the maximum N included; its
       one-sided error is at most `stopping.alpha` whatever the looks.
     - Else, at the threshold 0 with the exact test given (`test`: `p_value`, `treatment_only`,
@@ -348,7 +348,7 @@ def summarize(
         n met it.
       registered: the registration's record of the config (`registration.json`), if any: a
         comparison it did not plan is marked exploratory.
-      stopping: a stopping rule's record (`mjtrial.sequential.stopping_record`), if any: its
+      stopping: a stopping rule's record (`mjtrial.stats.sequential.stopping_record`), if any: its
         test decides the falsifier, and the summary carries it (`stopping`).
     """
     confidence = float(analysis["confidence"])

@@ -18,11 +18,12 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial import engine, provenance, recording
-from mjtrial.conditions import all_conditions, variant_names
+from mjtrial import provenance, recording
 from mjtrial.config import check_config, read_config_file
-from mjtrial.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout, shard_ids
+from mjtrial.design.conditions import all_conditions, variant_names
+from mjtrial.files.layout import CONFIG_FILE, NOMINAL, RESULTS_DIR, Layout, shard_ids
 from mjtrial.recording import write_episode_recording
+from mjtrial.sim import engine
 from mjtrial.stages.rollout import (
     condition_batches,
     condition_parameters,

@@ -30,8 +30,8 @@ from types import CodeType, SimpleNamespace
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.layout import COMPILED_MODELS, Layout
-from mjtrial.simenv import run_in_env
+from mjtrial.files.layout import COMPILED_MODELS, Layout
+from mjtrial.sim.simenv import run_in_env
 from mjtrial.stages.stamping import make_stage_stamp
 
 log = logging.getLogger("mjtrial")
@@ -59,7 +59,7 @@ def run_job(snakemake: Any, stage: Callable[..., Any], /, *, rule: str, **kwargs
     if not in_process:
         run_in_env(snakemake)  # a variant's other MuJoCo version: its own environment's Python
         die_with_workflow()
-        from mjtrial.physics import keep_compiled_models  # after run_in_env: imports MuJoCo
+        from mjtrial.sim.physics import keep_compiled_models  # after run_in_env: imports MuJoCo
 
         keep_compiled_models(COMPILED_MODELS)  # the model Snakemake's process compiled
     elif snakemake.input.get("simulator_env"):

@@ -18,9 +18,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjtrial.closed_loop import Pushes, Timing
-from mjtrial.controllers import EncoderFeedback, lqr_gain
-from mjtrial.physics import STATE_QPOS
+from mjtrial.sim.closed_loop import Pushes, Timing
+from mjtrial.sim.controllers import EncoderFeedback, lqr_gain
+from mjtrial.sim.physics import STATE_QPOS
 from mjtrial.task import (
     DISTURBANCE,
     BodyMass,

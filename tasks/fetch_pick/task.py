@@ -31,8 +31,8 @@ import copy
 import mujoco
 import numpy as np
 
-from mjtrial.closed_loop import Timing
-from mjtrial.physics import STATE_QPOS
+from mjtrial.sim.closed_loop import Timing
+from mjtrial.sim.physics import STATE_QPOS
 from mjtrial.task import (
     EPISODE_SETUP,
     ClosedLoop,

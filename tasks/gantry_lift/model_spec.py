@@ -4,7 +4,7 @@ Every module that reads the simulation (the engine, the failure taxonomy, the re
 report) takes indices from a `ModelSpec` instead of looking names up itself, so a model that
 lacks an element fails once, at load, with a `ModelError` naming the file and the element.
 
-The physics-state layout and what a healthy episode is are every task's: `mjtrial.physics`.
+The physics-state layout and what a healthy episode is are every task's: `mjtrial.sim.physics`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import mujoco
 
-from mjtrial.physics import FULLPHYSICS, STATE_QPOS, ModelError
+from mjtrial.sim.physics import FULLPHYSICS, STATE_QPOS, ModelError
 
 from .protocol import N_CTRL
 

@@ -18,8 +18,8 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from mjtrial.engine import warning_names
-from mjtrial.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
+from mjtrial.sim.engine import warning_names
+from mjtrial.sim.physics import FULLPHYSICS, halted, nonfinite, steps_simulated
 
 from .model_spec import ModelSpec
 from .protocol import CTRL_GRIPPER, CTRL_Z, PROTOCOL, Protocol, control_sequence, hold_steps

@@ -18,7 +18,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from mjtrial.physics import ModelError
+from mjtrial.sim.physics import ModelError
 from mjtrial.task import (
     FAILURE_CATEGORY,
     NONFINITE,

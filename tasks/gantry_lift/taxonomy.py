@@ -24,7 +24,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.physics import healthy
+from mjtrial.sim.physics import healthy
 
 from .model_spec import ModelSpec
 from .protocol import Phase

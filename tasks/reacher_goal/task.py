@@ -15,8 +15,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from mjtrial.closed_loop import Timing
-from mjtrial.physics import STATE_QPOS
+from mjtrial.sim.closed_loop import Timing
+from mjtrial.sim.physics import STATE_QPOS
 from mjtrial.task import (
     ClosedLoop,
     Episodes,

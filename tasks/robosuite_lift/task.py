@@ -11,7 +11,7 @@ meshes byte for byte from the wheel, nothing changed but asset paths). The polic
 actions, at every 2 ms physics step, robosuite's OSC_POSE and GRIP controllers with their
 defaults turn the latest action into the arm's joint torques and the fingers' position targets
 from the current site Jacobian, mass matrix and bias forces
-(`mjtrial.operational_space.OperationalSpace`, a low-level controller: `mjtrial.low_level`).
+(`mjtrial.sim.operational_space.OperationalSpace`, a low-level controller: `mjtrial.sim.low_level`).
 
 Each episode starts as robosuite's reset leaves it: the arm at the Panda's `init_qpos` plus a
 Gaussian draw of standard deviation 0.02 rad per joint (`initialization_noise` "default"; the
@@ -32,9 +32,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from mjtrial.closed_loop import Timing
-from mjtrial.operational_space import OperationalSpace
-from mjtrial.physics import STATE_QPOS
+from mjtrial.sim.closed_loop import Timing
+from mjtrial.sim.operational_space import OperationalSpace
+from mjtrial.sim.physics import STATE_QPOS
 from mjtrial.task import (
     ClosedLoop,
     Custom,

@@ -317,7 +317,7 @@ if [[ $benchmark == 1 ]]; then
 fi
 
 finish_runs experiment
-results=$(python -c 'import sys; from mjtrial.layout import Layout; print(Layout.of(sys.argv[1]).root)' \
+results=$(python -c 'import sys; from mjtrial.files.layout import Layout; print(Layout.of(sys.argv[1]).root)' \
     "$(python -c 'import sys, yaml; print(yaml.safe_load(open(sys.argv[1]))["experiment"])' \
         "$work/experiment-local/config/config.yaml")")
 python "$repo/tests/cluster/compare_results.py" "$work/experiment-slurm/$results" \

@@ -13,8 +13,8 @@ from mjtrial.benchmark.config import (
     summary_slice,
     train_slice,
 )
-from mjtrial.layout import BenchmarkLayout
-from mjtrial.policy_file import policy_file_paths
+from mjtrial.files.layout import BenchmarkLayout
+from mjtrial.policy_files.file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
 from mjtrial.stages.stamping import config_slice, stage_code_hash
 from mjtrial.task import task_files

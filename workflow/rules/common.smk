@@ -3,14 +3,20 @@ import sys
 from pathlib import Path
 
 from mjtrial.config import pilot_states
-from mjtrial.conditions import (
+from mjtrial.design.conditions import (
     all_conditions,
     policy_path,
     sensitivity_conditions,
     sweep_conditions,
     variant_names,
 )
-from mjtrial.layout import (
+from mjtrial.design.registration import (
+    RegistrationError,
+    lost_deviation_note,
+    note_deviation,
+    rewritten_registration,
+)
+from mjtrial.files.layout import (
     FIGURES,
     NOMINAL,
     STUDY_FIGURES,
@@ -20,17 +26,11 @@ from mjtrial.layout import (
     shard_ids,
     shard_range,
 )
-from mjtrial.policy_file import policy_file_paths
+from mjtrial.policy_files.file import policy_file_paths
 from mjtrial.provenance import file_sha256, model_sha256
-from mjtrial.registration import (
-    RegistrationError,
-    lost_deviation_note,
-    note_deviation,
-    rewritten_registration,
-)
-from mjtrial.simenv import build as build_env
-from mjtrial.simenv import lock_path, variant_version, version_recordings
-from mjtrial.simenv import build_key as env_build_key
+from mjtrial.sim.simenv import build as build_env
+from mjtrial.sim.simenv import lock_path, variant_version, version_recordings
+from mjtrial.sim.simenv import build_key as env_build_key
 from mjtrial.stages.condition import episode_steps_of
 from mjtrial.stages.look import stops
 from mjtrial.stages.stamping import ConfigSlice, config_slice, stage_code_hash
@@ -42,7 +42,7 @@ CONDITIONS = list(config["conditions"])
 # The nominal model's conditions: the design's, and those the dose-response sweep adds.
 ALL_CONDITIONS = list(all_conditions(config))
 VARIANTS = variant_names(config)
-# Variants that name another MuJoCo version (mjtrial.simenv), by name: their version.
+# Variants that name another MuJoCo version (mjtrial.sim.simenv), by name: their version.
 VERSIONS = {
     v: variant_version(config["variants"][v])
     for v in VARIANTS
@@ -274,7 +274,8 @@ def one_of(names):
 
 def sensitivity_tables():
     """(variant, condition) -> rollout table: the nominal model's first, then each variant's,
-    for every condition the study reads (mjtrial.conditions.sensitivity_conditions)."""
+    for every condition the study reads (mjtrial.design.conditions.sensitivity_conditions).
+    """
     return {
         (variant, c): LAYOUT.rollout_table(c, variant)
         for variant in [NOMINAL, *VARIANTS]
@@ -284,7 +285,7 @@ def sensitivity_tables():
 
 def sensitivity_recordings():
     """((variant, condition), shard folder) for each folder of recordings the sensitivity
-    study reads (mjtrial.simenv.version_recordings)."""
+    study reads (mjtrial.sim.simenv.version_recordings)."""
     return [
         ((variant, c), str(folder))
         for variant, by in version_recordings(config, LAYOUT).items()

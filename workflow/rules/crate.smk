@@ -1,7 +1,7 @@
 # The results folder as a Provenance Run Crate (RO-Crate): every target ends with it. It
 # covers every run sealed in the folder: the built-in experiment, and each study whose seal
 # is there or that this call builds.
-from mjtrial.layout import STUDIES
+from mjtrial.files.layout import STUDIES
 
 
 def crate_seals(wildcards):

@@ -1,4 +1,4 @@
-# The design is registered here, once (mjtrial.registration): after the states job, the last
+# The design is registered here, once (mjtrial.design.registration): after the states job, the last
 # check that can refuse the design, and before every evaluation rollout, which reads the file
 # (`ancient`: `mjtrial register --again` reruns no rollout). Never on a dry run, nor for the
 # `dev` and `pilot` targets, which plan no rollout of the evaluation. No params: the job runs

@@ -116,7 +116,7 @@ rule gather_version:
         "../scripts/gather.py"
 
 
-# Another MuJoCo version's environment, built by uv (mjtrial.simenv): its lock, written last,
+# Another MuJoCo version's environment, built by uv (mjtrial.sim.simenv): its lock, written last,
 # is what the variant's jobs read. uv's cache lies in envs/uv-cache: offline once cached.
 rule simulator_env:
     output:

@@ -1,11 +1,11 @@
 # What every run shares, an experiment's or a benchmark's (LAYOUT is its results folder): how
-# a job runs its stage's script, and the safekeeping of the results (mjtrial.safekeeping).
+# a job runs its stage's script, and the safekeeping of the results (mjtrial.files.safekeeping).
 import sys
 from pathlib import Path
 
-from mjtrial.layout import script_path
+from mjtrial.files.layout import script_path
+from mjtrial.files.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.provenance.recording_folders import damaged_folders
-from mjtrial.safekeeping import Snapshot, remove_stale_temporaries
 from mjtrial.workflow_script import (
     cancel_scheduler_timers,
     failure_reasons,

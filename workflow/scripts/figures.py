@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from mjtrial.layout import FIGURES
+from mjtrial.files.layout import FIGURES
 from mjtrial.stages.report import write_figures_stage
 from mjtrial.workflow_script import run_job
 

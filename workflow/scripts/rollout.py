@@ -1,9 +1,9 @@
 """Snakemake adapter: roll out one shard of one condition (mjtrial.stages.rollout.run_shard)."""
 
-from mjtrial.simenv import run_in_env
+from mjtrial.sim.simenv import run_in_env
 
 # A variant on another MuJoCo version: the job starts again in that version's environment,
-# before anything imports MuJoCo (mjtrial.simenv).
+# before anything imports MuJoCo (mjtrial.sim.simenv).
 run_in_env(globals()["snakemake"])
 
 from pathlib import Path  # noqa: E402

@@ -32,8 +32,8 @@ from mjtrial.config import (
     read_config_file,
 )
 from mjtrial.crate.description import crate_description
-from mjtrial.layout import shard_ids, shard_range
-from mjtrial.policy_file import load_policy_file, policy_task
+from mjtrial.files.layout import shard_ids, shard_range
+from mjtrial.policy_files.file import load_policy_file, policy_task
 from mjtrial.task import Task, TaskError, load_task
 
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "benchmark.schema.yaml"

@@ -38,7 +38,7 @@ from mjtrial.benchmark.config import (
     train_slice,
 )
 from mjtrial.benchmark.report import benchmark_report
-from mjtrial.layout import BenchmarkLayout
+from mjtrial.files.layout import BenchmarkLayout
 from mjtrial.stages.benchmark import write_summary
 from mjtrial.stages.closest_calls import write_closest_calls
 from mjtrial.stages.evaluate import evaluation_condition

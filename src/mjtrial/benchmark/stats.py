@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from mjtrial.stats import (
+from mjtrial.stats.paired import (
     _MAX_BLOCK_ELEMENTS,
     _as_1d_float,
     _as_binary,

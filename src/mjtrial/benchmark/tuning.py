@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mjtrial.engine import iter_batches
+from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, ObservationModel, Task
 
 OPTIMIZER = "cma"

@@ -35,7 +35,7 @@ from mjtrial.benchmark.recompute import recompute_benchmark
 from mjtrial.crate.check import covered_seals, crate_differences
 from mjtrial.crate.record import input_records
 from mjtrial.crate.stamp import read_crate_stamp
-from mjtrial.layout import BenchmarkLayout
+from mjtrial.files.layout import BenchmarkLayout
 from mjtrial.stages.states import states_rule
 from mjtrial.verify.contracts import contract_change
 from mjtrial.verify.recompute import DEFAULT_RESIMULATE

@@ -25,13 +25,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mjtrial import provenance
-from mjtrial.atomic import atomic_path
 from mjtrial.crate.check import covered_seals, crate_differences, listed_sources, recorded_times
 from mjtrial.crate.graph import Ids, crate_metadata
 from mjtrial.crate.record import read_record
 from mjtrial.crate.sources import stage_scripts
 from mjtrial.crate.stamp import graph_entities, read_crate_stamp
-from mjtrial.layout import CRATE_FILE, Layout
+from mjtrial.files.atomic import atomic_path
+from mjtrial.files.layout import CRATE_FILE, Layout
 
 # Formats that are compressed already: stored as they are.
 _STORED = (".rrd", ".parquet", ".png", ".rbl")

@@ -22,7 +22,7 @@ from mjtrial.crate.graph import crate_metadata, entity_path
 from mjtrial.crate.record import RunRecord, input_records, read_record, time_problems
 from mjtrial.crate.sources import stage_scripts
 from mjtrial.crate.stamp import graph_entities, read_crate_stamp
-from mjtrial.layout import Layout
+from mjtrial.files.layout import Layout
 
 _SHOWN = 3
 

@@ -37,7 +37,7 @@ from rocrate.rocrate import ROCrate
 
 from mjtrial.crate.record import RunRecord, input_records
 from mjtrial.crate.stamp import STAMP_ID, stamp_entity
-from mjtrial.layout import CRATE_FILE, STAGES
+from mjtrial.files.layout import CRATE_FILE, STAGES
 
 RO_CRATE_VERSION = "1.1"
 WORKFLOW_RUN_CONTEXT = "https://w3id.org/ro/terms/workflow-run/context"
@@ -277,7 +277,7 @@ class _Builder:
                 properties={
                     "name": rec.registration.path.rsplit("/", 1)[-1],
                     "description": (
-                        "The registered design (mjtrial.registration): the design record "
+                        "The registered design (mjtrial.design.registration): the design record "
                         "frozen before the run, its earlier registrations and the deviations "
                         "seen; no job's output, read by the manifest and the seal."
                     ),

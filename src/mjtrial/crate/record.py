@@ -4,7 +4,7 @@ output, the outputs' sizes, the copy of the sources and the jobs' times.
 Everything but the times is read from the results folder itself, so `mjtrial verify` rebuilds
 the same record on any machine the folder is copied to. The times are Snakemake's record of
 each job (`.snakemake/metadata/`, outside the results, kept in step with the outputs by
-`mjtrial.safekeeping`): the crate job reads them when it writes the crate, and verify takes
+`mjtrial.files.safekeeping`): the crate job reads them when it writes the crate, and verify takes
 them from the crate and checks them against the stamps (`time_problems`).
 """
 
@@ -20,8 +20,8 @@ from typing import Any
 # recording: the reader of the .rrd stamps this stage reads is part of its code (its hash)
 from mjtrial import provenance, recording  # noqa: F401
 from mjtrial.crate.sources import listed_sources
-from mjtrial.layout import Layout
-from mjtrial.safekeeping import INCOMPLETE, METADATA, record_path
+from mjtrial.files.layout import Layout
+from mjtrial.files.safekeeping import INCOMPLETE, METADATA, record_path
 
 # A job's start and end as ISO 8601 UTC times with milliseconds, or None when not known.
 Times = tuple[str | None, str | None]
@@ -54,7 +54,7 @@ class RunRecord:
     crate_stamp: dict[str, Any]
     times: dict[str, Times] = field(default_factory=dict)  # job (its stamp's rule) -> times
     manifest: dict[str, Any] = field(default_factory=dict)
-    # the registered design (`mjtrial.registration`), as the experiment's seal records it
+    # the registered design (`mjtrial.design.registration`), as the experiment's seal records it
     registration: Output | None = None
 
     def jobs(self) -> dict[str, list[str]]:

@@ -2,7 +2,7 @@
 
 A crate's workflow must be a file of the crate (Workflow RO-Crate: the main workflow exists in
 the payload), and the crate's root is the results folder, so the crate job copies the files
-that define the run there: `mjtrial.layout.WORKFLOW_SOURCES` from the working folder, and the
+that define the run there: `mjtrial.files.layout.WORKFLOW_SOURCES` from the working folder, and the
 `mjtrial` package that ran (from where Python imports it) as `src/mjtrial/`. The copy is also
 what `mjtrial crate --zip` lays out beside the results, so the zip is a checkout that runs.
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import mjtrial
 from mjtrial import provenance
-from mjtrial.atomic import atomic_directory, fsync_files
-from mjtrial.layout import STAGES, WORKFLOW_SOURCES
+from mjtrial.files.atomic import atomic_directory, fsync_files
+from mjtrial.files.layout import STAGES, WORKFLOW_SOURCES
 
 # Found in a source tree, never part of it.
 _SKIPPED_DIRS = ("__pycache__",)

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.layout import CRATE_FILE, Layout
+from mjtrial.files.layout import CRATE_FILE, Layout
 from mjtrial.provenance.formats import STAMP_KEY
 
 # The @id of the stamp's entity in the crate's graph.

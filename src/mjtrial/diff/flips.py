@@ -11,7 +11,7 @@ from typing import Any
 
 from mjtrial import provenance
 from mjtrial.diff.source import Run
-from mjtrial.layout import NOMINAL
+from mjtrial.files.layout import NOMINAL
 from mjtrial.recording.divergence import DEFAULT_TOLERANCE, UNREADABLE, episode_divergence
 from mjtrial.recording.failures import write_episode_copies_rrd
 from mjtrial.recording.names import episode_file_name

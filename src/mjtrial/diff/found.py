@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 from mjtrial import provenance, stats
 from mjtrial.diff.registration import without_registration_time
 from mjtrial.diff.source import Run
-from mjtrial.layout import NOMINAL, BenchmarkLayout
+from mjtrial.files.layout import NOMINAL, BenchmarkLayout
 
 # Where the seal lists a rollout table: `rollouts/<condition>.parquet`, or a variant's.
 _ROLLOUT_TABLE = re.compile(

@@ -7,8 +7,8 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
+from mjtrial.design.registration import changes
 from mjtrial.diff.source import Run
-from mjtrial.registration import changes
 
 
 def _registration(run: Run) -> tuple[dict[str, Any] | None, list[str]]:

@@ -21,7 +21,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.layout import STUDIES, Layout
+from mjtrial.files.layout import STUDIES, Layout
 
 # An archive's results folder: `results/<experiment>/`, beside the sources (`crate.archive`).
 _ARCHIVED_SEAL = re.compile(r"(results/[^/]+/)seal\.json")

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import escape as xml_escape
 
-from mjtrial.atomic import atomic_path, write_json_atomic, write_text_atomic
+from mjtrial.files.atomic import atomic_path, write_json_atomic, write_text_atomic
 from mjtrial.provenance.stamp import check_regular, is_recording_folder, is_stamp
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -342,7 +342,8 @@ def _load_registered_readers() -> None:
     depends on what this process happened to import before (the crate's `source/` was "no
     stamp" in a process that had not imported `mjtrial.crate`). By name, not by an import
     statement: a statement would put the readers in the code hash of every stage that stamps
-    (`mjtrial.codehash`); a stage that reads recordings' stamps imports `mjtrial.recording`."""
+    (`mjtrial.provenance.codehash`); a stage that reads recordings' stamps imports
+    `mjtrial.recording`."""
     for module in dict.fromkeys(_REGISTERED_BY.values()):
         importlib.import_module(module)
 

@@ -13,7 +13,7 @@ from typing import Any
 import rerun as rr
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
-from mjtrial.atomic import atomic_path
+from mjtrial.files.atomic import atomic_path
 from mjtrial.provenance import RECORDING_FOLDER_STAMP
 from mjtrial.recording.arrow import archetype_columns, chunks, strict
 from mjtrial.recording.names import (

@@ -14,7 +14,6 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from mjtrial.physics import FULLPHYSICS, STATE_QPOS, STATE_TIME
 from mjtrial.recording.arrow import (
     QUATERNION,
     SCALARS,
@@ -29,6 +28,7 @@ from mjtrial.recording.arrow import (
 )
 from mjtrial.recording.names import body_entity
 from mjtrial.recording.scene import BodyPoses, mujoco_to_rerun_quat, static_scene
+from mjtrial.sim.physics import FULLPHYSICS, STATE_QPOS, STATE_TIME
 
 
 class Signal(NamedTuple):

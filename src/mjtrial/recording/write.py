@@ -35,8 +35,7 @@ import numpy as np
 import pyarrow as pa
 from rerun.chunk import ChunkStore
 
-from mjtrial import phases
-from mjtrial.atomic import atomic_directory, atomic_path, fsync_file
+from mjtrial.files.atomic import atomic_directory, atomic_path, fsync_file
 from mjtrial.provenance import RECORDING_FOLDER_BLUEPRINT, RECORDING_FOLDER_STAMP, write_json
 from mjtrial.recording.arrow import (
     archetype_columns,
@@ -66,6 +65,7 @@ from mjtrial.recording.names import (
 from mjtrial.recording.route import rrd_output, save_blueprint, write_store
 from mjtrial.recording.scene import mesh_scene, static_scene
 from mjtrial.recording.series import Chunker, Signal
+from mjtrial.sim import phases
 
 
 @dataclass(frozen=True, eq=False)

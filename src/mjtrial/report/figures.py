@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.transforms import offset_copy
 
 from mjtrial import provenance
-from mjtrial.layout import BENCHMARK_FIGURES, FIGURES
+from mjtrial.files.layout import BENCHMARK_FIGURES, FIGURES
 from mjtrial.report.fit import (
     figure_legend_below,
     fit_axes_labels,
@@ -537,7 +537,7 @@ def figure_performance_profile(*, summary: Mapping[str, Any]) -> Figure:
 def write_benchmark_figures(
     *, summary: Mapping[str, Any], out_dir: Path, stamp: Mapping[str, Any]
 ) -> list[Path]:
-    """A benchmark's figures (`mjtrial.layout.BENCHMARK_FIGURES`), PNG then SVG for each."""
+    """A benchmark's figures (`mjtrial.files.layout.BENCHMARK_FIGURES`), PNG then SVG for each."""
     builders = {"performance_profile": figure_performance_profile}
     return [
         path
@@ -576,7 +576,7 @@ def write_figures(
     stamp: Mapping[str, Any],
     condition_bounds: Mapping[str, BoundTask] | None = None,
 ) -> list[Path]:
-    """Write every figure of `mjtrial.layout.FIGURES` as `<out_dir>/<name>.png` and `.svg`.
+    """Write every figure of `mjtrial.files.layout.FIGURES` as `<out_dir>/<name>.png` and `.svg`.
 
     Args:
       summary: `summary.json` (`mjtrial.analysis.summarize`).

@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from mjtrial.analysis import condition_settings
-from mjtrial.conditions import MODEL_EDITS, POLICY
+from mjtrial.design.conditions import MODEL_EDITS, POLICY
 from mjtrial.studies.variants import describe_edits
 from mjtrial.task import Task
 

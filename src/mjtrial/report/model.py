@@ -11,8 +11,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from mjtrial.actuation import Actuation, ControlColumn
-from mjtrial.contacts import (  # noqa: F401 - the report's contact lines, said where they live
+from mjtrial.sim.actuation import Actuation, ControlColumn
+from mjtrial.sim.contacts import (  # noqa: F401 - the report's contact lines, said where they live
     collision_pairs,
     contact_lines,
     contacts_enabled,
@@ -100,7 +100,7 @@ def action_lines(
     *,
     title: str = "- The policy's output columns, in order:",
 ) -> list[str]:
-    """What each of a closed-loop policy's output columns drives (`mjtrial.actuation`), as bound
+    """What each of a closed-loop policy's output columns drives (`mjtrial.sim.actuation`), as bound
     to the model, under `title`; none when the outputs are every actuator's ctrl in order."""
     if actuation is None or actuation.passthrough:
         return []

@@ -8,8 +8,8 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from mjtrial.power import plan_lines
-from mjtrial.registration import first_rollout
+from mjtrial.design.registration import first_rollout
+from mjtrial.stats.power import plan_lines
 
 
 def _date(utc: str) -> str:

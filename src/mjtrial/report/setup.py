@@ -11,9 +11,9 @@ import mujoco
 import numpy as np
 
 from mjtrial import provenance
-from mjtrial.conditions import condition_record, model_edits, policy_path
-from mjtrial.contacts import describe_contact_changes
-from mjtrial.policy_file import read_contract
+from mjtrial.design.conditions import condition_record, model_edits, policy_path
+from mjtrial.design.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
+from mjtrial.policy_files.file import read_contract
 from mjtrial.report.actuators import actuator_lines
 from mjtrial.report.labels import markdown_table, pct, setting
 from mjtrial.report.model import (
@@ -24,9 +24,9 @@ from mjtrial.report.model import (
     model_files_text,
 )
 from mjtrial.report.solver import solver_line
+from mjtrial.sim.contacts import describe_contact_changes
 from mjtrial.stages.condition import condition_model
 from mjtrial.stages.stamping import config_slice
-from mjtrial.states import NORMAL, TRUNCATED_NORMAL, UNIFORM, distribution
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import BoundTask, ClosedLoop, Control, Task, call
 from mjtrial.task.actions import bind_actions
@@ -143,7 +143,7 @@ def between_actions_text(task: Task, model: mujoco.MjModel) -> str:
 
 
 def low_level_reads_text(reads) -> str:
-    """What a low-level controller reads (`mjtrial.low_level.Reads`), in words."""
+    """What a low-level controller reads (`mjtrial.sim.low_level.Reads`), in words."""
     parts = ["the joint positions and velocities"]
     if reads.sites:
         parts.append(f"the pose and Jacobian of site {', '.join(f'`{s}`' for s in reads.sites)}")
@@ -318,7 +318,7 @@ def setup_section(
                 "",
                 "Only states the task's `valid_state` accepts were kept: the draw was repeated "
                 "from the same generator in rounds and the valid states kept in draw order "
-                "(`mjtrial.states.draw_valid_states`); "
+                "(`mjtrial.design.states.draw_valid_states`); "
                 + _redrawn_text(manifest.get("states_redrawn")),
             ]
             if task.valid_state is not None

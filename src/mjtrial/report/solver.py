@@ -19,7 +19,7 @@ _SOLVER_NAMES = {  # as MJCF spells them (`<option solver=...>`)
 def warm_start_rule(controller: Any, model: mujoco.MjModel) -> str:
     """How the constraint solver's warm start is carried, as this engine runs an episode: an
     open-loop episode is one `mujoco.rollout` call, a closed-loop one a call per control step,
-    and `mujoco.rollout` sets the warm start to zero at each call (`mjtrial.closed_loop`)."""
+    and `mujoco.rollout` sets the warm start to zero at each call (`mjtrial.sim.closed_loop`)."""
     if model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_WARMSTART:
         return 'warm start disabled by the model (`<flag warmstart="disable"/>`)'
     if isinstance(controller, OpenLoop):

@@ -1,5 +1,5 @@
 """The report's section on a stopping rule: each look's e-value, where the run stopped, and
-what the stop does and does not license (`mjtrial.sequential`)."""
+what the stop does and does not license (`mjtrial.stats.sequential`)."""
 
 from __future__ import annotations
 

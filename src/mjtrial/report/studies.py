@@ -195,7 +195,7 @@ def _overrides(overrides: Mapping[str, Any]) -> str:
     """`option.timestep=0.001; geom.left_pad.friction=[0.6, 0.003, 0.0001]`, or `none`."""
     parts = []
     for kind, entries in overrides.items():
-        if kind == "mujoco":  # another MuJoCo version (mjtrial.simenv)
+        if kind == "mujoco":  # another MuJoCo version (mjtrial.sim.simenv)
             parts.append(f"MuJoCo {entries}, in an environment of its own")
             continue
         for name, value in entries.items():
@@ -223,7 +223,7 @@ def render_sensitivity_section(
 ) -> str:
     """The report's "Sensitivity" section; `figure` is the forest plot's path for the link;
     `contact_changes`, per variant, what its edits of geoms do to their contacts
-    (`mjtrial.contacts.describe_contact_changes`)."""
+    (`mjtrial.sim.contacts.describe_contact_changes`)."""
     f = sensitivity["falsifier"]
     conf = pct(sensitivity["confidence"])
     names = list(next(iter(sensitivity["variants"].values()))["conditions"])

@@ -17,7 +17,6 @@ import numpy as np
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.analysis import DECISION_EXACT, DECISION_SEQUENTIAL
-from mjtrial.physics import load_model
 from mjtrial.report.comparisons import (
     comparisons_section,
     metric_lines,
@@ -35,6 +34,7 @@ from mjtrial.report.labels import (
 from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.report.setup import setup_section
 from mjtrial.report.stopping import stopping_section
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.stamping import DECLARED_STUDIES, declared_studies
 from mjtrial.task import Task, load_task
 

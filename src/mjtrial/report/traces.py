@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial.engine import episode_steps
 from mjtrial.recording import list_recordings, read_episode
 from mjtrial.recording.read import find_episode_file
+from mjtrial.sim.engine import episode_steps
 from mjtrial.task import BoundTask, call
 
 # Episodes of each outcome per condition drawn in the traces figure.

@@ -10,10 +10,12 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, analysis, provenance, registration, sequential
-from mjtrial.conditions import condition_record
+from mjtrial import REPO_ROOT, analysis, provenance
+from mjtrial.design import registration
+from mjtrial.design.conditions import condition_record
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.stages.states import check_drawn_as, check_evaluation_table
+from mjtrial.stats import sequential
 from mjtrial.task import load_task
 
 log = logging.getLogger("mjtrial")
@@ -90,7 +92,7 @@ def summarize_tables(
         name: bool(json.loads(Path(p).read_text())["success"]) for name, p in nominal_files.items()
     }
     stopping = analysis_slice.get("stopping")
-    if stopping:  # a stopping rule ran the first n states only (mjtrial.sequential)
+    if stopping:  # a stopping rule ran the first n states only (mjtrial.stats.sequential)
         n = min(len(table["state_id"]) for table in outcomes.values())
         keep = states["state_id"] < n
         states = {c: values[keep] for c, values in states.items()}
@@ -123,7 +125,7 @@ REGISTRATION_INPUT = "registration"
 
 def read_registration(path: Path | None) -> Mapping[str, Any] | None:
     """The registered config's sections (`registration.json`'s current design, as
-    `mjtrial.registration` writes it), or None when nothing is registered: then no comparison
+    `mjtrial.design.registration` writes it), or None when nothing is registered: then no comparison
     is exploratory."""
     if path is None or not Path(path).is_file():
         return None

@@ -13,11 +13,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, engine, provenance
+from mjtrial import REPO_ROOT, provenance
 from mjtrial.benchmark.report import benchmark_report
 from mjtrial.benchmark.solvability import probe_states
 from mjtrial.benchmark.summary import summarize_benchmark
 from mjtrial.report.figures import write_benchmark_figures
+from mjtrial.sim import engine
 from mjtrial.stages.condition import condition_task, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 

@@ -21,9 +21,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, engine, provenance
+from mjtrial import REPO_ROOT, provenance
 from mjtrial.closest_calls import choose, margins
-from mjtrial.policy_file import policy_inputs
+from mjtrial.policy_files.file import policy_inputs
 from mjtrial.recording.failures import write_episodes_rrd
 from mjtrial.recording.names import (
     CLOSEST_CALLS_PREFIX,
@@ -31,6 +31,7 @@ from mjtrial.recording.names import (
     episode_recording_id,
 )
 from mjtrial.recording.write import EpisodeStores
+from mjtrial.sim import engine
 from mjtrial.stages.evaluate import evaluation_condition
 from mjtrial.stages.rollout import (
     condition_batches,

@@ -10,9 +10,10 @@ from typing import Any
 
 import mujoco
 
-from mjtrial import REPO_ROOT, engine
-from mjtrial.conditions import model_edits, policy_path
-from mjtrial.physics import load_model
+from mjtrial import REPO_ROOT
+from mjtrial.design.conditions import model_edits, policy_path
+from mjtrial.sim import engine
+from mjtrial.sim.physics import load_model
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import BoundTask, load_task
 
@@ -26,7 +27,7 @@ def condition_task(
     task = load_task(condition_slice["task"], repo_root=repo_root)
     policy = policy_path(condition_slice)
     if policy:
-        from mjtrial.policy_file import load_policy_file, policy_task  # a policy's job only
+        from mjtrial.policy_files.file import load_policy_file, policy_task  # a policy's job only
 
         task = policy_task(task, load_policy_file(Path(repo_root) / policy, task))
     return BoundTask.of(task, condition_model(condition_slice, model_file))

@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.atomic import write_json_atomic
 from mjtrial.crate.graph import crate_metadata
 from mjtrial.crate.record import (
     iso_time,
@@ -21,7 +20,8 @@ from mjtrial.crate.record import (
     snakemake_times,
 )
 from mjtrial.crate.sources import copy_sources, stage_scripts
-from mjtrial.layout import Layout
+from mjtrial.files.atomic import write_json_atomic
+from mjtrial.files.layout import Layout
 from mjtrial.stages.stamping import make_stage_stamp
 
 log = logging.getLogger("mjtrial")

@@ -21,7 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.conditions import POLICY
+from mjtrial.design.conditions import POLICY
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import check_drawn_as

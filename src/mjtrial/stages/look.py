@@ -1,5 +1,5 @@
 """A stopping rule's look after a shard: the e-value on the falsifier's pairs run so far, and
-whether the experiment stops there (`mjtrial.sequential`).
+whether the experiment stops there (`mjtrial.stats.sequential`).
 
 Each look is a Snakemake checkpoint (`workflow/rules/stopping.smk`): the workflow reads its
 decision before it asks for the next shard, so a stopped experiment's later shards never run.
@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, provenance, sequential
-from mjtrial.layout import Layout, evaluation_shard_size, shard_ids
+from mjtrial import REPO_ROOT, provenance
+from mjtrial.files.layout import Layout, evaluation_shard_size, shard_ids
 from mjtrial.stages.stamping import make_stage_stamp
+from mjtrial.stats import sequential
 
 log = logging.getLogger("mjtrial")
 

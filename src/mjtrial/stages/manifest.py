@@ -13,14 +13,14 @@ import mujoco
 
 # recording: the reader of the .rrd stamps this stage reads is part of its code (its hash)
 from mjtrial import REPO_ROOT, provenance, recording  # noqa: F401
-from mjtrial.conditions import model_edits
-from mjtrial.layout import CONFIG_FILE, Layout
-from mjtrial.physics import compiled_sha256, load_model
-from mjtrial.registration import deviations_seen, manifest_section
-from mjtrial.registration import read as read_registration
+from mjtrial.design.conditions import model_edits
+from mjtrial.design.registration import deviations_seen, manifest_section
+from mjtrial.design.registration import read as read_registration
+from mjtrial.design.states import distribution
+from mjtrial.files.layout import CONFIG_FILE, Layout
+from mjtrial.sim.physics import compiled_sha256, load_model
 from mjtrial.stages.stamping import make_stage_stamp
 from mjtrial.stages.states import EVALUATION_RULE, REDRAWN
-from mjtrial.states import distribution
 from mjtrial.studies.variants import variant_model
 from mjtrial.task import load_task
 
@@ -91,7 +91,7 @@ def manifest_record(
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """The manifest the stage writes and its stamp's inputs (`mjtrial verify` checks
     `manifest.json` against it); `registration`: the registered design's file, when there is
-    one (`mjtrial.registration`), recorded with the run's deviations from it."""
+    one (`mjtrial.design.registration`), recorded with the run's deviations from it."""
     model = load_model(model_file)
     summary = json.loads(Path(summary_path).read_text())
 

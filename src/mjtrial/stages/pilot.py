@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, analysis, provenance
-from mjtrial.conditions import condition_record
+from mjtrial.design.conditions import condition_record
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.stages.states import check_drawn_as

@@ -1,5 +1,5 @@
 """The register job: the design registered once, after the states job's checks and before the
-first evaluation rollout (`mjtrial.registration`)."""
+first evaluation rollout (`mjtrial.design.registration`)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from mjtrial.layout import Layout
-from mjtrial.registration import ensure_registered
-from mjtrial.safekeeping import Snapshot
+from mjtrial.design.registration import ensure_registered
+from mjtrial.files.layout import Layout
+from mjtrial.files.safekeeping import Snapshot
 
 log = logging.getLogger("mjtrial")
 

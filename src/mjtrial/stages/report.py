@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, report
-from mjtrial.conditions import model_edits, policy_path
-from mjtrial.physics import load_model
+from mjtrial.design.conditions import model_edits, policy_path
+from mjtrial.sim.physics import load_model
 from mjtrial.stages.condition import condition_task
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.task import BoundTask, load_task

@@ -14,11 +14,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mjtrial import REPO_ROOT, atomic, engine, phases, provenance, recording
-from mjtrial.conditions import policy_path
-from mjtrial.physics import drop_asset_cache
+from mjtrial import REPO_ROOT, provenance, recording
+from mjtrial.design.conditions import policy_path
+from mjtrial.files import atomic
 from mjtrial.recording.series import Signal
 from mjtrial.recording.write import RecordingSpec
+from mjtrial.sim import engine, phases
+from mjtrial.sim.physics import drop_asset_cache
 from mjtrial.stages.condition import condition_parameters, condition_task, thresholds_of
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.task import BoundTask, Measure, Task, address
@@ -119,7 +121,7 @@ def condition_policy_inputs(
     policy = policy_path(condition_slice)
     if not policy:
         return {}
-    from mjtrial.policy_file import policy_inputs  # a policy's job only (onnx, jsonschema)
+    from mjtrial.policy_files.file import policy_inputs  # a policy's job only (onnx, jsonschema)
 
     return policy_inputs([Path(repo_root) / policy])
 
@@ -129,7 +131,7 @@ def policy_settings(condition_slice: Mapping[str, Any]) -> dict[str, Any] | None
     session settings), or None for the task's own policy."""
     if not policy_path(condition_slice):
         return None
-    from mjtrial.policy_file import runtime_settings  # a policy's job only
+    from mjtrial.policy_files.file import runtime_settings  # a policy's job only
 
     return {"policy_runtime": runtime_settings()}
 
@@ -255,7 +257,7 @@ def run_shard(
     by the batch and the shard, never by the number of states. `unrecorded` is the shard's
     recordings folder when `recording.episodes` is none: an earlier run's is removed once the
     table is written, so that no reader takes its recordings for this run's. The log's
-    `# phases:` line says where the time went (`mjtrial.phases`).
+    `# phases:` line says where the time went (`mjtrial.sim.phases`).
     """
     with phases.clocked() as clock:
         table = _run_shard(

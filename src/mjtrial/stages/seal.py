@@ -32,7 +32,8 @@ def seal_outputs(
 
     `rule` is the job's: `seal`, or `seal:<study>` for a study's seal (`seal_<study>.json`), so
     that each seal's stamp names the job that wrote it. `registration`: the registered design
-    (`mjtrial.registration`), sealed under `registration` beside the outputs (no job wrote it).
+    (`mjtrial.design.registration`), sealed under `registration` beside the outputs (no job
+    wrote it).
     """
     inputs = {p.as_posix(): p for p in outputs}
     if registration is not None:

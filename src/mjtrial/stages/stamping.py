@@ -8,11 +8,12 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from mjtrial import REPO_ROOT, codehash, provenance
-from mjtrial.conditions import all_conditions, sensitivity_conditions
+from mjtrial import REPO_ROOT, provenance
 from mjtrial.crate.description import crate_description
-from mjtrial.layout import CONDITION_STAGES, STAGES
-from mjtrial.simenv import VERSION_KEY, model_overrides, variant_version
+from mjtrial.design.conditions import all_conditions, sensitivity_conditions
+from mjtrial.files.layout import CONDITION_STAGES, STAGES
+from mjtrial.provenance import codehash
+from mjtrial.sim.simenv import VERSION_KEY, model_overrides, variant_version
 from mjtrial.task import task_files
 
 
@@ -56,7 +57,7 @@ def _slice(
         if variant:
             edits = config["variants"][variant]
             condition_slice["variant"] = {"name": variant, "overrides": model_overrides(edits)}
-            if variant_version(edits):  # another MuJoCo version (mjtrial.simenv)
+            if variant_version(edits):  # another MuJoCo version (mjtrial.sim.simenv)
                 condition_slice["variant"][VERSION_KEY] = variant_version(edits)
         return condition_slice
     if stage == "sensitivity":

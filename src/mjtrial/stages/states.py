@@ -12,14 +12,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.layout import Layout
-from mjtrial.stages.stamping import make_stage_stamp, task_inputs
-from mjtrial.states import (
+from mjtrial.design.states import (
     ConstraintError,
     NotAStateFunctionError,
     draw_valid_states,
     generate_initial_states,
 )
+from mjtrial.files.layout import Layout
+from mjtrial.stages.stamping import make_stage_stamp, task_inputs
 from mjtrial.task import NotAFunctionError, TaskError, call, load_task
 
 log = logging.getLogger("mjtrial")
@@ -132,7 +132,7 @@ def draw_counted_states(
 ) -> tuple[pa.Table, pa.Table, dict[str, int] | None]:
     """`draw_states`' two sets, and for a task with a `valid_state` the number of drawn states
     it rejected in each ({"evaluation": k, "development": k}; None without one). The task's
-    constraint is applied to both sets by the same rule (`mjtrial.states.draw_valid_states`);
+    constraint is applied to both sets by the same rule (`mjtrial.design.states.draw_valid_states`);
     without one the states are `generate_initial_states`' draw."""
     task = load_task(states_slice["task"], repo_root=repo_root)
     parameters = [p.name for p in task.state_parameters]

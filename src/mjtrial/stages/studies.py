@@ -16,12 +16,12 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mjtrial import REPO_ROOT, provenance
-from mjtrial.contacts import describe_contact_changes
-from mjtrial.layout import NOMINAL, STUDY_FIGURES
+from mjtrial.files.layout import NOMINAL, STUDY_FIGURES
 from mjtrial.recording.divergence import episode_divergence
 from mjtrial.recording.read import find_episode_file
 from mjtrial.report import studies as study_report
-from mjtrial.simenv import model_overrides, variant_version
+from mjtrial.sim.contacts import describe_contact_changes
+from mjtrial.sim.simenv import model_overrides, variant_version
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs
 from mjtrial.studies.dose_response import summarize_dose_response
 from mjtrial.studies.sensitivity import flipped_episodes, summarize_sensitivity
@@ -52,7 +52,7 @@ def run_sensitivity(
 
     Args:
       tables: per variant (`NOMINAL` first), per condition, its rollout table.
-      recordings: `mjtrial.simenv.version_recordings`: where the flipped episodes'
+      recordings: `mjtrial.sim.simenv.version_recordings`: where the flipped episodes'
         trajectories are read.
     """
     summary = sensitivity_summary(

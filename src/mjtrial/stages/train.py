@@ -23,7 +23,7 @@ from typing import Any
 
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.benchmark.tuning import tune, tuned_parameter_record
-from mjtrial.policy_file import load_policy_file, policy_inputs
+from mjtrial.policy_files.file import load_policy_file, policy_inputs
 from mjtrial.stages.condition import condition_task, thresholds_of
 from mjtrial.stages.rollout import read_state_values
 from mjtrial.stages.stamping import make_stage_stamp, model_inputs, task_inputs

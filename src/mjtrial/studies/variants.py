@@ -37,7 +37,7 @@ from xml.etree import ElementTree
 import mujoco
 import numpy as np
 
-from mjtrial.physics import ModelError, compiled_sha256, load_spec
+from mjtrial.sim.physics import ModelError, compiled_sha256, load_spec
 from mjtrial.task import address
 
 OVERRIDE_KINDS = (

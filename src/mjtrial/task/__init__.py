@@ -127,10 +127,10 @@ def __getattr__(name: str) -> object:
     if name == "STATE_QPOS":
         import warnings  # only a deprecated name's reader needs these
 
-        from mjtrial.physics import STATE_QPOS  # physics is imported already: no cost
+        from mjtrial.sim.physics import STATE_QPOS  # physics is imported already: no cost
 
         warnings.warn(
-            "mjtrial.task.STATE_QPOS is deprecated; import mjtrial.physics.STATE_QPOS",
+            "mjtrial.task.STATE_QPOS is deprecated; import mjtrial.sim.physics.STATE_QPOS",
             DeprecationWarning,
             stacklevel=2,
         )

@@ -2,7 +2,7 @@
 ctrl (`Control`) and mocap bodies' targets (`MocapAction`), in the policy's output order.
 
 With no actions declared the policy's output is every actuator's ctrl, in order. The engine's
-side (the rule applied at each control instant) is `mjtrial.actuation`.
+side (the rule applied at each control instant) is `mjtrial.sim.actuation`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import KW_ONLY, dataclass
 import mujoco
 import numpy as np
 
-from mjtrial.actuation import RELATIVE_TO, Actuation, ControlColumn, MocapColumns
+from mjtrial.sim.actuation import RELATIVE_TO, Actuation, ControlColumn, MocapColumns
 from mjtrial.task.declare import TaskError, _element
 
 

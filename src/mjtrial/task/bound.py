@@ -10,9 +10,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from mjtrial.actuation import Actuation
-from mjtrial.closed_loop import Observer
-from mjtrial.physics import FULLPHYSICS, ModelError, load_model
+from mjtrial.sim.actuation import Actuation
+from mjtrial.sim.closed_loop import Observer
+from mjtrial.sim.physics import FULLPHYSICS, ModelError, load_model
 from mjtrial.task.actions import bind_actions
 from mjtrial.task.declare import (
     ClosedLoop,
@@ -260,7 +260,7 @@ class BoundTask:
 
 def _sensor(model: mujoco.MjModel, o: Observation) -> slice:
     """The sensordata columns of a sensor observation; a sensor computed from accelerations or
-    forces is refused (the module docstring of `mjtrial.closed_loop`)."""
+    forces is refused (the module docstring of `mjtrial.sim.closed_loop`)."""
     index = _element(model, mujoco.mjtObj.mjOBJ_SENSOR, o.sensor_name)
     if model.sensor_needstage[index] == mujoco.mjtStage.mjSTAGE_ACC:
         kind = mujoco.mjtSensor(model.sensor_type[index]).name.removeprefix("mjSENS_").lower()

@@ -13,14 +13,14 @@ from typing import Any, Protocol
 import mujoco
 import numpy as np
 
-from mjtrial.closed_loop import BatchPolicy, Pushes, Timing
-from mjtrial.physics import STATE_QPOS
+from mjtrial.sim.closed_loop import BatchPolicy, Pushes, Timing
+from mjtrial.sim.physics import STATE_QPOS
 from mjtrial.task import address
 from mjtrial.task.observation_model import ObservationModel
 from mjtrial.task.poses import Pose
 
 UNHEALTHY = "simulation unhealthy"  # the first failure category of every task
-# A policy file's action went NaN or infinite (`mjtrial.policy_file`): control stopped.
+# A policy file's action went NaN or infinite (`mjtrial.policy_files.file`): control stopped.
 NONFINITE_ACTION = "non-finite action"
 
 
@@ -69,7 +69,7 @@ class Applier(Protocol):
 class StateParameter:
     """One column of the states table: drawn uniformly in [low, high] (config `states.ranges`
     may change the range, `states.distributions` draw it from a normal or a truncated normal
-    instead: `mjtrial.states`), then applied to each episode."""
+    instead: `mjtrial.design.states`), then applied to each episode."""
 
     name: str
     unit: str
@@ -343,7 +343,7 @@ class ClosedLoop:
       actions: what the policy's output columns drive, in order (`Control`, `MocapAction`);
         empty: every actuator's ctrl, in order.
       low_level: `low_level(model, params)` builds a controller run at every physics step
-        between the policy and the actuators (`mjtrial.low_level.LowLevelController`: an
+        between the policy and the actuators (`mjtrial.sim.low_level.LowLevelController`: an
         operational-space controller, joint impedance, ...), called once per slice of a batch;
         the policy's output columns are then its action. None: the columns drive the
         actuators (`actions`) and hold over each control period.

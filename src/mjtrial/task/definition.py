@@ -78,7 +78,7 @@ class Task:
     # The config check runs the setup on a copy and refuses one that changed the model.
     setup_edits_model: bool = True
     # `valid_state(values)`: (n,) True where a drawn state is allowed (values: state parameter
-    # -> (n,)); the others are redrawn from the seed (`mjtrial.states.draw_states`).
+    # -> (n,)); the others are redrawn from the seed (`mjtrial.design.states.draw_states`).
     valid_state: Callable[[Mapping[str, np.ndarray]], np.ndarray] | None = None
     source: Path | None = field(default=None, compare=False)  # the task file, set at load
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mjtrial.physics import FULLPHYSICS
+from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import address
 
 # quantity -> (element kind, columns)

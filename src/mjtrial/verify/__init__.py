@@ -35,10 +35,10 @@ from typing import Any
 import pyarrow.parquet as pq
 
 from mjtrial import provenance
-from mjtrial.conditions import all_conditions, variant_names
 from mjtrial.config import check_config, merge_config, read_config_file
 from mjtrial.crate.check import covered_seals
-from mjtrial.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
+from mjtrial.design.conditions import all_conditions, variant_names
+from mjtrial.files.layout import FIGURES, STUDIES, STUDY_FIGURES, Layout
 from mjtrial.provenance.recording_folders import folder_problem
 from mjtrial.stages.look import shards_run
 from mjtrial.stages.states import piloted_overlap

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.policy_file import FOLDER_CONTRACT, contract_path
+from mjtrial.policy_files.file import FOLDER_CONTRACT, contract_path
 
 
 def contract_change(records: Iterable[Any], *, repo_root: Path) -> str | None:

@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from mjtrial import provenance
-from mjtrial.layout import BenchmarkLayout, Layout
+from mjtrial.files.layout import BenchmarkLayout, Layout
 
 
 def _sealed_outputs(results_dir: Path) -> list[str] | None:

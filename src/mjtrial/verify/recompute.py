@@ -8,9 +8,9 @@ the report's text, the studies' summaries and reports) and compares; compares ev
 episode's outcome and measures (its recording's `episode` property) with its table row; and
 re-simulates a sample of episodes of every shard (`resimulate` per shard), each episode alone,
 against its table (a variant on another MuJoCo version in that version's environment,
-`mjtrial.resimulation`). The sample is drawn from a seed chosen at verify time (printed, `--seed`
-repeats it): a forger who can read the code cannot know which rows it will be, and an episode
-whose result depends on its batch is not re-confirmed in the batch that made it. By
+`mjtrial.sim.resimulation`). The sample is drawn from a seed chosen at verify time (printed,
+`--seed` repeats it): a forger who can read the code cannot know which rows it will be, and an
+episode whose result depends on its batch is not re-confirmed in the batch that made it. By
 induction a forged link anywhere in the chain is named: each output is what its inputs give,
 and the roots (states, episodes) are what the seeds and the simulator give.
 
@@ -30,15 +30,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mjtrial import provenance
-from mjtrial.conditions import (
+from mjtrial.config import pilot_states
+from mjtrial.crate.check import crate_differences
+from mjtrial.design.conditions import (
     all_conditions,
     sensitivity_conditions,
     sweep_conditions,
     variant_names,
 )
-from mjtrial.config import pilot_states
-from mjtrial.crate.check import crate_differences
-from mjtrial.layout import (
+from mjtrial.files.layout import (
     CONFIG_FILE,
     NOMINAL,
     STUDIES,
@@ -50,8 +50,8 @@ from mjtrial.layout import (
 from mjtrial.recording import list_recordings
 from mjtrial.report import report_text
 from mjtrial.report.traces import record_difference
-from mjtrial.resimulation import in_environment, resimulated_outcome
-from mjtrial.simenv import env_python, lock_path, variant_version, version_recordings
+from mjtrial.sim.resimulation import in_environment, resimulated_outcome
+from mjtrial.sim.simenv import env_python, lock_path, variant_version, version_recordings
 from mjtrial.stages.analysis import REGISTRATION_INPUT, summarize_tables
 from mjtrial.stages.look import look_record, shards_run
 from mjtrial.stages.manifest import manifest_record
@@ -286,7 +286,7 @@ class _Checker:
         samples: Mapping[Path, list[int]],
     ) -> Callable[[Path], Any] | None:
         """The re-simulation of a variant on another MuJoCo version (as `here`), in its
-        environment (`mjtrial.simenv`): one process for every output of the condition the
+        environment (`mjtrial.sim.simenv`): one process for every output of the condition the
         stamps judge current. None, and the check line says why, when that environment is
         not the one the run used."""
         lock = self.repo_root / lock_path(version)

@@ -11,8 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import provenance
-from mjtrial.layout import Layout
-from mjtrial.registration import (
+from mjtrial.design.registration import (
     RegistrationError,
     design_record,
     deviations,
@@ -22,6 +21,7 @@ from mjtrial.registration import (
     read,
     stamp_problems,
 )
+from mjtrial.files.layout import Layout
 from mjtrial.verify.chain import OutputResult, Status
 
 RULE = "register"

@@ -1,0 +1,244 @@
+"""robosuite's arm and hand controllers as a low-level controller (`mjtrial.sim.low_level`), on a
+batch of episodes at once.
+
+robosuite 1.5.2's default arm controller is OSC_POSE (`controllers/parts/arm/osc.py`,
+`utils/control_utils.py`), its default hand controller GRIP (`simple_grip.py`), with the
+defaults of `controllers/config/robots/default_panda.json`. Its
+`env.step` runs, at every 2 ms physics step of a 50 ms action (`lite_physics`, the default):
+`mj_step1`, the robot's `control` (the goals set from the action at the first step of the
+action, the torques from the state at every step), `mj_step2`. This module is that arithmetic,
+operation for operation, on stacks of matrices (row i: episode i), so that the whole batch costs
+a few numpy calls per physics step instead of a few dozen per episode:
+
+- the goal, at each new action (`set_goal`, input frame "base", goal from the achieved pose):
+  the action clipped to [-1, 1] and scaled to `output_max` (5 cm, 0.5 rad); the position goal
+  the grip site's position in the base frame plus the delta; the orientation goal the delta's
+  rotation (robosuite's `axisangle2quat` then `quat2mat`, which rounds the quaternion to float32)
+  times the site's orientation in the base frame;
+- the torques, at every step (`run_controller`): the pose error (position, and robosuite's
+  `orientation_error`) times kp, minus the site's velocity (its Jacobian times qvel) times
+  kd = 2 sqrt(kp) damping_ratio; each mapped through its own operational-space inertia
+  (`pinv(J M^-1 J^T)`, position and orientation uncoupled), through J^T, plus `qfrc_bias`, plus
+  the null-space torques pulling the joints toward their pose at the episode's start
+  (kp 10, critically damped); clipped to the actuators' ctrlrange;
+- the hand (the Panda hand's `format_action`, then GRIP): at each action its command moves by
+  0.2 toward the action's sign, clipped to [-1, 1], for its two actuators as [-c, c]; the two
+  position actuators get the middle of their ctrlrange plus c times its half width.
+
+The batched products and inverses are numpy's stacked `matmul` and `inv`, which treat each
+matrix of a stack alone: a row's result does not depend on the rows beside it (the config check
+runs a batch and each row alone: `low_level.check_rows_alone`). robosuite inverts the
+operational-space inertias with `np.linalg.pinv` (an SVD, about 150 µs a matrix here, more than
+the physics step); for an invertible matrix that is its inverse, to rounding, and here they are
+inverted together in one `inv` call: the two differ only at a singular arm configuration, where
+`pinv` drops the singular directions. The position's and the orientation's inertias are the
+diagonal blocks of the full one, as robosuite computes them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from mjtrial.sim.low_level import PhysicsView, Reads
+
+NULLSPACE_KP = 10.0  # robosuite's `nullspace_torques` default joint_kp
+GRIPPER_SPEED = 0.2  # robosuite's PandaGripper.speed: command change per action
+
+
+@dataclass(frozen=True)
+class OscSettings:
+    """OSC_POSE's settings, robosuite's defaults (`default_panda.json`)."""
+
+    kp: float = 150.0
+    damping_ratio: float = 1.0
+    output_max: tuple[float, ...] = (0.05, 0.05, 0.05, 0.5, 0.5, 0.5)
+    input_max: float = 1.0
+
+
+def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str]) -> np.ndarray:
+    ids = [mujoco.mj_name2id(model, kind, n) for n in names]
+    missing = [n for n, i in zip(names, ids, strict=True) if i < 0]
+    if missing:
+        raise ValueError(
+            f"OperationalSpace: no {kind.name[6:].lower()} {missing[0]!r} in the model"
+        )
+    return np.array(ids)
+
+
+def orientation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """robosuite's `orientation_error` on stacks (n, 3, 3) of rotation matrices: half the sum
+    of the cross products of the current and the desired frames' columns, sum_m c_m x d_m,
+    whose components are the antisymmetric part of P = C D^T (one product for the stack)."""
+    p = current @ np.swapaxes(desired, 1, 2)
+    return 0.5 * np.stack(
+        [p[:, 1, 2] - p[:, 2, 1], p[:, 2, 0] - p[:, 0, 2], p[:, 0, 1] - p[:, 1, 0]], axis=1
+    )
+
+
+def rotation_of_axis_angle(vec: np.ndarray) -> np.ndarray:
+    """(n, 3) scaled axis-angles -> (n, 3, 3) rotation matrices as robosuite computes them:
+    `axisangle2quat` in float64, then `quat2mat` (compiled by numba), which rounds the
+    quaternion to float32, scales it in float64, and forms the diagonal in float64 and the
+    off-diagonal terms in float32."""
+    angle = np.linalg.norm(vec, axis=1)
+    zero = np.abs(angle) <= 1e-9 * np.abs(angle)  # math.isclose(angle, 0.0): angle == 0
+    safe = np.where(zero, 1.0, angle)
+    q = np.zeros((len(vec), 4))  # w, x, y, z: quat2mat's own order
+    q[:, 0] = np.where(zero, 1.0, np.cos(angle / 2.0))
+    q[:, 1:] = np.where(zero[:, None], 0.0, (vec / safe[:, None]) * np.sin(angle / 2.0)[:, None])
+    q = q.astype(np.float32)
+    n = ((q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1]) + q[:, 2] * q[:, 2]) + q[:, 3] * q[:, 3]
+    q = (q.astype(np.float64) * np.sqrt(2.0 / n.astype(np.float64))[:, None]).astype(np.float32)
+    q2 = q[:, :, None] * q[:, None, :]  # float32
+    d = q2.astype(np.float64)
+
+    def off(a: np.ndarray) -> np.ndarray:  # a float32 sum, then widened
+        return a.astype(np.float64)
+
+    rows = [
+        [
+            1.0 - d[:, 2, 2] - d[:, 3, 3],
+            off(q2[:, 1, 2] - q2[:, 3, 0]),
+            off(q2[:, 1, 3] + q2[:, 2, 0]),
+        ],
+        [
+            off(q2[:, 1, 2] + q2[:, 3, 0]),
+            1.0 - d[:, 1, 1] - d[:, 3, 3],
+            off(q2[:, 2, 3] - q2[:, 1, 0]),
+        ],
+        [
+            off(q2[:, 1, 3] - q2[:, 2, 0]),
+            off(q2[:, 2, 3] + q2[:, 1, 0]),
+            1.0 - d[:, 1, 1] - d[:, 2, 2],
+        ],
+    ]
+    return np.stack([np.stack(r, axis=1) for r in rows], axis=1)
+
+
+class OperationalSpace:
+    """robosuite's OSC_POSE arm controller and GRIP hand controller on a batch of episodes
+    (the module's docstring says what is computed and when).
+
+    The action has 7 columns: the grip site's position change (3) and rotation (3, axis-angle)
+    in [-1, 1] of `output_max`, in the robot base's frame, and the hand's command (> 0 closes).
+
+    Args:
+      model: the nominal model (element ids; each episode's ranges are read at `reset`).
+      site: the grip site the pose is controlled at (robosuite's `gripper0_right_grip_site`).
+      base_site: the site whose frame is the action's (`robot0_right_center`).
+      arm_actuators: the arm's torque actuators, one per joint, in the joints' order.
+      hand_actuators: the hand's two actuators (position servos), in robosuite's order.
+      settings: OSC_POSE's gains and scales (robosuite's defaults).
+    """
+
+    n_inputs = 7
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        *,
+        site: str,
+        base_site: str,
+        arm_actuators: Sequence[str],
+        hand_actuators: Sequence[str],
+        settings: OscSettings = OscSettings(),
+    ) -> None:
+        self.reads = Reads(sites=(site, base_site), mass_matrix=True, bias=True)
+        self.arm = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, arm_actuators)
+        self.hand = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, hand_actuators)
+        joints = model.actuator_trnid[self.arm, 0]
+        self.qpos = model.jnt_qposadr[joints]
+        self.dofs = model.jnt_dofadr[joints]
+        # the arm's dofs as a slice where they are contiguous (a view, not a copy)
+        contiguous = np.array_equal(self.dofs, np.arange(self.dofs[0], self.dofs[0] + len(joints)))
+        self.dof_block = (
+            slice(int(self.dofs[0]), int(self.dofs[0]) + len(joints)) if contiguous else self.dofs
+        )
+        self.eye = np.eye(len(joints))
+        self.nu = model.nu
+        self.kp = np.full(6, settings.kp)
+        self.kd = 2 * np.sqrt(self.kp) * settings.damping_ratio
+        output_max = np.asarray(settings.output_max)
+        # robosuite's scale_action: |out_max - out_min| / |in_max - in_min|, both symmetric
+        self.action_scale = np.abs(output_max - -output_max) / abs(
+            settings.input_max - -settings.input_max
+        )
+        self.input_max = settings.input_max
+
+    def reset(self, models: Sequence[mujoco.MjModel]) -> None:
+        n = len(models)
+        self.arm_low = np.stack([m.actuator_ctrlrange[self.arm, 0] for m in models])
+        self.arm_high = np.stack([m.actuator_ctrlrange[self.arm, 1] for m in models])
+        grip = np.stack([m.actuator_ctrlrange[self.hand] for m in models])  # (n, 2, 2)
+        self.grip_low, self.grip_high = grip[:, :, 0], grip[:, :, 1]
+        self.grip_bias = 0.5 * (grip[:, :, 1] + grip[:, :, 0])
+        self.grip_weight = 0.5 * (grip[:, :, 1] - grip[:, :, 0])
+        self.initial_joint: np.ndarray | None = None  # the arm's pose at the first step
+        self.goal_pos = np.zeros((n, 3))
+        self.goal_ori = np.zeros((n, 3, 3))
+        self.grip_command = np.zeros((n, 2))
+
+    def __call__(self, view: PhysicsView, action: np.ndarray, new_action: bool) -> np.ndarray:
+        n = len(view.qpos)
+        joint_pos, joint_vel = view.qpos[:, self.qpos], view.qvel[:, self.dof_block]
+        if self.initial_joint is None:
+            self.initial_joint = joint_pos.copy()
+        ref_pos = view.site_xpos[:, 0]
+        ref_ori = view.site_xmat[:, 0].reshape(n, 3, 3)
+        origin_pos = view.site_xpos[:, 1]
+        origin_ori = view.site_xmat[:, 1].reshape(n, 3, 3)
+        jacp, jacr = view.site_jacp[:, 0], view.site_jacr[:, 0]  # (n, 3, nv)
+        qvel = view.qvel[:, :, None]
+        ref_pos_vel = (jacp @ qvel)[:, :, 0]
+        ref_ori_vel = (jacr @ qvel)[:, :, 0]
+        base_pos_vel = (view.site_jacp[:, 1] @ qvel)[:, :, 0]
+        base_ori_vel = (view.site_jacr[:, 1] @ qvel)[:, :, 0]
+        origin_t = np.swapaxes(origin_ori, 1, 2)
+        if new_action:
+            delta = (np.clip(action[:, :6], -self.input_max, self.input_max) - 0.0) * (
+                self.action_scale
+            ) + 0.0
+            # the achieved pose in the base frame (robosuite's pose_inv and 4x4 products)
+            origin_inv_pos = -(origin_t @ origin_pos[:, :, None])[:, :, 0]
+            self.goal_pos = (
+                (origin_t @ ref_pos[:, :, None])[:, :, 0] + origin_inv_pos + delta[:, :3]
+            )
+            self.goal_ori = rotation_of_axis_angle(delta[:, 3:6]) @ (origin_t @ ref_ori)
+            self.grip_command = np.clip(
+                self.grip_command + np.array([-1.0, 1.0]) * GRIPPER_SPEED * np.sign(action[:, 6:7]),
+                -1.0,
+                1.0,
+            )
+        desired_pos = origin_pos + (origin_ori @ self.goal_pos[:, :, None])[:, :, 0]
+        ori_error = orientation_error(origin_ori @ self.goal_ori, ref_ori)
+        force = (desired_pos - ref_pos) * self.kp[:3] + -(ref_pos_vel - base_pos_vel) * self.kd[:3]
+        torque = ori_error * self.kp[3:] + -(ref_ori_vel - base_ori_vel) * self.kd[3:]
+        mass = view.mass_matrix[:, self.dof_block, self.dof_block]
+        j_full = np.concatenate([jacp[:, :, self.dof_block], jacr[:, :, self.dof_block]], axis=1)
+        j_full_t = np.swapaxes(j_full, 1, 2)
+        mass_inv = np.linalg.inv(mass)
+        m_inv_jt = mass_inv @ j_full_t  # (n, k, 6)
+        inertia_inv = j_full @ m_inv_jt  # (n, 6, 6): its 3x3 diagonal blocks are the position's
+        # and the orientation's own; all three inverted in one call, the blocks side by side
+        blocks = np.zeros((n, 2, 6, 6))
+        blocks[:, 0] = inertia_inv
+        blocks[:, 1, :3, :3] = inertia_inv[:, :3, :3]
+        blocks[:, 1, 3:, 3:] = inertia_inv[:, 3:, 3:]
+        inverses = np.linalg.inv(blocks)
+        lambda_full, lambda_split = inverses[:, 0], inverses[:, 1]
+        nullspace = self.eye - (m_inv_jt @ lambda_full) @ j_full
+        wrench = lambda_split @ np.concatenate([force, torque], axis=1)[:, :, None]
+        torques = (j_full_t @ wrench)[:, :, 0] + view.bias[:, self.dof_block]
+        posture = (
+            NULLSPACE_KP * (self.initial_joint - joint_pos) - np.sqrt(NULLSPACE_KP) * 2 * joint_vel
+        )
+        torques += (np.swapaxes(nullspace, 1, 2) @ (mass @ posture[:, :, None]))[:, :, 0]
+        ctrl = np.zeros((n, self.nu))
+        ctrl[:, self.arm] = np.clip(torques, self.arm_low, self.arm_high)
+        grip = self.grip_bias + self.grip_weight * self.grip_command
+        ctrl[:, self.hand] = np.clip(grip, self.grip_low, self.grip_high)
+        return ctrl
