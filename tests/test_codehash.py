@@ -20,8 +20,8 @@ import pytest
 from conftest import REPO_ROOT
 from test_pipeline import planned_jobs
 
+from mjtrial.files import codehash
 from mjtrial.files.layout import BENCHMARK_STAGES, PILOT_STAGES, STAGES
-from mjtrial.provenance import codehash
 from mjtrial.stages.stamping import stage_code
 
 

@@ -11,7 +11,7 @@ import sys
 import pytest
 from conftest import REPO_ROOT
 
-from mjtrial.provenance import codehash
+from mjtrial.files import codehash
 
 PACKAGE = REPO_ROOT / "src" / "mjtrial"
 MAX_LINES = 700

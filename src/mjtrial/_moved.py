@@ -44,7 +44,7 @@ MOVED = {
     "mjtrial.atomic": "mjtrial.files.atomic",
     "mjtrial.layout": "mjtrial.files.layout",
     "mjtrial.safekeeping": "mjtrial.files.safekeeping",
-    "mjtrial.codehash": "mjtrial.provenance.codehash",
+    "mjtrial.codehash": "mjtrial.files.codehash",
     "mjtrial.conditions": "mjtrial.design.conditions",
     "mjtrial.states": "mjtrial.design.states",
     "mjtrial.registration": "mjtrial.design.registration",

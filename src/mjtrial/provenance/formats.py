@@ -342,7 +342,7 @@ def _load_registered_readers() -> None:
     depends on what this process happened to import before (the crate's `source/` was "no
     stamp" in a process that had not imported `mjtrial.crate`). By name, not by an import
     statement: a statement would put the readers in the code hash of every stage that stamps
-    (`mjtrial.provenance.codehash`); a stage that reads recordings' stamps imports
+    (`mjtrial.files.codehash`); a stage that reads recordings' stamps imports
     `mjtrial.recording`."""
     for module in dict.fromkeys(_REGISTERED_BY.values()):
         importlib.import_module(module)

@@ -2,5 +2,5 @@
 
 Each stage reads its inputs, computes, and writes its outputs atomically with a provenance
 stamp; none of them knows about Snakemake. A stage module imports only what its stage runs,
-because its imports define its code hash (`mjtrial.provenance.codehash`).
+because its imports define its code hash (`mjtrial.files.codehash`).
 """

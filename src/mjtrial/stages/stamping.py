@@ -11,8 +11,8 @@ from typing import Any
 from mjtrial import REPO_ROOT, provenance
 from mjtrial.crate.description import crate_description
 from mjtrial.design.conditions import all_conditions, sensitivity_conditions
+from mjtrial.files import codehash
 from mjtrial.files.layout import CONDITION_STAGES, STAGES
-from mjtrial.provenance import codehash
 from mjtrial.sim.simenv import VERSION_KEY, model_overrides, variant_version
 from mjtrial.task import task_files
 

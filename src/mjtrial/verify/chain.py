@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from mjtrial import REPO_ROOT, provenance
+from mjtrial.files import codehash
 from mjtrial.files.layout import CONDITION_STAGES, STAGES
-from mjtrial.provenance import codehash
 from mjtrial.sim.simenv import VERSION_KEY
 from mjtrial.stages.stamping import config_slice, stage_code
 from mjtrial.task import task_files

@@ -22,7 +22,7 @@ from mjtrial import REPO_ROOT
 from mjtrial.files import atomic
 
 PACKAGE = "mjtrial"
-PACKAGE_DIR = Path(__file__).resolve().parents[1]  # src/mjtrial, this file being in provenance/
+PACKAGE_DIR = Path(__file__).resolve().parents[1]  # src/mjtrial, this file being in files/
 
 
 def module_file(name: str) -> Path | None:
