@@ -279,7 +279,11 @@ class SessionPolicy:
         return np.concatenate([grip, action[:, 1:]], axis=1)
 
 
-def test_a_policy_file_drives_both_fingers_from_one_column_and_the_mocap(tmp_path):
+def fetch_by_file_and_by_hand(tmp_path, *, seed, fingers_entry, fingers, policy_class):
+    """The Fetch driven by a policy file (a tanh MLP whose contract maps its fingers' column
+    as `fingers_entry` and three columns to the mocap), and by the same graph run by hand
+    (`policy_class`) through the task's own `fingers` control and mocap action, on three
+    states. Returns (the task, its controller by hand, run, the two batches' episodes)."""
     import dataclasses
 
     from fetch_mocap import fetch_task
@@ -292,10 +296,10 @@ def test_a_policy_file_drives_both_fingers_from_one_column_and_the_mocap(tmp_pat
     path = write(
         tmp_path,
         "fetch",
-        tanh_mlp([2, 16, 4], seed=3),
+        tanh_mlp([2, 16, 4], seed=seed),
         task="fetch_mocap",
         observations=["object_x", "object_y"],
-        actuators=[list(FINGERS)],
+        actuators=[fingers_entry],
         mocap=[MOCAP_ENTRY],
         control_period=0.04,
     )
@@ -308,22 +312,32 @@ def test_a_policy_file_drives_both_fingers_from_one_column_and_the_mocap(tmp_pat
     }
     run = lambda t: next(iter_batches(BoundTask.of(t), values, {}, thresholds={}, nthread=1))  # noqa: E731
     by_file = run(policy_task(task, policy_file)).episodes
-    by_hand_actions = (
-        Control(FINGERS),
-        MocapAction(
-            "robot0:mocap",
-            relative_to="body",
-            scale=0.05,
-            max_step=0.05,
-            orientation_offset=(1.0, 0.0, 1.0, 0.0),
-        ),
-    )
     controller = dataclasses.replace(
         task.controller,
-        policy=lambda model, params: SessionPolicy(policy_file.session),
-        actions=by_hand_actions,
+        policy=lambda model, params: policy_class(policy_file.session),
+        actions=(
+            fingers,
+            MocapAction(
+                "robot0:mocap",
+                relative_to="body",
+                scale=0.05,
+                max_step=0.05,
+                orientation_offset=(1.0, 0.0, 1.0, 0.0),
+            ),
+        ),
     )
     by_hand = run(dataclasses.replace(task, controller=controller)).episodes
+    return task, controller, run, by_file, by_hand
+
+
+def test_a_policy_file_drives_both_fingers_from_one_column_and_the_mocap(tmp_path):
+    _, _, _, by_file, by_hand = fetch_by_file_and_by_hand(
+        tmp_path,
+        seed=3,
+        fingers_entry=list(FINGERS),
+        fingers=Control(FINGERS),
+        policy_class=SessionPolicy,
+    )
     np.testing.assert_array_equal(by_file.physics, by_hand.physics)
     np.testing.assert_array_equal(by_file.mocap, by_hand.mocap)
     np.testing.assert_array_equal(by_file.ctrl[..., 0], by_file.ctrl[..., 1])  # one column
@@ -471,52 +485,17 @@ def test_a_contract_column_relative_to_its_joints_runs_as_the_task_s_relative_co
     control with the graph run by hand, the column given raw (no ctrlrange mapping, no clip)."""
     import dataclasses
 
-    from fetch_mocap import fetch_task
-    from policy_graphs import tanh_mlp, write
-
-    from mjtrial.policy_files.file import load_policy_file, policy_task
-    from mjtrial.sim.engine import iter_batches
-    from mjtrial.task import BoundTask
-
-    path = write(
+    task, controller, run, by_file, by_hand = fetch_by_file_and_by_hand(
         tmp_path,
-        "fetch",
-        tanh_mlp([2, 16, 4], seed=5),
-        task="fetch_mocap",
-        observations=["object_x", "object_y"],
-        actuators=[{"actuators": list(FINGERS), "relative": True, "scale": 0.5}],
-        mocap=[MOCAP_ENTRY],
-        control_period=0.04,
+        seed=5,
+        fingers_entry={"actuators": list(FINGERS), "relative": True, "scale": 0.5},
+        fingers=Control(FINGERS, relative=True, scale=0.5),
+        policy_class=RawSessionPolicy,
     )
-    task = fetch_task()
-    policy_file = load_policy_file(path, task)
-    values = {
-        "state_id": np.arange(3),
-        "object_dx": np.array([0.0, 0.05, -0.08]),
-        "object_dy": np.array([0.03, -0.06, 0.0]),
-    }
-    run = lambda t: next(iter_batches(BoundTask.of(t), values, {}, thresholds={}, nthread=1))  # noqa: E731
-    by_file = run(policy_task(task, policy_file)).episodes
-    by_hand_actions = (
-        Control(FINGERS, relative=True, scale=0.5),
-        MocapAction(
-            "robot0:mocap",
-            relative_to="body",
-            scale=0.05,
-            max_step=0.05,
-            orientation_offset=(1.0, 0.0, 1.0, 0.0),
-        ),
-    )
-    controller = dataclasses.replace(
-        task.controller,
-        policy=lambda model, params: RawSessionPolicy(policy_file.session),
-        actions=by_hand_actions,
-    )
-    by_hand = run(dataclasses.replace(task, controller=controller)).episodes
     np.testing.assert_array_equal(by_file.physics, by_hand.physics)
     np.testing.assert_array_equal(by_file.ctrl, by_hand.ctrl)
     # relative: not the absolute column's ctrl (the fingers' range [0, 0.2] mapped and clipped)
-    absolute = dataclasses.replace(controller, actions=(Control(FINGERS), by_hand_actions[1]))
+    absolute = dataclasses.replace(controller, actions=(Control(FINGERS), controller.actions[1]))
     assert not np.array_equal(
         run(dataclasses.replace(task, controller=absolute)).episodes.ctrl, by_file.ctrl
     )
