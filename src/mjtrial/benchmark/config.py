@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import jsonschema
-import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.benchmark.stats import SEEDS_FOR_DEVELOPMENT_DECISION, SEEDS_FOR_REPORTED_RESULT
@@ -31,6 +30,7 @@ from mjtrial.config import (
     policy_path_problem,
     read_config_file,
 )
+from mjtrial.config.read import packaged_schema
 from mjtrial.crate.description import crate_description
 from mjtrial.files.layout import shard_ids, shard_range
 from mjtrial.policy_files.file import load_policy_file, policy_task
@@ -116,7 +116,7 @@ def check_benchmark_config(
     bad = _non_finite(dict(config))
     if bad:
         fail(bad[0], f"expected a finite number, got {bad[1]}")
-    schema = yaml.safe_load(SCHEMA_PATH.read_text(encoding="utf-8"))
+    schema = packaged_schema(SCHEMA_PATH)
     error = jsonschema.exceptions.best_match(_Validator(schema).iter_errors(dict(config)))
     if error is not None:
         key, _, expectation = _schema_message(error).partition(": ")

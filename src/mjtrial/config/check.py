@@ -15,7 +15,6 @@ from typing import Any
 
 import jsonschema
 import mujoco
-import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.config import budget
@@ -24,6 +23,7 @@ from mjtrial.config.read import (  # noqa: F401 - read from here by the workflow
     MAX_CONFIG_VALUES,
     ConfigError,
     merge_config,
+    packaged_schema,
     parse_config_args,
     parse_config_text,
     read_config_file,
@@ -366,7 +366,7 @@ def check_config(
     bad = _non_finite(dict(config))
     if bad:
         fail(bad[0], f"expected a finite number, got {bad[1]}")
-    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    schema = packaged_schema(SCHEMA_PATH)
     task = None
     if isinstance(config.get("task"), str) and config["task"]:
         # the task declares what conditions, the taxonomy, a sweep and the bands may hold

@@ -5,6 +5,8 @@ configuration. What the values must be is `mjtrial.config`'s check.
 
 from __future__ import annotations
 
+import copy
+import functools
 import os
 import shlex
 from collections.abc import Mapping, Sequence
@@ -19,6 +21,22 @@ from mjtrial.files.layout import CONFIG_FILE
 # "billion laughs" document expands a few lines of aliases into billions of values).
 MAX_CONFIG_BYTES = 1 << 20
 MAX_CONFIG_VALUES = 100_000
+
+
+# libyaml's parser where PyYAML was built with it (the wheels are): the same documents, a
+# sixth of the pure-Python parser's time, which every Snakemake start and verify paid.
+_FAST_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def packaged_schema(path: Path) -> dict[str, Any]:
+    """A JSON schema shipped with the package, parsed once per process (a fresh copy each call:
+    a task extends the config's schema in place)."""
+    return copy.deepcopy(_parsed_schema(Path(path)))
+
+
+@functools.cache
+def _parsed_schema(path: Path) -> dict[str, Any]:
+    return yaml.load(path.read_text(encoding="utf-8"), Loader=_FAST_LOADER)
 
 
 class ConfigError(ValueError):
@@ -76,7 +94,7 @@ def parse_config_text(text: str, *, source: str) -> dict[str, Any]:
             f"{source}: expands to more than {MAX_CONFIG_VALUES} values through YAML aliases; "
             "expected a plain config"
         )
-    config = yaml.safe_load(text)
+    config = yaml.load(text, Loader=_FAST_LOADER)  # valid YAML, its size checked above
     duplicate = _duplicate_key(node) if node is not None else None
     if duplicate:
         key, line = duplicate

@@ -42,6 +42,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
+from mjtrial.config.read import packaged_schema
 from mjtrial.policy_files.onnx_data import GraphFormatError, external_data
 from mjtrial.sim.engine import MAX_BATCH
 from mjtrial.sim.physics import ModelError, load_model
@@ -211,7 +212,7 @@ def read_contract(onnx_file: Path) -> Contract:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as err:
         raise PolicyFileError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
-    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    schema = packaged_schema(SCHEMA_PATH)
     error = jsonschema.exceptions.best_match(
         jsonschema.Draft202012Validator(schema).iter_errors(raw)
     )
@@ -239,8 +240,10 @@ def read_contract(onnx_file: Path) -> Contract:
         if bad:
             raise PolicyFileError(f"{path}: {key}: {bad[0]}; expected finite numbers")
     for k, entry in enumerate(raw["actuators"]):
-        if isinstance(entry, dict) and "signs" in entry and len(entry["signs"]) != len(
-            entry["actuators"]
+        if (
+            isinstance(entry, dict)
+            and "signs" in entry
+            and len(entry["signs"]) != len(entry["actuators"])
         ):
             raise PolicyFileError(
                 f"{path}: actuators.{k}.signs: {entry['signs']}; expected one sign (1 or -1) "

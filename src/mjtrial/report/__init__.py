@@ -4,7 +4,18 @@
 every number from `summary.json`, `manifest.json`, the config and the model the manifest names.
 """
 
-from mjtrial.report.figures import write_figures
+from typing import Any
+
 from mjtrial.report.text import report_text, write_report
 
 __all__ = ["report_text", "write_figures", "write_report"]
+
+
+def __getattr__(name: str) -> Any:
+    # The figures are imported at first use: matplotlib costs a second to a process that only
+    # formats text (verify recomputes the report's text, never its figures).
+    if name == "write_figures":
+        from mjtrial.report.figures import write_figures
+
+        return write_figures
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

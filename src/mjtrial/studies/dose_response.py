@@ -12,8 +12,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-import statsmodels.api as sm
-from statsmodels.stats.multitest import multipletests
 
 from mjtrial import stats
 from mjtrial.analysis import band_index, band_labels, band_values, rate_record
@@ -59,6 +57,10 @@ def trend(
     fit has no finite estimate (every outcome the same, or outcomes separated by the value, as
     small samples can be), every number is None and `not_estimable` says why.
     """
+    # Imported here: statsmodels costs every process that imports this module (verify, the
+    # studies' Snakemake process) two seconds, and most never fit a trend.
+    import statsmodels.api as sm
+
     value = np.asarray(value, dtype=float)
     log = scale == "log"
     x = sm.add_constant(np.log(value) if log else value)
@@ -216,6 +218,8 @@ def summarize_dose_response(
                 "within_margin": low >= -margin,
             }
         )
+    from statsmodels.stats.multitest import multipletests  # imported here, as above
+
     _, adjusted, _, _ = multipletests(
         [c["p_value"] for c in comparisons], alpha=1.0 - confidence, method="holm"
     )
