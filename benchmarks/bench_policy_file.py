@@ -15,11 +15,15 @@ cart-pole of `tasks/cartpole_latency/` under its defaults (3 s, a 10 ms control 
     python benchmarks/bench_policy_file.py                 # 200 episodes, 5 repeats
     python benchmarks/bench_policy_file.py --episodes 100 --repeats 3 --hidden 256
     python benchmarks/bench_policy_file.py --batch-size 200     # the engine in larger batches
+    python benchmarks/bench_policy_file.py --profile            # where the engine's time goes
 
 It prints episodes per second of each, and the engine's speed over the loop's on 1 and 2
 threads: the median of the paired ratios over repeats (each repeat runs the loop and the engine
 back to back, in an order that flips every repeat), with their range. It also times one
 session call per batch size with graph optimizations on and off (`SESSION_SETTINGS`).
+With `--profile`, it runs the engine once more on 1 thread under cProfile and splits its time
+into onnxruntime's calls, MuJoCo's, and the Python and numpy around them, with the share of the
+whole spent replaying instants in other batches (the exact replay's cost, at most half).
 """
 
 from __future__ import annotations
@@ -160,6 +164,34 @@ def call_times(path: Path, batch_size: int) -> None:
         print(f"one call, {level}: {', '.join(times)}")
 
 
+def profile(bound: BoundTask, values, batch_size: int) -> None:
+    """Where the engine's time goes, on 1 thread, by cProfile's own times of each function."""
+    import cProfile
+    import pstats
+
+    profiler = cProfile.Profile()
+    profiler.runcall(engine, bound, values, 0, batch_size)
+    stats = pstats.Stats(profiler).stats  # (file, line, name) -> (cc, nc, own, cumulative, callers)
+    parts = collections.Counter()
+    replay = 0.0
+    for (file, _, name), (_, _, own, cumulative, _) in stats.items():
+        where = f"{file} {name}"
+        if "onnxruntime" in where:
+            parts["onnxruntime (session calls)"] += own
+        elif "mujoco" in where:
+            parts["MuJoCo (rollout, state, model calls)"] += own
+        else:
+            parts["Python and numpy around them"] += own
+        if name == "check_replayed":
+            replay = max(replay, cumulative)
+    total = sum(parts.values())
+    print(f"engine profile, 1 thread, {total:.2f} s under cProfile:")
+    for part, seconds in parts.most_common():
+        print(f"  {part}: {seconds:.2f} s ({seconds / total:.0%})")
+    share = replay / total
+    print(f"  of the whole, replaying instants in other batches: {replay:.2f} s ({share:.0%})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=200)
@@ -171,6 +203,7 @@ def main() -> None:
         default=None,
         help="the engine's episodes per batch (default: the pipeline's, `batch_size_for`)",
     )
+    parser.add_argument("--profile", action="store_true", help="also split the engine's time")
     args = parser.parse_args()
     task = load_task(TASK)
     folder = Path(tempfile.mkdtemp())
@@ -201,6 +234,8 @@ def main() -> None:
         f"states {'equal bit for bit' if same else 'DIFFER'} (must be equal)"
     )
     print_rates(n, seconds, ratios)
+    if args.profile:
+        profile(bound, values, batch_size)
 
 
 if __name__ == "__main__":
