@@ -73,6 +73,25 @@ def test_an_output_whose_rows_change_between_probes_is_one_line_at_the_call(
     )
 
 
+@pytest.mark.parametrize(
+    ("recurrent", "output", "width"), [(False, "action", 1), (True, "memory_out", 3)]
+)
+def test_an_output_of_two_rows_for_one_is_one_line_in_the_replay_of_an_episode_alone(
+    tmp_path, monkeypatch, recurrent, output, width
+):
+    """The replay's path (`OnnxPolicy.alone`, its outputs bound to arrays of one row) says what
+    the checked call says of a graph that answers one row with two: no onnxruntime error."""
+    path = _doubled(tmp_path, 0, recurrent=recurrent)
+    monkeypatch.setattr(policy_file, "PROBE_ROWS", ())  # as if the probes had missed it
+    policy = load_policy_file(path, TASK).policy(BoundTask.of(TASK).model, TASK.parameters({}))
+    with pytest.raises(PolicyFileError) as caught:
+        policy.alone(np.zeros((3, 2)))
+    assert str(caught.value) == (
+        f"{path}: output {output!r} of a batch of 1 rows has shape (2, {width}); expected "
+        f"(1, {width}), one row per episode"
+    )
+
+
 def test_the_config_check_names_the_condition_and_the_graph(tmp_path):
     workdir = copy_workflow(tmp_path)
     _doubled(workdir / "policies" / "bad", 2, recurrent=True)
