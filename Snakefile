@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 from mjtrial import foreign_package
-from mjtrial.benchmark.config import check_benchmark_config, is_benchmark
+from mjtrial.benchmark import is_benchmark
 from mjtrial.config import (
     ConfigError,
     check_config,
@@ -52,6 +52,8 @@ try:
         workflow.config_settings.config_args or [],
     )
     if BENCHMARK:
+        from mjtrial.benchmark.config import check_benchmark_config
+
         BENCHMARK_TASKS = check_benchmark_config(
             config, source=CONFIG_SOURCE, repo_root=Path.cwd()
         )

@@ -19,6 +19,7 @@ from typing import Any
 import jsonschema
 
 from mjtrial import REPO_ROOT
+from mjtrial.benchmark import is_benchmark  # noqa: F401 - read from here too
 from mjtrial.benchmark.stats import SEEDS_FOR_DEVELOPMENT_DECISION, SEEDS_FOR_REPORTED_RESULT
 from mjtrial.benchmark.tuning import check_search, minimum_budget
 from mjtrial.config import (
@@ -98,11 +99,6 @@ def checkpoint_files(pattern: str, seeds: list[int], *, repo_root: Path) -> dict
             f"only number of its name, got {len(found)}: {got}"
         )
     return {s: Path(by_seed[s][0]).as_posix() for s in seeds}
-
-
-def is_benchmark(config: Mapping[str, Any]) -> bool:
-    """Whether a run's config is a benchmark's (it has a `benchmark` section)."""
-    return "benchmark" in config
 
 
 def check_benchmark_config(

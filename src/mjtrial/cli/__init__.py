@@ -254,7 +254,7 @@ def _verify(args: argparse.Namespace) -> int:
 def _is_benchmark_file(config_path: Path) -> bool:
     # Imported here (jsonschema, mujoco through the config module): `mjtrial plan` need not
     # pay for them.
-    from mjtrial.benchmark.config import is_benchmark
+    from mjtrial.benchmark import is_benchmark
     from mjtrial.config.read import read_config_file
 
     return config_path.is_file() and is_benchmark(read_config_file(config_path))
