@@ -8,9 +8,13 @@ file edited after the run fails verify naming the file."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import os
 import re
 import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +30,9 @@ from mjtrial.files.layout import BenchmarkLayout
 
 CONFIG = "config/benchmark.yaml"
 LAYOUT = BenchmarkLayout.of("benchmark")
-N_STATES = 16
+N_STATES = 8
 CARTPOLE = "config/cartpole_latency.yaml"
-CARTPOLE_SHARD = 6
+CARTPOLE_SHARD = 3
 CLOSEST_K = 3
 MLP = "policies/cartpole_mlp/seed-{}.onnx"
 
@@ -43,7 +47,8 @@ def small(config):
     bench = config["benchmark"]
     bench["seeds"] = [1, 2, 3]
     bench["result"] = "development"
-    bench["methods"]["tuned"]["budget"] = 96  # 6 x 4 for a generation, 3 x 16 for the finalists
+    # the least budget that tunes: 6 x 4 for one generation, 3 x 8 for the finalists
+    bench["methods"]["tuned"]["budget"] = 48
     bench["methods"]["tuned"]["episodes_per_candidate"] = 4
     bench["analysis"]["n_resamples"] = 200
     bench["closest_calls"] = CLOSEST_K
@@ -56,7 +61,9 @@ def bench(tmp_path_factory) -> Path:
     workdir = copy_workflow(tmp_path_factory.mktemp("benchmark"))
     for experiment in ("config/config.yaml", "config/cartpole_latency.yaml"):
         edit_yaml(workdir / experiment, lambda c: c["states"].update(n=N_STATES))
-    # the cart-pole's evaluations in shards of 6 states (6, 6, 4), the gantry's in one
+        # the experiment's own "first states only" analysis (no benchmark's): at most n
+        edit_yaml(workdir / experiment, lambda c: c["analysis"].update(first_k=N_STATES))
+    # the cart-pole's evaluations in shards of 3 states (3, 3, 2), the gantry's in one
     edit_yaml(workdir / CARTPOLE, lambda c: c["rollout"].update(shard_size=CARTPOLE_SHARD))
     edit_yaml(workdir / CONFIG, small)
     run_snakemake(workdir, "--configfile", CONFIG)
@@ -208,19 +215,25 @@ def test_every_training_read_the_development_states_only(bench):
             assert recorded["sha256"] == provenance.file_sha256(development)
 
 
+def cli(workdir: Path, *args: str) -> subprocess.CompletedProcess:
+    """`mjtrial ARGS` run from `workdir`, in this process: the command's own `main`, its exit
+    code and what it printed (a subprocess would import the package again for each call; the
+    archive's test below runs the unpacked package's command in one)."""
+    out, err = io.StringIO(), io.StringIO()
+    before = Path.cwd()
+    os.chdir(workdir)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main(list(args))
+    finally:
+        os.chdir(before)
+    return subprocess.CompletedProcess(["mjtrial", *args], code, out.getvalue(), err.getvalue())
+
+
 def verify(workdir: Path):
     """`mjtrial verify --config` without re-simulation (tested on its own below): a few
     seconds less each."""
-    import subprocess
-    import sys
-
-    return subprocess.run(
-        [sys.executable, "-m", "mjtrial.cli", "verify", "--config", CONFIG, "--resimulate", "0"],
-        cwd=workdir,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    return cli(workdir, "verify", "--config", CONFIG, "--resimulate", "0")
 
 
 def test_verify_passes_the_benchmark_as_built(bench):
@@ -296,8 +309,6 @@ def test_verify_names_an_edited_report_an_edited_crate_and_a_missing_seal(bench,
 
 
 def test_the_benchmarks_archive_unpacked_elsewhere_verifies_and_has_nothing_to_do(bench, tmp_path):
-    import os
-    import subprocess
     import sys
     import zipfile
 
@@ -554,29 +565,16 @@ def test_a_parameter_record_is_consistent_with_its_final_choice(bench):
     ]
 
 
-def mjtrial(workdir: Path, *args: str):
-    import subprocess
-    import sys
-
-    return subprocess.run(
-        [sys.executable, "-m", "mjtrial.cli", *args],
-        cwd=workdir,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-
-
 def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench, tmp_path):
     """Its crate records its config file; `--resimulate K` runs K episodes of every evaluation
     shard again, with the trained parameters, and compares them with the shard's rows."""
     folder = LAYOUT.root.as_posix()
-    done = mjtrial(bench, "verify", folder)
+    done = cli(bench, "verify", folder)
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"verified: {folder}:" in done.stdout
-    # every state of every evaluation: 20 by default, more than any shard holds; 16 states x
+    # every state of every evaluation: 20 by default, more than any shard holds; 8 states x
     # 3 seeds x (2 methods x 2 tasks, and the MLP's files on the cart-pole)
-    assert f"re-simulated {16 * 3 * 5} evaluation episodes" in done.stdout
+    assert f"re-simulated {N_STATES * 3 * 5} evaluation episodes" in done.stdout
     workdir = _copy(bench, tmp_path)
     shard = LAYOUT.evaluation_shard("cartpole_latency", "tuned", 2, "00001")
     table = pq.read_table(workdir / shard)
@@ -586,7 +584,7 @@ def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench
         pa.array([not s for s in table.column("success").to_pylist()]),
     )
     provenance.write_parquet(flipped, workdir / shard, provenance.read_stamp(workdir / shard))
-    done = mjtrial(workdir, "verify", folder, "--resimulate", "2")
+    done = cli(workdir, "verify", folder, "--resimulate", "2")
     assert done.returncode == 1, done.stdout + done.stderr
     # 2 of each shard: 1 shard of the gantry's (6 runs) and 3 of the cart-pole's (9 runs: the
     # MLP's 3 files too)
@@ -598,14 +596,16 @@ def test_verify_a_benchmark_from_its_folder_and_resimulate_its_evaluations(bench
         r"episodes for states (\d+), (\d+) differ in success",
         resimulated[0],
     )
-    assert found and all(6 <= int(i) < 2 * CARTPOLE_SHARD for i in found.groups()), resimulated
+    assert found and all(CARTPOLE_SHARD <= int(i) < 2 * CARTPOLE_SHARD for i in found.groups()), (
+        resimulated
+    )
 
 
 def test_verify_of_a_renamed_copy_says_what_it_is(bench):
     copy = LAYOUT.root.with_name("benchmark_cp")
     shutil.copytree(bench / LAYOUT.root, bench / copy, symlinks=True)
     try:
-        done = mjtrial(bench, "verify", copy.as_posix())
+        done = cli(bench, "verify", copy.as_posix())
     finally:
         shutil.rmtree(bench / copy)
     assert done.returncode == 2

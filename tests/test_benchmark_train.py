@@ -20,6 +20,11 @@ from mjtrial.stages.states import build_states
 from mjtrial.stages.train import train_method
 
 SOURCE = "config/benchmark.yaml"
+# 12 development states here, not 200, and the least budget that tunes them: 6 candidates x 6
+# states for one generation, 3 finalists x 12 states (a smaller budget than the config check
+# allows)
+N_STATES = 12
+BUDGET = 6 * 6 + 3 * N_STATES
 
 
 @pytest.fixture(scope="module")
@@ -27,11 +32,10 @@ def setup(tmp_path_factory):
     folder = tmp_path_factory.mktemp("train")
     config = read_config_file(REPO_ROOT / SOURCE)
     tasks = check_benchmark_config(config, source=SOURCE)
-    # 30 development states here, not 200: a smaller budget than the config check allows
-    config["benchmark"]["methods"]["tuned"]["budget"] = 240
+    config["benchmark"]["methods"]["tuned"]["budget"] = BUDGET
     config["benchmark"]["methods"]["tuned"]["episodes_per_candidate"] = 6
     experiment = dict(tasks["gantry_lift"].config)
-    experiment["states"] = {**experiment["states"], "n": 30}
+    experiment["states"] = {**experiment["states"], "n": N_STATES}
     states = config_slice("states", experiment)
     build_states(states_slice=states, output=folder / "development.parquet", development=True)
     build_states(states_slice=states, output=folder / "evaluation.parquet")
@@ -55,7 +59,7 @@ def test_a_tuned_method_writes_a_stamped_parameter_file_that_runs_as_recorded(se
     assert stamp["rule"] == "train:tuned:gantry_lift:1" and stamp["seeds"] == {"training": 1}
     recorded = stamp["inputs"]["development_states"]
     assert recorded["sha256"] == provenance.file_sha256(folder / "development.parquet")
-    assert record["episodes_used"] <= 240 and record["budget_episodes"] == 240
+    assert record["episodes_used"] <= BUDGET and record["budget_episodes"] == BUDGET
     assert 0.15 <= record["parameters"]["lift_time"] <= 1.5
     # The recorded score is the rate of the recorded parameters on every development state,
     # run here directly through the engine.
@@ -149,7 +153,7 @@ def test_a_benchmark_tasks_states_are_refused_by_kind_whatever_the_task_is_calle
 
     folder, config, tasks, model = setup
     experiment = dict(tasks["gantry_lift"].config)
-    experiment["states"] = {**experiment["states"], "n": 30}
+    experiment["states"] = {**experiment["states"], "n": N_STATES}
     states = folder / "evaluation-of-a-task-called-development.parquet"
     rule = states_rule(development=False, task="development")
     build_states(states_slice=config_slice("states", experiment), output=states, rule=rule)

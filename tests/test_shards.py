@@ -32,6 +32,11 @@ def tables(workdir: Path) -> dict[str, object]:
     }
 
 
+# What the shard tests compare: the gathered tables (and their shards' recordings), built
+# without what reads them (analysis, figures, report, seal, crate).
+TABLES = [LAYOUT.rollout_table(c).as_posix() for c in CONDITIONS]
+
+
 def copy_of(built: Path, tmp_path: Path, edit=None) -> Path:
     workdir = tmp_path / "copy"
     shutil.copytree(built, workdir, symlinks=True)
@@ -44,10 +49,10 @@ def copy_of(built: Path, tmp_path: Path, edit=None) -> Path:
 
 def test_results_do_not_depend_on_shard_size_or_threads(built, tmp_path):
     """The small experiment runs 12 states in shards of 5 (5, 5, 2) on 2 threads; here in one
-    shard of 12 on 1 thread."""
+    shard of 12 on 1 thread (its tables and recordings only)."""
     assert len(list((built / LAYOUT.recordings("fast")).glob("*.parquet"))) == 3
     workdir = copy_of(built, tmp_path, lambda c: c["rollout"].update(shard_size=1000))
-    run_snakemake(workdir, "--set-threads", "rollout=1")
+    run_snakemake(workdir, *TABLES, "--set-threads", "rollout=1")  # it takes every word after
     assert [p.name for p in (workdir / LAYOUT.recordings("fast")).glob("*.parquet")] == [
         "shard-00000.parquet"
     ]
@@ -63,9 +68,10 @@ def test_results_do_not_depend_on_shard_size_or_threads(built, tmp_path):
 
 
 def test_an_interrupted_run_resumes_by_shard(built, tmp_path):
+    """The rollouts and their gathers only (`TABLES`), killed then resumed."""
     workdir = copy_of(built, tmp_path, lambda c: c["rollout"].update(shard_size=4))
     proc = subprocess.Popen(
-        [SNAKEMAKE, "-c2"],
+        [SNAKEMAKE, "-c2", *TABLES],
         cwd=workdir,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -87,10 +93,10 @@ def test_an_interrupted_run_resumes_by_shard(built, tmp_path):
     assert len(done) >= 3, "fewer than three shards finished before the kill"
     finished = {p: p.read_bytes() for p in done}
     run_snakemake(workdir, "--unlock")
-    out = run_snakemake(workdir, "-n", "--rerun-incomplete").stdout
+    out = run_snakemake(workdir, "-n", "--rerun-incomplete", *TABLES).stdout
     planned = int(out.split("Job stats:")[1].split("rollout")[1].split()[0])
     assert planned <= 6 - (len(done) - 2)  # at most the two running at the kill run again
-    run_snakemake(workdir, "--rerun-incomplete")
+    run_snakemake(workdir, "--rerun-incomplete", *TABLES)
     kept = [p for p in done if p.read_bytes() == finished[p]]
     assert len(kept) >= len(done) - 2  # finished shards are not run again
     ours, theirs = tables(workdir), tables(built)
