@@ -55,9 +55,7 @@ def forge_row(path: Path, state_id: int, *, restamp: bool) -> None:
     table = table.set_column(i, table.schema.field(i), pa.array(success, type=pa.bool_()))
     stamp = json.loads(metadata[provenance.STAMP_KEY.encode()])
     if restamp and "rows_sha256" in stamp["extra"]:
-        stamp["extra"]["rows_sha256"] = provenance.rows_sha256(
-            table.replace_schema_metadata(None)
-        )
+        stamp["extra"]["rows_sha256"] = provenance.rows_sha256(table.replace_schema_metadata(None))
     metadata[provenance.STAMP_KEY.encode()] = json.dumps(stamp).encode()
     pq.write_table(table.replace_schema_metadata(metadata), path)
 
