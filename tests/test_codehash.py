@@ -107,7 +107,7 @@ for name in imported_by(sorted({m for ms in requests.values() for m in ms})):
         try:
             importlib.import_module(name)
         except Exception:
-            pass  # a module importable only through its package's own import: the child's
+            pass  # importable only within its package's own import: left to the children
 assert mjtrial(sys.modules) == [], mjtrial(sys.modules)
 print(json.dumps({key: mjtrial(imported_by(ms)) for key, ms in requests.items()}))
 """
