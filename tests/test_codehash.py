@@ -66,27 +66,85 @@ def test_unknown_module_is_an_error():
         codehash.module_closure({"mjtrial.no_such_module"})
 
 
-def _runtime_imports(modules: list[str]) -> set[str]:
-    """The mjtrial modules a fresh interpreter holds after importing `modules`."""
-    code = (
-        "import importlib, json, sys\n"
-        f"for m in {modules!r}: importlib.import_module(m)\n"
-        "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] == 'mjtrial')))"
-    )
+# Run by a fresh interpreter: imports nothing of mjtrial, then, for each request, forks a child
+# that imports the request's modules and reports its mjtrial modules. The third-party modules
+# the stages import are imported first, once (the list from a child that imports every
+# request): a child then imports only mjtrial's own modules, which no third-party one imports.
+_IMPORTS_IN_CHILDREN = r"""
+import importlib, json, os, sys, traceback
+
+def imported_by(modules):
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:
+        os.close(read)
+        code = 1
+        try:
+            for m in modules:
+                importlib.import_module(m)
+            with os.fdopen(write, "w") as f:
+                json.dump(list(sys.modules), f)
+            code = 0
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stderr.flush()
+            os._exit(code)
+    os.close(write)
+    with os.fdopen(read) as f:
+        data = f.read()
+    _, status = os.waitpid(pid, 0)
+    if status != 0:
+        sys.exit(f"importing {modules} failed")
+    return json.loads(data)
+
+def mjtrial(names):
+    return sorted(m for m in names if m.split(".")[0] == "mjtrial")
+
+requests = json.loads(sys.stdin.read())
+for name in imported_by(sorted({m for ms in requests.values() for m in ms})):
+    if not name.startswith("mjtrial"):
+        try:
+            importlib.import_module(name)
+        except Exception:
+            pass  # importable only within its package's own import: left to the children
+assert mjtrial(sys.modules) == [], mjtrial(sys.modules)
+print(json.dumps({key: mjtrial(imported_by(ms)) for key, ms in requests.items()}))
+"""
+
+
+def _runtime_imports(requests: dict[str, list[str]]) -> dict[str, set[str]]:
+    """For each request, the mjtrial modules a process holds after importing its modules,
+    starting from none (each a child forked from an interpreter without one)."""
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+        [sys.executable, "-c", _IMPORTS_IN_CHILDREN],
+        input=json.dumps(requests),
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
     ).stdout
-    return set(json.loads(out))
+    return {key: set(modules) for key, modules in json.loads(out).items()}
+
+
+@pytest.fixture(scope="module")
+def stage_runtime_imports() -> dict[str, set[str]]:
+    """Each stage's mjtrial modules as Python imports them for its script's top-level imports."""
+    return _runtime_imports(
+        {
+            stage: sorted(codehash.imported_modules((REPO_ROOT / spec.script_path).read_text()))
+            for stage, spec in STAGES.items()
+        }
+    )
 
 
 @pytest.mark.parametrize("stage", list(STAGES))
-def test_closure_holds_everything_python_imports_for_the_stage(stage):
+def test_closure_holds_everything_python_imports_for_the_stage(stage, stage_runtime_imports):
     code = stage_code(stage)
     script = STAGES[stage].script_path
     assert script in code
-    top = sorted(codehash.imported_modules((REPO_ROOT / script).read_text()))
     # The closure may hold more (imports inside functions), never less.
-    assert _runtime_imports(top) <= set(code) - {script}
+    assert stage_runtime_imports[stage] <= set(code) - {script}
 
 
 def test_digest_changes_with_any_file_and_names_it():
@@ -140,20 +198,15 @@ def test_touching_every_file_reruns_nothing(own_package):
     assert planned_jobs(workdir, env=env) == {}
 
 
-def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(own_package):
+def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(
+    own_package, stage_runtime_imports
+):
     workdir, env = own_package
     # a module that no stage imports only inside a function: the stages importing it are then
     # those a fresh interpreter holds it for (`mjtrial.stats.paired` is also imported by the
     # manifest inside a function, through the `mjtrial.stats` package)
     module = "mjtrial.stats.comparisons"
-    importing = {
-        stage
-        for stage in STAGES
-        if module
-        in _runtime_imports(
-            sorted(codehash.imported_modules((REPO_ROOT / STAGES[stage].script_path).read_text()))
-        )
-    }
+    importing = {stage for stage in STAGES if module in stage_runtime_imports[stage]}
     assert importing, f"no stage imports {module}: pick another module for this test"
     with open(workdir / "src" / "mjtrial" / "stats" / "comparisons.py", "a") as f:
         f.write("\n# an edit\n")
@@ -171,7 +224,10 @@ def test_editing_one_module_reruns_the_stages_importing_it_and_verify_names_it(o
     assert set(jobs) - {"all"} == expected
 
     proc = subprocess.run(
-        [sys.executable, "-m", "mjtrial.cli", "verify", "--repo-root", str(workdir)],
+        # the copy's own package on the path; no re-simulation of the 24 episodes: they check
+        # the tables' rows, not which code the stamps record
+        [sys.executable, "-m", "mjtrial.cli", "verify", "--resimulate", "0"]
+        + ["--repo-root", str(workdir)],
         capture_output=True,
         text=True,
         env=os.environ | env,

@@ -58,9 +58,23 @@ def workflow(tmp_path_factory) -> Path:
     return workdir
 
 
+@pytest.fixture(scope="module")
+def workflow_plan(workflow):
+    """`planned_jobs` of the unbuilt `workflow`, each set of arguments dry-run once (a dry run
+    changes nothing there, so another one of the same arguments plans the same jobs)."""
+    plans: dict[tuple[str, ...], dict] = {}
+
+    def plan(*args: str):
+        if args not in plans:
+            plans[args] = planned_jobs(workflow, *args)
+        return plans[args]
+
+    return plan
+
+
 @pytest.mark.parametrize("target", [[], ["studies"]])
-def test_no_rule_of_the_evaluation_reads_a_development_output(workflow, target):
-    jobs = planned_jobs(workflow, *target)
+def test_no_rule_of_the_evaluation_reads_a_development_output(workflow_plan, target):
+    jobs = workflow_plan(*target)
     assert {"analysis", "manifest", "report"} <= set(jobs) or target
     development = f"{DEVELOPMENT.root.as_posix()}/"
     read = [
@@ -77,8 +91,8 @@ def test_no_rule_of_the_evaluation_reads_a_development_output(workflow, target):
     assert not {"pilot", "development_states", "pilot_rollout", "pilot_gather"} & set(jobs)
 
 
-def test_the_pilot_writes_under_development_only_and_reads_development_states(workflow):
-    jobs = planned_jobs(workflow, "pilot")
+def test_the_pilot_writes_under_development_only_and_reads_development_states(workflow_plan):
+    jobs = workflow_plan("pilot")
     assert set(jobs) == {
         *("development_states", "pilot_rollout", "pilot_gather", "pilot_summary", "pilot")
     }
@@ -90,9 +104,9 @@ def test_the_pilot_writes_under_development_only_and_reads_development_states(wo
     assert len(jobs["pilot_rollout"]) == 2 * 3  # two conditions, shards of 5 of 12 states
 
 
-def test_pilot_n_runs_the_first_development_states_only(workflow):
+def test_pilot_n_runs_the_first_development_states_only(workflow_plan):
     # 7 of the 12 development states, in shards of 5: 2 per condition
-    jobs = planned_jobs(workflow, "pilot", "--config", "pilot={n: 7}")
+    jobs = workflow_plan("pilot", "--config", "pilot={n: 7}")
     assert len(jobs["pilot_rollout"]) == 2 * 2
     gathered = [i for _, inputs in jobs["pilot_gather"] for i in inputs if "shard-" in i]
     assert sorted({Path(i).name for i in gathered}) == [
@@ -102,8 +116,8 @@ def test_pilot_n_runs_the_first_development_states_only(workflow):
     # the development states are drawn as before: states.n of them, one job
     assert len(jobs["development_states"]) == 1
     # the evaluation is untouched
-    evaluation = planned_jobs(workflow, "--config", "pilot={n: 7}")
-    assert len(evaluation["rollout"]) == len(planned_jobs(workflow)["rollout"])
+    evaluation = workflow_plan("--config", "pilot={n: 7}")
+    assert len(evaluation["rollout"]) == len(workflow_plan()["rollout"])
 
 
 def test_a_pilot_of_3_states_runs_and_verifies(workflow, tmp_path):
@@ -251,9 +265,7 @@ def test_evaluation_states_a_pilot_ran_are_refused_and_fail_verify(piloted, tmp_
     output = work / "swapped" / "states.parquet"  # beside a copy of the pilot's development/
     shutil.copytree(work / DEVELOPMENT.root, output.parent / "development", symlinks=True)
     with pytest.raises(ValueError) as err:
-        build_states(
-            states_slice=config_slice("states", config), output=output, repo_root=work
-        )
+        build_states(states_slice=config_slice("states", config), output=output, repo_root=work)
     message = str(err.value)
     assert "\n" not in message and not output.exists()
     assert message.startswith("states.seed: 12 of the 12 evaluation states are states the pilot")

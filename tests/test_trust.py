@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import REPO_ROOT, SNAKEMAKE, edit_config, error_lines, run_snakemake
+from conftest import LINKED, REPO_ROOT, SNAKEMAKE, edit_config, error_lines, run_snakemake
 
 from mjtrial import provenance
 from mjtrial.diff import diff_runs, failures, render
@@ -429,10 +429,24 @@ BAD_INPUT = [
 ]
 
 
+def copy_of(built: Path, workdir: Path) -> Path:
+    """A copy of the built experiment, its large model folders that no case reads (conftest's
+    `LINKED`: 43 MB of robosuite meshes) linked, not copied."""
+    linked = {built / rel for rel in LINKED}
+    shutil.copytree(
+        built,
+        workdir,
+        symlinks=True,
+        ignore=lambda folder, names: [n for n in names if Path(folder, n) in linked],
+    )
+    for rel in LINKED:
+        (workdir / rel).symlink_to(REPO_ROOT / rel, target_is_directory=True)
+    return workdir
+
+
 @pytest.mark.parametrize(("case", "breaks", "message"), BAD_INPUT, ids=[c[0] for c in BAD_INPUT])
 def test_bad_input_stops_with_one_line_and_touches_nothing(built, tmp_path, case, breaks, message):
-    workdir = tmp_path / "copy"
-    shutil.copytree(built, workdir)
+    workdir = copy_of(built, tmp_path / "copy")
     breaks(workdir)
     before = digest(workdir / "results")
     proc = run_snakemake(workdir, check=False)

@@ -24,13 +24,13 @@ from mjtrial.verify import Status, verify_results
 from mjtrial.verify.recompute import sample_ids
 
 LAYOUT = Layout.of("research_mode")
-N = 40
+N = 24  # more than verify's sample of 20 per shard: a sample can miss a row
 SHARD = LAYOUT.shard_table("fast", "00000")
 
 
 @pytest.fixture(scope="module")
 def unrecorded(tmp_path_factory) -> Path:
-    """The experiment with 40 states in one shard per condition, nothing recorded."""
+    """The experiment with N states in one shard per condition, nothing recorded."""
     workdir = copy_workflow(tmp_path_factory.mktemp("unrecorded"))
 
     def small(config):
@@ -55,9 +55,7 @@ def forge_row(path: Path, state_id: int, *, restamp: bool) -> None:
     table = table.set_column(i, table.schema.field(i), pa.array(success, type=pa.bool_()))
     stamp = json.loads(metadata[provenance.STAMP_KEY.encode()])
     if restamp and "rows_sha256" in stamp["extra"]:
-        stamp["extra"]["rows_sha256"] = provenance.rows_sha256(
-            table.replace_schema_metadata(None)
-        )
+        stamp["extra"]["rows_sha256"] = provenance.rows_sha256(table.replace_schema_metadata(None))
     metadata[provenance.STAMP_KEY.encode()] = json.dumps(stamp).encode()
     pq.write_table(table.replace_schema_metadata(metadata), path)
 
@@ -111,7 +109,7 @@ def test_a_flipped_row_is_refused_by_the_gather_not_rebuilt(unrecorded, tmp_path
 
 def test_verify_re_simulates_every_episode_of_a_small_run(unrecorded, tmp_path):
     """Survey case 2: a forged row rebuilt into the results passed `verify --strict` whenever
-    the sample of 20 per shard missed it; the N = 40 run now has every episode re-simulated."""
+    the sample of 20 per shard missed it; the N = 24 run now has every episode re-simulated."""
     workdir = copy_of(unrecorded, tmp_path)
     seed = 7
     sampled = sample_ids(0, N, 20, seed=seed, key=SHARD.as_posix())

@@ -212,7 +212,9 @@ def test_every_condition_parameter_works_end_to_end(built, tmp_path):
     workdir = copy_of(built, tmp_path)
 
     def add_conditions(c):
-        c["rollout"]["shard_size"] = 12  # a job per condition, not three
+        # 3 states (every rollout runs again anyway: a job per condition, not three)
+        c["states"]["n"] = c["analysis"]["first_k"] = 3
+        c["rollout"]["shard_size"] = 3
         slow = c["conditions"]["slow"]
         for parameter, value in CONDITION_PARAMETERS:
             c["conditions"][f"with_{parameter}"] = {**slow, parameter: value}
@@ -314,6 +316,8 @@ def test_leftovers_of_a_removed_variant_and_sweep_value_raise_no_false_alarm(bui
 
         return edit
 
+    # one shard of the 12 states: a job per condition and variant, not three
+    edit_config(workdir, lambda c: c["rollout"].update(shard_size=12))
     edit_config(workdir, studies({"step_1ms": 0.001, "step_4ms": 0.004}, [0.15, 0.3, 0.6, 1.5]))
     run_snakemake(workdir, "studies")
     edit_config(workdir, studies({"step_1ms": 0.001}, [0.15, 0.6, 1.5]))

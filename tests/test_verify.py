@@ -53,10 +53,18 @@ REPORT = f"{RESULTS}/report.md"
 MODEL = "models/gantry_gripper/scene.xml"
 
 
-def verify(workdir: Path) -> VerifyReport:
+def verify(workdir: Path, **kwargs) -> VerifyReport:
     return verify_results(
-        workdir / RESULTS, config_path=workdir / "config" / "config.yaml", repo_root=workdir
+        workdir / RESULTS,
+        config_path=workdir / "config" / "config.yaml",
+        repo_root=workdir,
+        **kwargs,
     )
+
+
+# For a change after the rollouts (a summary, manifest, report or figure), which no episode's
+# re-simulation reads: verify without re-simulating (`--resimulate 0`)
+AFTER_ROLLOUTS = {"resimulate": 0}
 
 
 @pytest.fixture
@@ -119,7 +127,7 @@ def test_fresh_build_verifies(built, monkeypatch, capsys):
 
 def test_config_change_makes_analysis_and_downstream_stale_then_rebuild_verifies(work, capsys):
     edit_config(work, lambda c: c["analysis"].update(n_resamples=700))
-    report = verify(work)
+    report = verify(work, **AFTER_ROLLOUTS)
     assert report[SUMMARY].status is Status.STALE
     assert "config slice changed: analysis (analysis.n_resamples: 500 -> 700)" in reasons(
         report, SUMMARY
@@ -132,7 +140,7 @@ def test_config_change_makes_analysis_and_downstream_stale_then_rebuild_verifies
     assert not report.ok and report.exit_code == 1
 
     args = [str(work / RESULTS), "--config", str(work / "config/config.yaml")]
-    assert cli.main(["verify", *args, "--repo-root", str(work)]) == 1
+    assert cli.main(["verify", *args, "--repo-root", str(work), "--resimulate", "0"]) == 1
     out = capsys.readouterr().out
     assert f"stale  {SUMMARY}: config slice changed: analysis" in out
     assert f"ok  {STATES}\n" in out
@@ -221,7 +229,7 @@ def test_edited_summary_is_tampered(work):
     path.write_text(json.dumps(summary, indent=2))
     assert provenance.read_stamp(path) == summary["provenance"]
 
-    report = verify(work)
+    report = verify(work, **AFTER_ROLLOUTS)
     assert report[SUMMARY].status is Status.TAMPERED
     # the figures drawn from it, the manifest and the report record its sha256
     assert reasons(report, SUMMARY).startswith("sha256 recorded by figures/")
@@ -249,7 +257,7 @@ def test_deleted_rollout_is_missing(work, capsys):
 
 def test_deleted_manifest_is_missing(work):
     (work / MANIFEST).unlink()
-    report = verify(work)
+    report = verify(work, **AFTER_ROLLOUTS)
     assert report[MANIFEST].status is Status.MISSING
     # the figures are drawn without the manifest; the report text reads it
     figures = [p for p in report_outputs(report) if p != REPORT]
@@ -269,7 +277,7 @@ def test_garbled_output_has_no_readable_stamp(work, rel, output):
     data = bytearray(path.read_bytes())
     data[: len(data) // 2] = bytes(len(data) // 2)
     path.write_bytes(bytes(data))
-    report = verify(work)
+    report = verify(work, **AFTER_ROLLOUTS)
     assert report[f"{RESULTS}/{output}"].status is Status.TAMPERED
     assert reasons(report, f"{RESULTS}/{output}").startswith("no readable stamp (")
     assert report.counts()[Status.TAMPERED] == 1
@@ -304,7 +312,7 @@ def test_a_figure_of_an_earlier_layout_is_skipped_not_stale(work):
     stamped then, are no output of the run, and verify says so instead of calling them stale."""
     figures = work / RESULTS / "figures"
     shutil.copy(figures / "sample_traces.png", figures / "cube_height.png")
-    report = verify(work)
+    report = verify(work, **AFTER_ROLLOUTS)
     assert report.ok, report.format()
     assert [s.path for s in report.skipped] == [f"{RESULTS}/figures/cube_height.png"]
     assert "no current report draws" in report.skipped[0].reason
@@ -313,10 +321,10 @@ def test_a_figure_of_an_earlier_layout_is_skipped_not_stale(work):
 def test_replay_recording_is_skipped_not_failed(work, capsys):
     stamp = provenance.read_stamp(work / STATES) | {"rule": "replay"}
     provenance.write_json({"episode": 1}, work / RESULTS / "replay" / "extra.json", stamp)
-    report = verify(work)
+    report = verify(work, **AFTER_ROLLOUTS)
     assert report.ok
     assert [s.path for s in report.skipped] == [f"{RESULTS}/replay/extra.json"]
-    assert cli.main(["verify", "--repo-root", str(work)]) == 0
+    assert cli.main(["verify", "--repo-root", str(work), "--resimulate", "0"]) == 0
     out = capsys.readouterr().out
     assert f"skipped  {RESULTS}/replay/extra.json: rule 'replay' is not part of the pipeline" in out
 
