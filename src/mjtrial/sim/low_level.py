@@ -176,7 +176,7 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str]) -> li
     return out
 
 
-def _jacobian_is_zero(model: mujoco.MjModel, body: int) -> bool:
+def jacobian_is_zero(model: mujoco.MjModel, body: int) -> bool:
     """`mj_jac` of a body whose weld root has no dofs only clears its outputs (no joint
     between it and the world): the view's zeros are that Jacobian, at every step."""
     return model.body_dofnum[model.body_weldid[body]] == 0
@@ -222,7 +222,7 @@ class _Gather:
                 pose = [(view.site_xpos[i, k], d.site_xpos[site])]
                 pose += [(view.site_xmat[i, k], d.site_xmat[site])]
                 (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
-                if not _jacobian_is_zero(m, body):
+                if not jacobian_is_zero(m, body):
                     calls.append(
                         (
                             mujoco.mj_jacSite,
@@ -233,7 +233,7 @@ class _Gather:
                 pose = [(view.body_xpos[i, k], d.xpos[body])]
                 pose += [(view.body_xquat[i, k], d.xquat[body])]
                 (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
-                if not _jacobian_is_zero(m, body):
+                if not jacobian_is_zero(m, body):
                     calls.append(
                         (
                             mujoco.mj_jacBody,

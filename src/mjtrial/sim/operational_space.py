@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mjtrial.sim.low_level import PhysicsView, Reads
+from mjtrial.sim.low_level import PhysicsView, Reads, jacobian_is_zero
 
 NULLSPACE_KP = 10.0  # robosuite's `nullspace_torques` default joint_kp
 GRIPPER_SPEED = 0.2  # robosuite's PandaGripper.speed: command change per action
@@ -185,6 +185,7 @@ class OperationalSpace:
         settings: OscSettings = OscSettings(),
     ) -> None:
         self.reads = Reads(sites=(site, base_site), mass_matrix=True, bias=True)
+        self.base_site = _ids(model, mujoco.mjtObj.mjOBJ_SITE, [base_site])[0]
         self.arm = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, arm_actuators)
         self.hand = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, hand_actuators)
         if set(self.arm) & set(self.hand):
@@ -222,6 +223,11 @@ class OperationalSpace:
         self.ctrl_high = np.full((n, self.nu), np.inf)
         self.ctrl_low[:, self.arm], self.ctrl_high[:, self.arm] = self.arm_low, self.arm_high
         self.ctrl_low[:, self.hand], self.ctrl_high[:, self.hand] = self.grip_low, self.grip_high
+        # a base on no joint (robosuite's: a fixed robot) has a zero Jacobian, so its velocity,
+        # a matrix product with it, is +0.0, which leaves the site's velocity as it is
+        self.base_moves = not all(
+            jacobian_is_zero(m, m.site_bodyid[self.base_site]) for m in models
+        )
         self.initial_joint: np.ndarray | None = None  # the arm's pose at the first step
         self.goal_pos = np.zeros((n, 3))
         self.goal_ori = np.zeros((n, 3, 3))
@@ -245,8 +251,13 @@ class OperationalSpace:
         qvel = view.qvel[:, :, None]
         np.matmul(jacp, qvel, out=b.site_vel[:, :3])
         np.matmul(jacr, qvel, out=b.site_vel[:, 3:])
-        np.matmul(view.site_jacp[:, 1], qvel, out=b.base_vel[:, :3])
-        np.matmul(view.site_jacr[:, 1], qvel, out=b.base_vel[:, 3:])
+        if self.base_moves:
+            np.matmul(view.site_jacp[:, 1], qvel, out=b.base_vel[:, :3])
+            np.matmul(view.site_jacr[:, 1], qvel, out=b.base_vel[:, 3:])
+            np.subtract(b.site_vel, b.base_vel, out=b.damping)
+            np.negative(b.damping, out=b.damping)
+        else:
+            np.negative(b.site_vel, out=b.damping)
         if new_action:
             self._set_goal(b, action, ref_pos, ref_ori, origin_pos, origin_ori)
         base_pose = (origin_pos.tobytes(), origin_ori.tobytes())
@@ -255,7 +266,7 @@ class OperationalSpace:
             np.matmul(origin_ori, self.goal_ori, out=b.desired_ori)
             b.desired_from = base_pose
         # the pose error (robosuite's orientation_error: the antisymmetric part of
-        # current @ desired^T), times kp, and the damping: -(site - base velocity) kd
+        # current @ desired^T) times kp, and the damping, -(site - base velocity) kd
         error = b.wrench_in[:, :, 0]
         np.subtract(b.desired_pos, ref_pos, out=error[:, :3])
         p = np.matmul(ref_ori, b.desired_ori_t, out=b.ori_product)
@@ -264,8 +275,6 @@ class OperationalSpace:
         np.subtract(p[:, 0, 1], p[:, 1, 0], out=error[:, 5])
         np.multiply(error[:, 3:], 0.5, out=error[:, 3:])
         np.multiply(b.wrench_in, self.kp_column, out=b.wrench_in)
-        np.subtract(b.site_vel, b.base_vel, out=b.damping)
-        np.negative(b.damping, out=b.damping)
         np.multiply(b.damping, self.kd_column, out=b.damping)
         np.add(b.wrench_in, b.damping, out=b.wrench_in)
         # the operational-space inertias and the null space, as robosuite computes them
@@ -299,7 +308,7 @@ class OperationalSpace:
         torques += b.posture_torques[:, :, 0]
         if not isinstance(self.arm_block, slice):
             b.raw[:, self.arm] = torques
-        return np.clip(b.raw, self.ctrl_low, self.ctrl_high)
+        return b.raw.clip(self.ctrl_low, self.ctrl_high)  # np.clip's own ufunc, fewer layers
 
     def _set_goal(self, b: _Buffers, action, ref_pos, ref_ori, origin_pos, origin_ori) -> None:
         """robosuite's `set_goal` at a new action: the pose goal in the base frame, the hand's
