@@ -72,7 +72,8 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str]) -> np
 def orientation_error(desired: np.ndarray, current: np.ndarray) -> np.ndarray:
     """robosuite's `orientation_error` on stacks (n, 3, 3) of rotation matrices: half the sum
     of the cross products of the current and the desired frames' columns, sum_m c_m x d_m,
-    whose components are the antisymmetric part of P = C D^T (one product for the stack)."""
+    whose components are the antisymmetric part of P = C D^T (one product for the stack).
+    `OperationalSpace` computes the same into its buffers."""
     p = current @ np.swapaxes(desired, 1, 2)
     return 0.5 * np.stack(
         [p[:, 1, 2] - p[:, 2, 1], p[:, 2, 0] - p[:, 0, 2], p[:, 0, 1] - p[:, 1, 0]], axis=1
@@ -233,13 +234,11 @@ class OperationalSpace:
         self.goal_ori = np.zeros((n, 3, 3))
         self.grip_command = np.zeros((n, 2))
         self.buffers = _Buffers(n, len(self.dofs), self.nu)
+        self.buffers.raw[:, self.hand] = self.grip_bias + self.grip_weight * self.grip_command
 
     def __call__(self, view: PhysicsView, action: np.ndarray, new_action: bool) -> np.ndarray:
         n = len(view.qpos)
-        b = self.buffers
-        if len(b.raw) != n:  # a view of other rows than reset's
-            b = self.buffers = _Buffers(n, len(self.dofs), self.nu)
-        dofs = self.dof_block
+        b, dofs = self.buffers, self.dof_block
         joint_pos, joint_vel = view.qpos[:, self.qpos_block], view.qvel[:, dofs]
         if self.initial_joint is None:
             self.initial_joint = joint_pos.copy()
