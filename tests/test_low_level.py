@@ -198,3 +198,66 @@ def test_an_episode_that_goes_unstable_halts_where_the_plain_loop_halts():
         assert ref.warnings.any() == frozen[i]
         np.testing.assert_array_equal(batch.physics[i], ref.physics[0])
         np.testing.assert_array_equal(batch.applied[i], ref.applied[0])
+
+
+SLIDER = """
+<mujoco>
+  <option timestep="10" gravity="0 0 0"/>
+  <worldbody>
+    <body name="slider">
+      <joint name="x" type="slide" axis="1 0 0"/>
+      <geom type="sphere" size="0.1" mass="1"/>
+    </body>
+  </worldbody>
+  <actuator><motor name="push" joint="x"/></actuator>
+  <sensor><jointpos joint="x"/><jointvel joint="x"/></sensor>
+</mujoco>
+"""
+
+
+class Kick:
+    """Pushes the slider hard from time 30 on: after that step its qpos and qvel are beyond
+    MuJoCo's bound with no warning yet (the acceleration is within it), so the next `mj_step1`
+    warns and resets its data, time included; before, a nudge by the action."""
+
+    reads = Reads()
+    n_inputs = 1
+
+    def reset(self, models) -> None:
+        pass
+
+    def __call__(self, view, action, new_action):
+        return np.where(view.time[:, None] >= 30.0, 5e9, 1e-3 * action)
+
+
+def test_an_episode_whose_state_goes_bad_is_reset_by_mj_step1_as_in_the_plain_loop():
+    """The engine takes a step's time, qpos and qvel from the state the step before left, which
+    `mj_step1` keeps unless it is bad: then it resets the data, and the controller sees (and
+    the episode halts at) what the plain loop's does. The second episode starts at time -1000
+    and never kicks, stepping on beside the halted one."""
+    model = mujoco.MjModel.from_xml_string(SLIDER)
+    initial = np.zeros((2, mujoco.mj_stateSize(model, FULLPHYSICS)))
+    initial[1, 0] = -1000.0
+    timing = closed_loop.Timing(steps_per_control=2, n_controls=4)
+    with rollout.Rollout(nthread=0) as runner:
+        batch = closed_loop.run_batch(
+            [model] * 2,
+            initial,
+            Wave(),
+            lambda states: states[:, 1:2],
+            timing,
+            runner=runner,
+            datas=[mujoco.MjData(model)],
+            low_level=Kick,
+        )
+    for i, state in enumerate(initial):
+        ref = closed_loop.reference_episode(
+            model, state, Wave(), lambda states: states[:, 1:2], timing, low_level=Kick
+        )
+        np.testing.assert_array_equal(batch.physics[i], ref.physics[0])
+        np.testing.assert_array_equal(batch.sensordata[i], ref.sensordata[0])
+        np.testing.assert_array_equal(batch.applied[i], ref.applied[0])
+        assert ref.warnings[mujoco.mjtWarning.mjWARN_BADQPOS] == (i == 0)
+    # the kick at time 30 (step 3), the reset in the next step's mj_step1, halted there
+    assert np.abs(batch.physics[0, 3, 1]) > 1e10
+    assert batch.physics[0, 4, 0] == 10.0 and np.all(batch.physics[0, 4:] == batch.physics[0, 4])

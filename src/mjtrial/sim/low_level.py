@@ -176,49 +176,94 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str]) -> li
     return out
 
 
+def jacobian_is_zero(model: mujoco.MjModel, body: int) -> bool:
+    """`mj_jac` of a body whose weld root has no dofs only clears its outputs (no joint
+    between it and the world): the view's zeros are that Jacobian, at every step."""
+    return model.body_dofnum[model.body_weldid[body]] == 0
+
+
+def _pose_is_fixed(model: mujoco.MjModel, body: int) -> bool:
+    """No joint and no mocap body between the body and the world: the kinematics give it the
+    same pose, bit for bit, at every step (from the model's constants alone)."""
+    while body > 0:
+        if model.body_jntnum[body] or model.body_mocapid[body] >= 0:
+            return False
+        body = model.body_parentid[body]
+    return True
+
+
 class _Gather:
     """Fills a `PhysicsView`'s rows from the episodes' data after `mj_step1`. Each row's
     (view, data) array pairs and MuJoCo calls are made once: MjData's arrays are views of its
     buffers, so a step costs a copy per field, not an attribute lookup and a new view each
-    (a third of the Panda's per-episode step, with the controller, was this bookkeeping)."""
+    (a third of the Panda's per-episode step, with the controller, was this bookkeeping).
+
+    Per row and step, `copies` and `calls` leave out what need not be read again: the time,
+    qpos and qvel (`state`: the engine has them from the step before), a fixed body's or
+    site's pose (`fixed`: read at the first step), and a Jacobian that is zero (never
+    computed: the view holds its zeros)."""
 
     def __init__(self, models, datas, reads: Reads, view: PhysicsView) -> None:
         model = models[0]
         sites = _ids(model, mujoco.mjtObj.mjOBJ_SITE, reads.sites)
         bodies = _ids(model, mujoco.mjtObj.mjOBJ_BODY, reads.bodies)
         self.time = view.time
+        self.state: list[list[tuple[np.ndarray, np.ndarray]]] = []
+        self.fixed: list[list[tuple[np.ndarray, np.ndarray]]] = []
         self.copies: list[list[tuple[np.ndarray, np.ndarray]]] = []
         self.calls: list[list[tuple[Callable[..., None], tuple]]] = []
         for i, (m, d) in enumerate(zip(models, datas, strict=True)):
-            copies = [(view.qpos[i], d.qpos), (view.qvel[i], d.qvel)]
+            state = [(view.qpos[i], d.qpos), (view.qvel[i], d.qvel)]
+            fixed: list[tuple[np.ndarray, np.ndarray]] = []
+            copies: list[tuple[np.ndarray, np.ndarray]] = []
             calls: list[tuple[Callable[..., None], tuple]] = []
             for k, site in enumerate(sites):
-                copies += [(view.site_xpos[i, k], d.site_xpos[site])]
-                copies += [(view.site_xmat[i, k], d.site_xmat[site])]
-                calls.append(
-                    (mujoco.mj_jacSite, (m, d, view.site_jacp[i, k], view.site_jacr[i, k], site))
-                )
+                body = m.site_bodyid[site]
+                pose = [(view.site_xpos[i, k], d.site_xpos[site])]
+                pose += [(view.site_xmat[i, k], d.site_xmat[site])]
+                (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
+                if not jacobian_is_zero(m, body):
+                    calls.append(
+                        (
+                            mujoco.mj_jacSite,
+                            (m, d, view.site_jacp[i, k], view.site_jacr[i, k], site),
+                        )
+                    )
             for k, body in enumerate(bodies):
-                copies += [(view.body_xpos[i, k], d.xpos[body])]
-                copies += [(view.body_xquat[i, k], d.xquat[body])]
-                calls.append(
-                    (mujoco.mj_jacBody, (m, d, view.body_jacp[i, k], view.body_jacr[i, k], body))
-                )
+                pose = [(view.body_xpos[i, k], d.xpos[body])]
+                pose += [(view.body_xquat[i, k], d.xquat[body])]
+                (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
+                if not jacobian_is_zero(m, body):
+                    calls.append(
+                        (
+                            mujoco.mj_jacBody,
+                            (m, d, view.body_jacp[i, k], view.body_jacr[i, k], body),
+                        )
+                    )
             if reads.mass_matrix:
                 calls.append((mujoco.mj_fullM, (m, d, view.mass_matrix[i])))
             if reads.bias:
                 copies.append((view.bias[i], d.qfrc_bias))
             if reads.actuator_length:
                 copies.append((view.actuator_length[i], d.actuator_length))
+            self.state.append(state)
+            self.fixed.append(fixed)
             self.copies.append(copies)
             self.calls.append(calls)
 
     def row(self, i: int, d: mujoco.MjData) -> None:
-        self.time[i] = d.time
+        """All of row i, from episode data `d` after `mj_step1`."""
+        self.state_row(i, d)
         for target, source in self.copies[i]:
             target[...] = source  # a third of np.copyto's call
         for call, args in self.calls[i]:
             call(*args)
+
+    def state_row(self, i: int, d: mujoco.MjData) -> None:
+        """Row i's time, qpos, qvel and fixed poses, what `copies` and `calls` leave out."""
+        self.time[i] = d.time
+        for target, source in self.state[i] + self.fixed[i]:
+            target[...] = source
 
 
 def checked_controls(ctrl: object, n: int, nu: int) -> np.ndarray:
@@ -245,10 +290,32 @@ def _push_steps(pushes, rows: np.ndarray):
     )
 
 
-class _Slice:
-    """Some episodes of a batch, stepped together on one thread with one controller."""
+def _lean_state(model: mujoco.MjModel) -> bool:
+    """True when the mjSTATE_FULLPHYSICS state is the time, qpos and qvel alone (no
+    activations, history or plugin state) and no tree sleeps (`mj_step1` may wake one): then
+    `mj_step1` leaves them as `mj_step2` left them, unless they are bad (`state_is_bad`: it
+    resets the data) or a control callback is set (it may write anything)."""
+    size = mujoco.mj_stateSize(model, FULLPHYSICS)
+    sleep = getattr(mujoco.mjtEnableBit, "mjENBL_SLEEP", 0)
+    return size == 1 + model.nq + model.nv and not model.opt.enableflags & sleep
 
-    def __init__(self, models, datas, rows, make: MakeController, pushes) -> None:
+
+def state_is_bad(state: np.ndarray) -> np.ndarray:
+    """(n,) rows of (n, 1 + nq + nv) states whose qpos or qvel `mj_checkPos` / `mj_checkVel`
+    call bad (NaN, or beyond mjMAXVAL: 1e10), which makes `mj_step1` reset the data."""
+    return ~(np.abs(state[:, 1:]) <= 1e10).all(axis=1)
+
+
+class _Slice:
+    """Some episodes of a batch, stepped together on one thread with one controller.
+
+    Each episode's state after each step (time, qpos, qvel; or `mj_getState`'s where it holds
+    more) and sensors go to `state` and `sensors`, rows of the slice, whence whole columns
+    of the outputs are written at once, and whence the next step's view takes its time, qpos
+    and qvel: `mj_step1` does not change them (`_lean_state`) unless they are bad, and a bad
+    row is read from its data instead. A halted episode's rows stay its frozen state."""
+
+    def __init__(self, models, datas, rows, make: MakeController, pushes, initial) -> None:
         self.models, self.datas, self.rows = models, datas, rows
         self.controller = make()
         self.controller.reset(models)
@@ -257,11 +324,39 @@ class _Slice:
         self.gather = _Gather(models, datas, self.controller.reads, self.view)
         self.halted = np.zeros(len(rows), dtype=bool)
         self.live = [True] * len(rows)  # ~halted, as a list: read per row and step
-        # per episode: its model, data, row of the outputs, and the data's arrays written or
-        # read at every step (views of its buffers)
-        self.episodes = [
-            (m, d, int(row), d.ctrl, d.sensordata, d.warning.number)
-            for m, d, row in zip(models, datas, rows, strict=True)
+        self.lean = all(_lean_state(m) for m in models)
+        self.state = np.array(initial, dtype=np.float64)
+        self.sensors = np.zeros((len(rows), model.nsensordata))
+        self.first_step = True
+        # the rows of the outputs as a slice where they are contiguous (array_split's are)
+        self.out = (
+            slice(int(rows[0]), int(rows[-1]) + 1)
+            if len(rows) and np.array_equal(rows, np.arange(rows[0], rows[-1] + 1))
+            else rows
+        )
+        nq, nv = model.nq, model.nv
+        # per episode, what each half step uses: its model and data, its lean copies and calls
+        # after mj_step1; the data's arrays written or read after the controller, and its rows
+        # of `state` and `sensors`
+        self.before = [
+            (m, d, self.gather.copies[i], self.gather.calls[i])
+            for i, (m, d) in enumerate(zip(models, datas, strict=True))
+        ]
+        self.after = [
+            (
+                m,
+                d,
+                d.ctrl,
+                d.sensordata,
+                memoryview(d.warning.number),  # any() over it: a fifth of count_nonzero's call
+                d.qpos,
+                d.qvel,
+                self.state[i],
+                self.state[i, 1 : 1 + nq],
+                self.state[i, 1 + nq : 1 + nq + nv],
+                self.sensors[i],
+            )
+            for i, (m, d) in enumerate(zip(models, datas, strict=True))
         ]
         self.pushes = _push_steps(pushes, rows)
         self.nu = model.nu
@@ -277,41 +372,71 @@ class _Slice:
     ) -> None:
         """Physics steps first .. first + n_steps - 1 of the slice's episodes, the controller
         between `mj_step1` and `mj_step2` of each; writes their rows of the outputs."""
-        rows, gather, live, episodes = self.rows, self.gather, self.live, self.episodes
+        out, gather, live, view = self.out, self.gather, self.live, self.view
         step1, step2, get_state = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_getState
-        action = action[rows]
+        n, nq, nv = len(live), view.qpos.shape[1], view.qvel.shape[1]
+        state, lean = self.state, self.lean and mujoco.get_mjcb_control() is None
+        pushes = self.pushes
+        action = action[self.rows]
         for j in range(first, first + n_steps):
-            for i, (m, d, *_) in enumerate(episodes):
+            for i, (m, d, copies, calls) in enumerate(self.before):
                 if live[i]:
                     step1(m, d)
-                    gather.row(i, d)
+                    for target, source in copies:
+                        target[...] = source  # a third of np.copyto's call
+                    for call, args in calls:
+                        call(*args)
+            # the rows whose data mj_step1 may not have left at the state recorded, read whole
+            whole: Sequence[int] = range(n)
+            if lean and not self.first_step:
+                # a halted row keeps its stale view, as it keeps its other fields
+                rows = slice(None) if all(live) else ~self.halted
+                view.time[rows] = state[rows, 0]
+                view.qpos[rows] = state[rows, 1 : 1 + nq]
+                view.qvel[rows] = state[rows, 1 + nq : 1 + nq + nv]
+                fine = np.abs(state[:, 1:]).max() <= 1e10
+                whole = () if fine else np.flatnonzero(state_is_bad(state))
+            for i in whole:
+                if live[i]:
+                    gather.state_row(i, self.datas[i])
+            self.first_step = False
             with np.errstate(all="ignore"):  # a halted row's stale view is not used
-                ctrl = self.controller(self.view, action, j == first)
+                ctrl = self.controller(view, action, j == first)
             ctrl = np.asarray(ctrl, dtype=np.float64)
-            if ctrl.shape != (len(rows), self.nu):
-                checked_controls(ctrl, len(rows), self.nu)
+            if ctrl.shape != (n, self.nu):
+                checked_controls(ctrl, n, self.nu)
             if all(live):
                 if not np.isfinite(ctrl).all():
-                    checked_controls(ctrl, len(rows), self.nu)
-                applied[rows, j] = ctrl
+                    checked_controls(ctrl, n, self.nu)
+                applied[out, j] = ctrl
             else:
                 alive = ~self.halted
                 if not np.isfinite(ctrl[alive]).all():
                     checked_controls(ctrl[alive], int(alive.sum()), self.nu)
                 # a halted episode repeats its last controls, as its frozen state
-                applied[rows, j] = np.where(alive[:, None], ctrl, applied[rows, j - 1])
-            for i, (m, d, row, d_ctrl, d_sensordata, warnings) in enumerate(episodes):
+                applied[out, j] = np.where(alive[:, None], ctrl, applied[out, j - 1])
+            for i, (after, u) in enumerate(zip(self.after, ctrl, strict=True)):
                 if live[i]:
-                    d_ctrl[...] = ctrl[i]
-                    if self.pushes is not None:
-                        body, start, stop, wrench = self.pushes
+                    m, d, d_ctrl, d_sensors, warnings, d_qpos, d_qvel, row, qpos, qvel, sensed = (
+                        after
+                    )
+                    d_ctrl[...] = u
+                    if pushes is not None:
+                        body, start, stop, wrench = pushes
                         d.xfrc_applied[body] = wrench[i] if start[i] <= j < stop[i] else 0.0
                     step2(m, d)
-                    if warnings.any():
+                    if lean:
+                        row[0] = d.time
+                        qpos[...] = d_qpos
+                        qvel[...] = d_qvel
+                    else:
+                        get_state(m, d, row, FULLPHYSICS)
+                    sensed[...] = d_sensors
+                    if any(warnings):
                         live[i] = False
                         self.halted[i] = True
-                get_state(m, d, physics[row, j], FULLPHYSICS)
-                sensordata[row, j] = d_sensordata
+            physics[out, j] = state
+            sensordata[out, j] = self.sensors
 
 
 class Stepper:
@@ -345,7 +470,12 @@ class Stepper:
         cuts = np.array_split(np.arange(n), max(1, min(nthread, n)))
         self.slices = [
             _Slice(
-                [models[i] for i in rows], [datas[i] for i in rows], rows, make_controller, pushes
+                [models[i] for i in rows],
+                [datas[i] for i in rows],
+                rows,
+                make_controller,
+                pushes,
+                initial[rows],
             )
             for rows in cuts
             if len(rows)
