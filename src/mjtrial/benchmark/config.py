@@ -31,9 +31,9 @@ from mjtrial.config import (
     policy_path_problem,
     read_config_file,
 )
-from mjtrial.config.read import packaged_schema
 from mjtrial.crate.description import crate_description
 from mjtrial.files.layout import shard_ids, shard_range
+from mjtrial.files.schemas import packaged_schema
 from mjtrial.policy_files.file import load_policy_file, policy_task
 from mjtrial.task import Task, TaskError, load_task
 

@@ -23,7 +23,6 @@ from mjtrial.config.read import (  # noqa: F401 - read from here by the workflow
     MAX_CONFIG_VALUES,
     ConfigError,
     merge_config,
-    packaged_schema,
     parse_config_args,
     parse_config_text,
     read_config_file,
@@ -34,6 +33,7 @@ from mjtrial.config.studies import _changes_nothing, _check_variant_applies, _un
 from mjtrial.design.conditions import all_conditions, model_edits, policy_path, sweep_base
 from mjtrial.design.states import ConstraintError, probe_constraint
 from mjtrial.files.layout import CONFIG_FILE, NOMINAL, Layout
+from mjtrial.files.schemas import packaged_schema
 from mjtrial.policy_files.file import PolicyFileError, contract_path, load_policy_file, policy_task
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure

@@ -5,8 +5,6 @@ configuration. What the values must be is `mjtrial.config`'s check.
 
 from __future__ import annotations
 
-import copy
-import functools
 import os
 import shlex
 from collections.abc import Mapping, Sequence
@@ -16,27 +14,12 @@ from typing import Any
 import yaml
 
 from mjtrial.files.layout import CONFIG_FILE
+from mjtrial.files.schemas import FAST_LOADER
 
 # A config is a few hundred lines; anything far larger is a mistake or an attack (a YAML
 # "billion laughs" document expands a few lines of aliases into billions of values).
 MAX_CONFIG_BYTES = 1 << 20
 MAX_CONFIG_VALUES = 100_000
-
-
-# libyaml's parser where PyYAML was built with it (the wheels are): the same documents, a
-# sixth of the pure-Python parser's time, which every Snakemake start and verify paid.
-_FAST_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-
-
-def packaged_schema(path: Path) -> dict[str, Any]:
-    """A JSON schema shipped with the package, parsed once per process (a fresh copy each call:
-    a task extends the config's schema in place)."""
-    return copy.deepcopy(_parsed_schema(Path(path)))
-
-
-@functools.cache
-def _parsed_schema(path: Path) -> dict[str, Any]:
-    return yaml.load(path.read_text(encoding="utf-8"), Loader=_FAST_LOADER)
 
 
 class ConfigError(ValueError):
@@ -94,7 +77,7 @@ def parse_config_text(text: str, *, source: str) -> dict[str, Any]:
             f"{source}: expands to more than {MAX_CONFIG_VALUES} values through YAML aliases; "
             "expected a plain config"
         )
-    config = yaml.load(text, Loader=_FAST_LOADER)  # valid YAML, its size checked above
+    config = yaml.load(text, Loader=FAST_LOADER)  # valid YAML, its size checked above
     duplicate = _duplicate_key(node) if node is not None else None
     if duplicate:
         key, line = duplicate

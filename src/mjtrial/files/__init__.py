@@ -5,4 +5,5 @@
 - `safekeeping`: the snapshot of the results before a run, put back where a job failed.
 - `codehash`: the code a stage runs (its script and the package modules it imports), hashed
   for its outputs' stamps. Not in `provenance`, which imports no other part of the package.
+- `schemas`: the JSON schemas shipped with the package, parsed once per process.
 """

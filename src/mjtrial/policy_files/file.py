@@ -42,7 +42,7 @@ import numpy as np
 import yaml
 
 from mjtrial import REPO_ROOT
-from mjtrial.config.read import packaged_schema
+from mjtrial.files.schemas import packaged_schema
 from mjtrial.policy_files.onnx_data import GraphFormatError, external_data
 from mjtrial.sim.engine import MAX_BATCH
 from mjtrial.sim.physics import ModelError, load_model
