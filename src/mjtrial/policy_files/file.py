@@ -43,6 +43,7 @@ import yaml
 
 from mjtrial import REPO_ROOT
 from mjtrial.files.schemas import packaged_schema
+from mjtrial.policy_files.one_row import OneRow
 from mjtrial.policy_files.onnx_data import GraphFormatError, external_data
 from mjtrial.sim.engine import MAX_BATCH
 from mjtrial.sim.physics import ModelError, load_model
@@ -240,10 +241,8 @@ def read_contract(onnx_file: Path) -> Contract:
         if bad:
             raise PolicyFileError(f"{path}: {key}: {bad[0]}; expected finite numbers")
     for k, entry in enumerate(raw["actuators"]):
-        if (
-            isinstance(entry, dict)
-            and "signs" in entry
-            and len(entry["signs"]) != len(entry["actuators"])
+        if isinstance(entry, dict) and "signs" in entry and len(entry["signs"]) != len(
+            entry["actuators"]
         ):
             raise PolicyFileError(
                 f"{path}: actuators.{k}.signs: {entry['signs']}; expected one sign (1 or -1) "
@@ -508,30 +507,16 @@ class OnnxPolicy:
         for bit. The graph runs on the episode's row alone at every instant (the replay's exact
         check, `closed_loop.check_replayed`); the arithmetic around it, elementwise, runs on
         all k instants at once: per call, it cost 2.5 times the graph's own 11 µs
-        (benchmarks/bench_policy_file.py). The graph's inputs and outputs are bound once to
-        arrays of one row (onnxruntime's `io_binding`): a call then costs about half of
-        `session.run`'s, with the same kernels on the same row, so the same bits."""
+        (benchmarks/bench_policy_file.py). The graph's row is bound once (`one_row.OneRow`)."""
         x = self._graph_input(observations)
-        recurrent = self.contract.recurrent
+        one = OneRow(self.session, self.contract, x.shape[1], self.outputs, self.widths)
         raw = np.empty((len(x), self.contract.n_outputs), dtype=np.float32)
-        row = np.empty((1, x.shape[1]), dtype=np.float32)
-        state = {r.input: np.zeros((1, r.size), dtype=np.float32) for r in recurrent}
-        answers = [np.empty((1, width), dtype=np.float32) for width in self.widths]
-        binding = self.session.io_binding()
-        for name, array in [(self.contract.input, row), *state.items()]:
-            binding.bind_cpu_input(name, array)  # the arrays' memory, read at each call
-        for name, array in zip(self.outputs, answers, strict=True):
-            binding.bind_output(name, "cpu", 0, np.float32, array.shape, array.ctypes.data)
         for k in range(len(x)):
-            row[...] = x[k]
             try:
-                self.session.run_with_iobinding(binding)
+                raw[k] = one(x[k])
             except Exception:  # an output of another shape: the checked call says which
-                self._run(row.copy(), {name: array.copy() for name, array in state.items()})
+                self._run(x[k : k + 1].copy(), {n: a.copy() for n, a in one.state.items()})
                 raise
-            for r, value in zip(recurrent, answers[1:], strict=True):
-                state[r.input][...] = value
-            raw[k] = answers[0][0]
         failed = np.logical_or.accumulate(~np.isfinite(raw).all(axis=1))
         return self._controls(raw, failed)
 

@@ -12,9 +12,9 @@ __all__ = ["report_text", "write_figures", "write_report"]
 
 
 def __getattr__(name: str) -> Any:
-    # The figures are imported at first use: matplotlib costs a second to a process that only
-    # formats text (verify recomputes the report's text, never its figures).
     if name == "write_figures":
+        # The figures are imported at first use: matplotlib costs a second to a process that
+        # only formats text (verify recomputes the report's text, never its figures).
         from mjtrial.report.figures import write_figures
 
         return write_figures
