@@ -87,17 +87,27 @@ def edit_config(workdir: Path, edit) -> None:
 
 
 def run_snakemake(workdir: Path, *args: str, check: bool = True, env: dict | None = None):
-    """Run Snakemake in `workdir`; `env` adds environment variables (e.g. PYTHONPATH)."""
+    """Run Snakemake in `workdir`; `env` adds environment variables (e.g. PYTHONPATH).
+
+    Forked from a process that has Snakemake imported (`forked_snakemake`), unless `env` sets
+    PYTHONPATH: another copy of the package needs a fresh process."""
     import subprocess
 
-    proc = subprocess.run(
-        [SNAKEMAKE, "-c2", *args],
-        cwd=workdir,
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env=None if env is None else os.environ | env,
-    )
+    import forked_snakemake
+
+    argv = ["-c2", *args]
+    environment = os.environ | (env or {})
+    if "PYTHONPATH" in (env or {}):
+        proc = subprocess.run(
+            [SNAKEMAKE, *argv],
+            cwd=workdir,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            env=environment,
+        )
+    else:
+        proc = forked_snakemake.run(SNAKEMAKE, argv, workdir, dict(environment), timeout=600)
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake {args} failed:\n{proc.stdout}\n{proc.stderr}")
     return proc

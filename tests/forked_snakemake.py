@@ -1,0 +1,197 @@
+"""Snakemake runs forked from a process that has already imported it, for the tests.
+
+Most of the suite's time went to starting Snakemake: each `snakemake` process imports Snakemake,
+pandas (its parameter check), MuJoCo and the workflow's own modules, about 2 s of CPU before the
+first rule, and the suite starts it several hundred times. `run` instead asks a server process
+(this file run as a script, one per test worker) that imported all of that once; the server
+forks a child per run, and the child runs Snakemake's own command line (`snakemake.cli.main`) in
+the run's folder and environment, its output to files, its exit status the run's. The child is
+what a fresh `snakemake` process would be, less the import time: the same entry point, the same
+arguments, job scripts still started as new Python processes by Snakemake itself.
+
+A run that changes `PYTHONPATH` (another copy of the package) is not forked: the server's modules
+come from this checkout. `tests/conftest.py`'s `run_snakemake` decides.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+# What a Snakemake run of this workflow imports before its first job (a dry run's new modules,
+# the large ones): imported once by the server.
+PRELOAD = (
+    "snakemake.cli",
+    "snakemake.api",
+    "snakemake.dag",
+    "snakemake.workflow",
+    "snakemake.persistence",
+    "snakemake.executors.local",
+    "pandas",  # Snakemake's check of changed parameters imports it
+    "mujoco",
+    "numpy",
+    "pyarrow.parquet",
+    "yaml",
+    "jsonschema",
+    "mjtrial.config",
+    "mjtrial.config.check",
+    "mjtrial.task.checks",
+    "mjtrial.stages.stamping",
+    "mjtrial.workflow_script",
+    "mjtrial.design.registration",
+    "mjtrial.design.conditions",
+    "mjtrial.sim.simenv",
+    "mjtrial.sim.physics",
+    "mjtrial.files.safekeeping",
+    "mjtrial.files.layout",
+    "mjtrial.provenance",
+    "mjtrial.provenance.recording_folders",
+    "mjtrial.benchmark",
+    "mjtrial.benchmark.config",
+    "mjtrial.policy_files.file",
+)
+
+
+def _exit_code(exc: SystemExit) -> int:
+    if exc.code is None:
+        return 0
+    if isinstance(exc.code, int):
+        return exc.code
+    print(exc.code, file=sys.stderr)  # what the interpreter does with sys.exit("message")
+    return 1
+
+
+def _child(request: dict) -> None:
+    """Run Snakemake as the request says and leave the process with its exit status."""
+    import atexit
+
+    code = 1
+    try:
+        os.setsid()  # its own process group: a timeout kills the run and its jobs
+        os.chdir(request["cwd"])
+        os.environ.clear()
+        os.environ.update(request["env"])
+        null = os.open(os.devnull, os.O_RDONLY)
+        os.dup2(null, 0)
+        for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
+            out = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            os.dup2(out, fd)
+            os.close(out)
+        sys.argv = [request["executable"], *request["argv"]]
+        import snakemake.cli
+
+        try:
+            snakemake.cli.main(request["argv"])
+            code = 0
+        except SystemExit as exc:
+            code = _exit_code(exc)
+        atexit._run_exitfuncs()
+    except BaseException:  # anything else is the run's failure, as in a fresh process
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except Exception:
+                pass
+        os._exit(code)
+
+
+def serve() -> None:
+    """The server: one request per line on stdin; answers the child's pid, then its status."""
+    import importlib
+
+    for name in PRELOAD:
+        importlib.import_module(name)
+    reply = os.fdopen(os.dup(1), "w")
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 1)  # nothing else may write into the replies
+    reply.write("ready\n")
+    reply.flush()
+    for line in sys.stdin:
+        request = json.loads(line)
+        pid = os.fork()
+        if pid == 0:
+            _child(request)
+        reply.write(f"{pid}\n")
+        reply.flush()
+        _, status = os.waitpid(pid, 0)
+        reply.write(f"{os.waitstatus_to_exitcode(status)}\n")
+        reply.flush()
+
+
+class _Server:
+    def __init__(self) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, __file__],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            bufsize=1,
+        )
+        if self._line(timeout=300) != "ready":
+            raise RuntimeError("the Snakemake server did not start")
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def _line(self, timeout: float | None) -> str:
+        if timeout is not None:
+            ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+            if not ready:
+                raise TimeoutError
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError("the Snakemake server exited")
+        return line.strip()
+
+    def run(self, executable: str, argv: list[str], cwd: Path, env: dict, timeout: float):
+        with tempfile.TemporaryDirectory(prefix="mjtrial-snakemake-") as folder:
+            out, err = Path(folder, "stdout"), Path(folder, "stderr")
+            request = {
+                "executable": executable,
+                "argv": argv,
+                "cwd": str(cwd),
+                "env": env,
+                "stdout": str(out),
+                "stderr": str(err),
+            }
+            self.proc.stdin.write(json.dumps(request) + "\n")
+            self.proc.stdin.flush()
+            pid = int(self._line(timeout=60))
+            try:
+                code = int(self._line(timeout=timeout))
+            except TimeoutError:
+                os.killpg(pid, signal.SIGKILL)
+                self._line(timeout=60)
+                raise subprocess.TimeoutExpired([executable, *argv], timeout) from None
+            return subprocess.CompletedProcess(
+                [executable, *argv],
+                code,
+                out.read_text(errors="replace"),
+                err.read_text(errors="replace"),
+            )
+
+
+_server: _Server | None = None
+
+
+def run(executable: str, argv: list[str], cwd: Path, env: dict, timeout: float):
+    """`subprocess.run([executable, *argv], cwd=cwd, env=env, capture_output=True, text=True,
+    timeout=timeout)` for Snakemake, forked from the server."""
+    global _server
+    if _server is None or not _server.alive():
+        _server = _Server()
+    return _server.run(executable, argv, cwd, env, timeout)
+
+
+if __name__ == "__main__":
+    serve()
