@@ -18,6 +18,10 @@ os.environ.update(
     RERUN_ANALYTICS="0",
     MPLBACKEND="Agg",
 )
+# Where the environment forbids bytecode files, every job process compiles the package's modules
+# from source again (a rollout job's import of them: 0.17 s against 0.07 s from bytecode): the
+# suite's processes keep their bytecode, as a user's Python does.
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

@@ -55,6 +55,24 @@ PRELOAD = (
     "mjtrial.benchmark",
     "mjtrial.benchmark.config",
     "mjtrial.policy_files.file",
+    # the stages Snakemake's own process runs (`run:` rules), with rerun and matplotlib
+    "mjtrial.recording",
+    "mjtrial.stages.states",
+    "mjtrial.stages.register",
+    "mjtrial.stages.rollout",
+    "mjtrial.stages.failures",
+    "mjtrial.stages.analysis",
+    "mjtrial.stages.report",
+    "mjtrial.report.figures",
+    "mjtrial.stages.manifest",
+    "mjtrial.stages.seal",
+    "mjtrial.stages.crate",
+    "mjtrial.stages.look",
+    "mjtrial.stages.evaluate",
+    "mjtrial.stages.pilot",
+    "mjtrial.stages.studies",
+    "mjtrial.stages.benchmark",
+    "scipy.special",
 )
 
 
