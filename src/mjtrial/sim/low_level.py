@@ -27,6 +27,7 @@ import copy
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Protocol
 
 import mujoco
@@ -192,6 +193,14 @@ def _pose_is_fixed(model: mujoco.MjModel, body: int) -> bool:
     return True
 
 
+def _place(m, body: int, pose: list, jacobian: tuple, *, fixed: list, copies: list, calls: list):
+    """A site's or body's reads: its pose into `fixed` (read once) if its body cannot move, else
+    into `copies` (each step); its Jacobian call into `calls` unless it is always zero."""
+    (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
+    if not jacobian_is_zero(m, body):
+        calls.append(jacobian)
+
+
 class _Gather:
     """Fills a `PhysicsView`'s rows from the episodes' data after `mj_step1`. Each row's
     (view, data) array pairs and MuJoCo calls are made once: MjData's arrays are views of its
@@ -217,29 +226,22 @@ class _Gather:
             fixed: list[tuple[np.ndarray, np.ndarray]] = []
             copies: list[tuple[np.ndarray, np.ndarray]] = []
             calls: list[tuple[Callable[..., None], tuple]] = []
+            place = partial(_place, m, fixed=fixed, copies=copies, calls=calls)
             for k, site in enumerate(sites):
-                body = m.site_bodyid[site]
-                pose = [(view.site_xpos[i, k], d.site_xpos[site])]
-                pose += [(view.site_xmat[i, k], d.site_xmat[site])]
-                (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
-                if not jacobian_is_zero(m, body):
-                    calls.append(
-                        (
-                            mujoco.mj_jacSite,
-                            (m, d, view.site_jacp[i, k], view.site_jacr[i, k], site),
-                        )
-                    )
+                place(
+                    m.site_bodyid[site],
+                    [
+                        (view.site_xpos[i, k], d.site_xpos[site]),
+                        (view.site_xmat[i, k], d.site_xmat[site]),
+                    ],
+                    (mujoco.mj_jacSite, (m, d, view.site_jacp[i, k], view.site_jacr[i, k], site)),
+                )
             for k, body in enumerate(bodies):
-                pose = [(view.body_xpos[i, k], d.xpos[body])]
-                pose += [(view.body_xquat[i, k], d.xquat[body])]
-                (fixed if _pose_is_fixed(m, body) else copies).extend(pose)
-                if not jacobian_is_zero(m, body):
-                    calls.append(
-                        (
-                            mujoco.mj_jacBody,
-                            (m, d, view.body_jacp[i, k], view.body_jacr[i, k], body),
-                        )
-                    )
+                place(
+                    body,
+                    [(view.body_xpos[i, k], d.xpos[body]), (view.body_xquat[i, k], d.xquat[body])],
+                    (mujoco.mj_jacBody, (m, d, view.body_jacp[i, k], view.body_jacr[i, k], body)),
+                )
             if reads.mass_matrix:
                 calls.append((mujoco.mj_fullM, (m, d, view.mass_matrix[i])))
             if reads.bias:
