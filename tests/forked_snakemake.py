@@ -7,7 +7,9 @@ first rule, and the suite starts it several hundred times. `run` instead asks a 
 forks a child per run, and the child runs Snakemake's own command line (`snakemake.cli.main`) in
 the run's folder and environment, its output to files, its exit status the run's. The child is
 what a fresh `snakemake` process would be, less the import time: the same entry point, the same
-arguments, job scripts still started as new Python processes by Snakemake itself.
+arguments. Its Python job scripts (`script:` rules) are started by Snakemake as ever, through
+`job_launcher.py`, and run forked from a second server that imported their modules
+(`forked_jobs`).
 
 A run that changes `PYTHONPATH` (another copy of the package) is not forked: the server's modules
 come from this checkout. `tests/conftest.py`'s `run_snakemake` decides.
@@ -85,9 +87,12 @@ def _exit_code(exc: SystemExit) -> int:
     return 1
 
 
-def _child(request: dict) -> None:
-    """Run Snakemake as the request says and leave the process with its exit status."""
+def _child(request: dict, jobs: str) -> None:
+    """Run Snakemake as the request says, its Python job scripts through the job server at
+    `jobs`, and leave the process with its exit status."""
     import atexit
+
+    import forked_jobs
 
     code = 1
     try:
@@ -95,6 +100,7 @@ def _child(request: dict) -> None:
         os.chdir(request["cwd"])
         os.environ.clear()
         os.environ.update(request["env"])
+        forked_jobs.use(jobs)
         null = os.open(os.devnull, os.O_RDONLY)
         os.dup2(null, 0)
         for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
@@ -128,6 +134,9 @@ def serve() -> None:
     """The server: one request per line on stdin; answers the child's pid, then its status."""
     import importlib
 
+    import forked_jobs
+
+    jobs = forked_jobs.start()
     for name in PRELOAD:
         importlib.import_module(name)
     reply = os.fdopen(os.dup(1), "w")
@@ -138,7 +147,7 @@ def serve() -> None:
         request = json.loads(line)
         pid = os.fork()
         if pid == 0:
-            _child(request)
+            _child(request, jobs)
         reply.write(f"{pid}\n")
         reply.flush()
         _, status = os.waitpid(pid, 0)
