@@ -13,6 +13,7 @@ from mjtrial.config import (
     rerun_command,
     run_configuration,
 )
+from mjtrial.config.passes import CONFIG_CHECKS, remember_passes
 from mjtrial.files.layout import COMPILED_MODELS
 from mjtrial.sim.physics import keep_compiled_models
 
@@ -23,6 +24,9 @@ if foreign_package(Path.cwd()):
 # The model compiled by the config check is kept for the jobs, which read it instead of
 # compiling it again (mjtrial.sim.physics.load_model).
 keep_compiled_models(COMPILED_MODELS)
+# A config check that passed is not simulated again at the next start while nothing it reads
+# has changed (mjtrial.config.passes).
+remember_passes(CONFIG_CHECKS)
 
 # The config file is read here rather than with `configfile:` so that a YAML error or a
 # duplicated key is one line too. It is config/config.yaml, or a `--configfile` that names an

@@ -17,7 +17,7 @@ import jsonschema
 import mujoco
 
 from mjtrial import REPO_ROOT
-from mjtrial.config import budget
+from mjtrial.config import budget, passes
 from mjtrial.config.read import (  # noqa: F401 - read from here by the workflow and the CLI
     MAX_CONFIG_BYTES,
     MAX_CONFIG_VALUES,
@@ -34,7 +34,13 @@ from mjtrial.design.conditions import all_conditions, model_edits, policy_path, 
 from mjtrial.design.states import ConstraintError, probe_constraint
 from mjtrial.files.layout import CONFIG_FILE, NOMINAL, Layout
 from mjtrial.files.schemas import packaged_schema
-from mjtrial.policy_files.file import PolicyFileError, contract_path, load_policy_file, policy_task
+from mjtrial.policy_files.file import (
+    PolicyFileError,
+    contract_path,
+    load_policy_file,
+    policy_file_paths,
+    policy_task,
+)
 from mjtrial.provenance import git_state
 from mjtrial.provenance.model_closure import model_closure
 from mjtrial.sim.physics import ModelError, load_model
@@ -358,7 +364,37 @@ def check_config(
     """
     if not isinstance(config, Mapping):
         raise ConfigError(f"{source}: expected a mapping of keys at the top level")
+    key = None
+    if passes.keeping():  # in the workflow's Snakemake process (the Snakefile says so)
+        key = passes.check_key(
+            config,
+            repo_root=Path(repo_root),
+            schemas=SCHEMA_PATH.parent,
+            policies=_policy_files(config, repo_root=Path(repo_root)),
+        )
+    if passes.passed(key):
+        return
+    _check(config, source=source, repo_root=Path(repo_root), overrides=overrides)
+    passes.remember(key)
 
+
+def _policy_files(config: Mapping[str, Any], *, repo_root: Path) -> list[Path] | None:
+    """Every file of every condition's policy file (`policy_file_paths`): what a check's key
+    hashes; None where the config cannot say (then no key: the check runs and says why)."""
+    try:
+        named = [policy_path(c) for c in all_conditions(config).values()]
+        return [p for n in named if isinstance(n, str) for p in policy_file_paths(repo_root / n)]
+    except Exception:  # noqa: BLE001 - a config the check refuses
+        return None
+
+
+def _check(
+    config: Mapping[str, Any],
+    *,
+    source: str,
+    repo_root: Path,
+    overrides: Mapping[str, Any] | None,
+) -> None:
     def fail(key: str, expectation: str) -> None:
         where = "--config" if _has_key(overrides, key) else source
         raise ConfigError(f"{where}: {key}: {expectation}")
