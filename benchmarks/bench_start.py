@@ -53,12 +53,9 @@ def main() -> None:
     snakemake_args = ["--configfile", args.configfile] if args.configfile else []
     with tempfile.TemporaryDirectory(prefix="mjtrial-bench-start-") as folder:
         workdir = Path(folder)
-        for name in COPIED:
-            source = REPO_ROOT / name
-            if source.is_dir():
-                shutil.copytree(source, workdir / name, symlinks=True)
-            else:
-                shutil.copy(source, workdir / name)
+        for name in COPIED:  # as bench_memory.py copies it
+            src = REPO_ROOT / name
+            (shutil.copytree if src.is_dir() else shutil.copy)(src, workdir / name)
         dry_run(workdir, snakemake_args)  # compiles the model once for both (its MJB is kept)
         cpu: dict[str, list[float]] = {"remembered": [], "checked": []}
         ratios = []

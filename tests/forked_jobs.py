@@ -19,6 +19,7 @@ counts of a one-thread job, the workflow's rollouts.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import select
@@ -27,7 +28,9 @@ import socket
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 ADDRESS = "MJTRIAL_TEST_JOB_SERVER"  # the environment variable naming the server's socket
 LAUNCHER = Path(__file__).with_name("job_launcher.py")
@@ -80,30 +83,20 @@ def _exit_code(exc: SystemExit) -> int:
     return 1
 
 
-def _script(request: dict, fds: list[int]) -> None:
-    """Run the job's script as `python script.py` would, then leave with its status."""
+def exit_as_interpreter(main: Callable[[], None]) -> NoReturn:
+    """Run `main` in this forked child and leave it as a fresh interpreter would: status 0, a
+    `SystemExit`'s code, or 1 with the traceback printed; exit functions run, streams flushed."""
     import atexit
-    import runpy
 
     code = 1
     try:
-        os.setpgid(0, 0)
-        for target, fd in enumerate(fds):
-            os.dup2(fd, target)
-            os.close(fd)
-        os.chdir(request["cwd"])
-        os.environ.clear()
-        os.environ.update(request["env"])
-        script = request["argv"][0]
-        sys.argv = list(request["argv"])
-        sys.path[0] = os.path.dirname(os.path.abspath(script))
         try:
-            runpy.run_path(script, run_name="__main__")
+            main()
             code = 0
         except SystemExit as exc:
             code = _exit_code(exc)
         atexit._run_exitfuncs()
-    except BaseException:  # the script's failure, printed as the interpreter would
+    except BaseException:  # anything else is the failure, printed as the interpreter would
         import traceback
 
         traceback.print_exc()
@@ -115,6 +108,23 @@ def _script(request: dict, fds: list[int]) -> None:
             except Exception:
                 pass
         os._exit(code)
+
+
+def _script(request: dict, fds: list[int]) -> None:
+    """Run the job's script as `python script.py` would."""
+    import runpy
+
+    os.setpgid(0, 0)
+    for target, fd in enumerate(fds):
+        os.dup2(fd, target)
+        os.close(fd)
+    os.chdir(request["cwd"])
+    os.environ.clear()
+    os.environ.update(request["env"])
+    script = request["argv"][0]
+    sys.argv = list(request["argv"])
+    sys.path[0] = os.path.dirname(os.path.abspath(script))
+    runpy.run_path(script, run_name="__main__")
 
 
 def _receive(conn: socket.socket) -> tuple[dict, list[int]]:
@@ -143,7 +153,7 @@ def _job(conn: socket.socket) -> None:
         pid = os.fork()
         if pid == 0:
             conn.close()
-            _script(request, fds)
+            exit_as_interpreter(functools.partial(_script, request, fds))
         for fd in fds:
             os.close(fd)
         done = os.pidfd_open(pid)

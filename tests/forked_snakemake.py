@@ -17,6 +17,7 @@ come from this checkout. `tests/conftest.py`'s `run_snakemake` decides.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import select
@@ -78,56 +79,26 @@ PRELOAD = (
 )
 
 
-def _exit_code(exc: SystemExit) -> int:
-    if exc.code is None:
-        return 0
-    if isinstance(exc.code, int):
-        return exc.code
-    print(exc.code, file=sys.stderr)  # what the interpreter does with sys.exit("message")
-    return 1
-
-
 def _child(request: dict, jobs: str) -> None:
     """Run Snakemake as the request says, its Python job scripts through the job server at
-    `jobs`, and leave the process with its exit status."""
-    import atexit
-
+    `jobs`."""
     import forked_jobs
 
-    code = 1
-    try:
-        os.setsid()  # its own process group: a timeout kills the run and its jobs
-        os.chdir(request["cwd"])
-        os.environ.clear()
-        os.environ.update(request["env"])
-        forked_jobs.use(jobs)
-        null = os.open(os.devnull, os.O_RDONLY)
-        os.dup2(null, 0)
-        for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
-            out = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            os.dup2(out, fd)
-            os.close(out)
-        sys.argv = [request["executable"], *request["argv"]]
-        import snakemake.cli
+    os.setsid()  # its own process group: a timeout kills the run and its jobs
+    os.chdir(request["cwd"])
+    os.environ.clear()
+    os.environ.update(request["env"])
+    forked_jobs.use(jobs)
+    null = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(null, 0)
+    for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
+        out = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(out, fd)
+        os.close(out)
+    sys.argv = [request["executable"], *request["argv"]]
+    import snakemake.cli
 
-        try:
-            snakemake.cli.main(request["argv"])
-            code = 0
-        except SystemExit as exc:
-            code = _exit_code(exc)
-        atexit._run_exitfuncs()
-    except BaseException:  # anything else is the run's failure, as in a fresh process
-        import traceback
-
-        traceback.print_exc()
-        code = 1
-    finally:
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except Exception:
-                pass
-        os._exit(code)
+    snakemake.cli.main(request["argv"])
 
 
 def serve() -> None:
@@ -147,7 +118,7 @@ def serve() -> None:
         request = json.loads(line)
         pid = os.fork()
         if pid == 0:
-            _child(request, jobs)
+            forked_jobs.exit_as_interpreter(functools.partial(_child, request, jobs))
         reply.write(f"{pid}\n")
         reply.flush()
         _, status = os.waitpid(pid, 0)
