@@ -156,3 +156,32 @@ def test_every_episode_when_the_estimate_fits_the_budget_else_a_sample_said_so()
     found = coverage(1000, range(1000), busy, budget_s=2.0)
     assert found.per_shard == DEFAULT_RESIMULATE
     assert "over the 2 s budget; --resimulate all re-simulates them all" in found.why
+
+
+def test_one_timed_episode_that_bounds_them_all_within_the_budget_is_the_only_one():
+    """The first call loads the model and task as well as running its episode: its time bounds
+    an episode's, so within the budget it is the estimate; over it, five episodes are timed to
+    take the loading out."""
+    from mjtrial.verify.coverage import DEFAULT_RESIMULATE, RESIMULATE_ALL, coverage
+
+    calls = []
+
+    def timed(load_s, episode_s):
+        def resimulate(ids):
+            calls.append(list(ids))
+            start = time.process_time()
+            while time.process_time() - start < load_s + episode_s * len(ids):
+                pass
+
+        return resimulate
+
+    found = coverage(100, range(100), timed(0.01, 0.01), budget_s=10.0)
+    assert found.per_shard == RESIMULATE_ALL and calls == [[0]]
+    calls.clear()
+    # one call takes 0.2 s: 100 of them would be 20 s, over the budget; the episodes alone fit
+    found = coverage(100, range(100), timed(0.19, 0.01), budget_s=10.0)
+    assert calls == [[0], [0, 1, 2, 3, 4]]
+    assert found.per_shard == RESIMULATE_ALL and found.why.startswith("every episode, about ")
+    calls.clear()
+    found = coverage(100, range(100), timed(0.0, 0.2), budget_s=10.0)
+    assert calls == [[0], [0, 1, 2, 3, 4]] and found.per_shard == DEFAULT_RESIMULATE

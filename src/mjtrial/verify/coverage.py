@@ -49,13 +49,17 @@ def coverage(
 ) -> Coverage:
     """Every episode (`RESIMULATE_ALL`) when `episodes` of them are estimated to take at most
     `budget_s` of CPU, else `DEFAULT_RESIMULATE` per shard. The estimate times `resimulate` on
-    one of `timed_ids` and on up to 5: the difference is the episodes' cost without the model
-    and task loaded at each call (which verify pays once per shard)."""
+    one of `timed_ids` and, unless that one call (the model and task loaded with the episode)
+    already bounds every episode within the budget, on up to 5: the difference is the
+    episodes' cost without the loading (which verify pays once per shard): a small run is
+    timed on one episode, not six."""
     ids = list(timed_ids)[:_TIMED]
     if not ids or episodes <= 0:
         return Coverage(RESIMULATE_ALL, "every episode")
     one = _cpu_seconds(resimulate, ids[:1])
-    if len(ids) > 1:
+    if one * episodes <= budget_s:
+        per_episode = one  # an upper bound: it includes the loading
+    elif len(ids) > 1:
         per_episode = max(_cpu_seconds(resimulate, ids) - one, 0.0) / (len(ids) - 1)
     else:
         per_episode = one

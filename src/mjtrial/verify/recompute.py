@@ -101,6 +101,12 @@ class _Checker:
         self.config_file = CONFIG_FILE
         self.stamps: Mapping[str, Mapping[str, Any]] = {}  # the stamps verify read
 
+    @functools.cached_property
+    def installed_mujoco(self) -> str | None:
+        """This MuJoCo's version, from its installed metadata as a stamp records it: read once
+        per verify, not once per condition and shard."""
+        return provenance.library_versions()["mujoco"]
+
     def rel(self, path: Path) -> str:
         return Path(path).relative_to(self.repo_root).as_posix()
 
@@ -215,7 +221,7 @@ class _Checker:
                 again = self.here(slice_, nominal, samples)
             if again is None:
                 continue
-            mujoco_version = version or provenance.library_versions()["mujoco"]
+            mujoco_version = version or self.installed_mujoco
             self.check(
                 nominal,
                 lambda p=nominal, f=again: self.reproduced(
