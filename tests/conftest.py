@@ -26,6 +26,24 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--time-breakdown",
+        action="store_true",
+        help="print where the suite's time went: Snakemake runs, verify, other processes, "
+        "copying, the tests' own work (tests/time_breakdown.py)",
+    )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.getoption("time_breakdown"):
+        from time_breakdown import TimeBreakdown
+
+        plugin = TimeBreakdown()
+        config.pluginmanager.register(plugin, "time_breakdown")
+        plugin.pytest_configure(config)  # registered after configure began: called here
+
+
 @pytest.fixture(scope="session")
 def gantry_model():
     from mjtrial import model_path
