@@ -35,7 +35,34 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+# `pytest -m "not end_to_end"`: the tests that build no experiment, a few minutes in all. A file
+# whose tests run Snakemake, verify a run or run another process for seconds says so with
+# `pytestmark = pytest.mark.end_to_end`; a test that runs Snakemake, or reads the session's
+# `built`, outside such a file fails at once, so the quick selection never quietly grows.
+END_TO_END = "end_to_end"
+_current = {"end_to_end": True}  # True outside a test (the benchmarks import this module)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    _current["end_to_end"] = item.get_closest_marker(END_TO_END) is not None
+    if "built" in item.fixturenames:
+        _require_end_to_end(f"{item.nodeid} reads the session's built experiment")
+
+
+def _require_end_to_end(what: str) -> None:
+    if not _current["end_to_end"]:
+        raise AssertionError(
+            f"{what}: mark its file `pytestmark = pytest.mark.{END_TO_END}` (tests/conftest.py)"
+        )
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        f"{END_TO_END}: builds or verifies an experiment, or runs another process for seconds "
+        '(`pytest -m "not end_to_end"` leaves these out)',
+    )
     if config.getoption("time_breakdown"):
         from time_breakdown import TimeBreakdown
 
@@ -117,6 +144,7 @@ def run_snakemake(workdir: Path, *args: str, check: bool = True, env: dict | Non
 
     import forked_snakemake
 
+    _require_end_to_end(f"snakemake {' '.join(args)} in {workdir}")
     argv = ["-c2", *args]
     environment = os.environ | (env or {})
     if "PYTHONPATH" in (env or {}):

@@ -28,6 +28,8 @@ from mjtrial import provenance
 from mjtrial.cli import main
 from mjtrial.files.layout import BenchmarkLayout
 
+pytestmark = pytest.mark.end_to_end
+
 CONFIG = "config/benchmark.yaml"
 LAYOUT = BenchmarkLayout.of("benchmark")
 N_STATES = 8

@@ -24,6 +24,8 @@ from mjtrial.files import codehash
 from mjtrial.files.layout import BENCHMARK_STAGES, PILOT_STAGES, STAGES
 from mjtrial.stages.stamping import stage_code
 
+pytestmark = pytest.mark.end_to_end
+
 
 def test_imports_are_read_wherever_they_stand():
     source = """

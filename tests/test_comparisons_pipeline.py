@@ -21,6 +21,8 @@ from mjtrial.stages.stamping import config_slice
 from mjtrial.verify import verify_results
 from mjtrial.verify.recompute import recompute
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 
 

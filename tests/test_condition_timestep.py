@@ -21,6 +21,8 @@ from mjtrial.stages.condition import condition_task
 from mjtrial.stages.stamping import config_slice
 from mjtrial.task import BoundTask, load_task
 
+pytestmark = pytest.mark.end_to_end
+
 COARSE = 0.004  # s: twice the gantry's 2 ms
 RESULTS = Path("results") / "coarse_step"
 

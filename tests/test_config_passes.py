@@ -16,6 +16,8 @@ import mjtrial.config.check as check_module
 from mjtrial.config import ConfigError, check_config, passes
 from mjtrial.config.passes import CONFIG_CHECKS, check_key, remember_passes
 
+pytestmark = pytest.mark.end_to_end
+
 GANTRY = ("tasks/gantry_lift", "models/gantry_gripper", "config/config.yaml")
 
 

@@ -24,6 +24,8 @@ from mjtrial.crate import validation
 from mjtrial.files.layout import Layout
 from mjtrial.verify import Status, verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 RUNCRATE = str(Path(sys.executable).parent / "runcrate")
 

@@ -20,6 +20,8 @@ from mjtrial import cli
 from mjtrial.crate import validation
 from mjtrial.files.layout import Layout
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 
 

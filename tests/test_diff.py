@@ -20,6 +20,8 @@ from mjtrial.diff.gate import failures
 from mjtrial.diff.source import Run
 from mjtrial.recording.divergence import first_divergence
 
+pytestmark = pytest.mark.end_to_end
+
 RESULTS = Path("results") / "research_mode"
 MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"
 

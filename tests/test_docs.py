@@ -9,7 +9,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from conftest import REPO_ROOT
+
+pytestmark = pytest.mark.end_to_end
 
 MKDOCS = str(Path(sys.executable).parent / "mkdocs")
 

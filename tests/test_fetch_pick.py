@@ -22,6 +22,8 @@ from mjtrial.cli import main
 from mjtrial.sim.physics import FULLPHYSICS, load_model
 from mjtrial.task import BoundTask, load_task
 
+pytestmark = pytest.mark.end_to_end
+
 FOLDER = REPO_ROOT / "tasks" / "fetch_pick"
 CONFIG = "config/fetch_small.yaml"
 RESULTS = "results/fetch_small"

@@ -13,6 +13,8 @@ from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial.cli import main
 
+pytestmark = pytest.mark.end_to_end
+
 CONFIG = "config/pendulum_hold.yaml"
 GUIDE = REPO_ROOT / "docs" / "guide" / "task.md"
 BLOCK = re.compile(r"<!-- guide-task: (\S+) -->\n```\w*\n(.*?)\n```", re.DOTALL)

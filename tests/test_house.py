@@ -13,6 +13,8 @@ from conftest import REPO_ROOT
 
 from mjtrial.files import codehash
 
+pytestmark = pytest.mark.end_to_end
+
 PACKAGE = REPO_ROOT / "src" / "mjtrial"
 MAX_LINES = 700
 

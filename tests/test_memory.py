@@ -11,11 +11,14 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from mjtrial import REPO_ROOT
 from mjtrial.sim import engine
 from mjtrial.sim.engine import iter_batches
 from mjtrial.task import BoundTask, load_task
+
+pytestmark = pytest.mark.end_to_end
 
 # Libraries no job of Snakemake's process needs: pycma (which imports scipy.stats and
 # matplotlib, 52 MB) tunes a method in the train job, a process of its own; statsmodels is the

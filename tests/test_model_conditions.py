@@ -21,6 +21,8 @@ from mjtrial.config import ConfigError, check_config
 from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.stamping import config_slice
 
+pytestmark = pytest.mark.end_to_end
+
 FRICTIONLOSS = 2.0  # N, on the cart's rail: enough to change some of the 24 outcomes
 STICKY = {"joint": {"cart_slide": {"frictionloss": FRICTIONLOSS}}}
 

@@ -26,6 +26,8 @@ from mjtrial.stages.rollout import run_shard
 from mjtrial.stages.states import build_states
 from mjtrial.studies.variants import nominal_model_hash, variant_model
 
+pytestmark = pytest.mark.end_to_end
+
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "cartpole.xml"
 
 

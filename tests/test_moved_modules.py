@@ -18,6 +18,8 @@ from conftest import REPO_ROOT
 import mjtrial
 from mjtrial._moved import MOVED
 
+pytestmark = pytest.mark.end_to_end
+
 OLD_NAMES = sorted(MOVED)
 
 

@@ -11,12 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 import yaml
 from conftest import REPO_ROOT
 
 from mjtrial.recording.read import read_episode
 from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
+
+pytestmark = pytest.mark.end_to_end
 
 # what workflow/scripts/rollout.py does (with `pyarrow_without_pandas` or without), on 6 states
 JOB = """

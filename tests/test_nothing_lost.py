@@ -20,6 +20,8 @@ from mjtrial.files.layout import Layout
 from mjtrial.replay import OutputRefused, check_output, replay_episode
 from mjtrial.verify import Status, verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 SHARD_SIZE = 5  # the built experiment's rollout.shard_size (conftest)
 

@@ -12,7 +12,10 @@ import time
 from pathlib import Path
 
 import psutil
+import pytest
 from conftest import SNAKEMAKE
+
+pytestmark = pytest.mark.end_to_end
 
 RESULTS = Path("results") / "research_mode"
 

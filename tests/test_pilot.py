@@ -29,6 +29,8 @@ from mjtrial.stages.stamping import config_slice
 from mjtrial.stages.states import build_states
 from mjtrial.verify import Status, verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 DEVELOPMENT = LAYOUT.development
 # The pilot is run with the fast lift at 0.2 s; the config's is 0.15 s: a pilot of an earlier

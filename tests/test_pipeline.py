@@ -14,11 +14,14 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+import pytest
 import yaml
 from conftest import edit_config
 from conftest import run_snakemake as run
 
 from mjtrial import provenance
+
+pytestmark = pytest.mark.end_to_end
 
 
 def planned_jobs(workdir: Path, env: dict | None = None) -> dict[str, int]:

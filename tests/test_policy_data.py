@@ -30,6 +30,8 @@ from mjtrial.policy_files.file import (
 from mjtrial.policy_files.onnx_data import external_data
 from mjtrial.task import load_task
 
+pytestmark = pytest.mark.end_to_end
+
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)
 
 

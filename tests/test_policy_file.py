@@ -28,6 +28,8 @@ from mjtrial.replay import replay_episode
 from mjtrial.sim.engine import iter_batches
 from mjtrial.task import NONFINITE_ACTION, BoundTask, load_task
 
+pytestmark = pytest.mark.end_to_end
+
 TASK = load_task("tasks/cartpole_latency/task.py", repo_root=REPO_ROOT)
 PERIOD = 0.01  # s, the cart-pole's control period
 FALL = {"fall_angle": 0.5}

@@ -19,6 +19,8 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
+pytestmark = pytest.mark.end_to_end
+
 FOLDERS = ("cartpole_mlp", "cartpole_bc")
 SEEDS = (1, 2, 3, 4, 5)
 FILES = [REPO_ROOT / "policies" / f / f"seed-{k}.onnx" for f in FOLDERS for k in SEEDS]

@@ -29,6 +29,8 @@ from mjtrial.provenance import (
     write_svg,
 )
 
+pytestmark = pytest.mark.end_to_end
+
 # A stamp as make_stamp builds them, with text that JSON, XML and PNG must each carry intact:
 # non-ASCII (beyond Latin-1 too), "--" (no XML comment can hold it), and <, &, >.
 STAMP = {

@@ -14,6 +14,8 @@ from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
 from mjtrial.cli import main
 
+pytestmark = pytest.mark.end_to_end
+
 CONFIG = "config/reacher_small.yaml"
 RESULTS = "results/reacher_small"
 SHIPPED = {  # the model's files as dm_control 1.0.50 ships them (tasks/reacher_goal/README.md)

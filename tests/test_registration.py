@@ -21,6 +21,8 @@ from mjtrial.files.layout import Layout
 from mjtrial.report.registration import falsifier_clause, registration_lines
 from mjtrial.verify import Status, verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 RESULTS = "results/research_mode"
 
 

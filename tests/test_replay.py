@@ -12,6 +12,8 @@ from mjtrial import provenance
 from mjtrial.recording import list_recordings
 from mjtrial.replay import ReplayMismatch, read_episode, replay_episode
 
+pytestmark = pytest.mark.end_to_end
+
 
 def _rollouts(built, condition):
     return pq.read_table(built / "results" / "research_mode" / "rollouts" / f"{condition}.parquet")

@@ -15,6 +15,8 @@ from conftest import REPO_ROOT, WORKFLOW_FILES, run_snakemake
 from mjtrial.cli import main
 from mjtrial.replay import replay_episode
 
+pytestmark = pytest.mark.end_to_end
+
 CONFIG = "config/cartpole_small.yaml"
 RESULTS = "results/cartpole_small"
 PRINTED = "the cart-pole task judges its episodes"

@@ -9,8 +9,11 @@ from __future__ import annotations
 import re
 
 import mujoco
+import pytest
 import yaml
 from conftest import REPO_ROOT, copy_workflow, run_snakemake
+
+pytestmark = pytest.mark.end_to_end
 
 JOB = re.compile(
     r"rule rollout:\n(?:    .*\n)*?    wildcards: condition=(\w+), shard=(\d+)\n"

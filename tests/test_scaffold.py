@@ -16,6 +16,8 @@ from conftest import REPO_ROOT, WORKFLOW_FILES, error_lines, run_snakemake
 from mjtrial.cli import main
 from mjtrial.cli.scaffold import ScaffoldError, new_task
 
+pytestmark = pytest.mark.end_to_end
+
 NAME = "push_block"
 CONFIG = f"config/{NAME}.yaml"
 

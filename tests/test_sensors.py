@@ -22,6 +22,8 @@ from mjtrial.sim.engine import iter_batches
 from mjtrial.sim.physics import FULLPHYSICS
 from mjtrial.task import BoundTask, Observation, ProtocolParameter, TaskError, load_task
 
+pytestmark = pytest.mark.end_to_end
+
 CARTPOLE = REPO_ROOT / "tasks" / "cartpole_latency" / "task.py"
 REACHER = REPO_ROOT / "tasks" / "reacher_goal" / "task.py"
 ERRORS = ("encoder_noise", "encoder_bias", "encoder_quantum", "encoder_dropout")

@@ -21,6 +21,8 @@ from mjtrial.replay import read_episode
 from mjtrial.stages.failures import choose_failures
 from mjtrial.verify import verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 CONDITIONS = ("fast", "slow")
 

@@ -28,6 +28,8 @@ from mjtrial.files.layout import NOMINAL, Layout
 from mjtrial.studies.sensitivity import flipped_episodes
 from mjtrial.verify import Status, verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 VERSION = "4.0.0"
 LOCK = Path("envs") / f"mujoco-{VERSION}" / "lock.txt"
 LAYOUT = Layout.of("research_mode")

@@ -10,6 +10,8 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, copy_workflow, run_snakemake
 
+pytestmark = pytest.mark.end_to_end
+
 
 def profile_groups() -> list[str]:
     profile = yaml.safe_load((REPO_ROOT / "profiles" / "slurm" / "config.yaml").read_text())

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.end_to_end
+
 MJTRIAL = str(Path(sys.executable).parent / "mjtrial")
 RESULTS = "results/research_mode"
 TIMEOUT = 60  # s: far more than any of these takes; a command that blocks fails, not hangs

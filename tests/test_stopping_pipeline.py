@@ -21,6 +21,8 @@ from mjtrial.files.layout import Layout
 from mjtrial.stats.sequential import calibrated_threshold
 from mjtrial.verify import Status, verify_results
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 
 

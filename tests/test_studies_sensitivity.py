@@ -13,6 +13,8 @@ from mjtrial import stats
 from mjtrial.stages.studies import study_report_text
 from mjtrial.studies.sensitivity import NOMINAL, summarize_sensitivity, variant_record
 
+pytestmark = pytest.mark.end_to_end
+
 FALSIFIER = {
     "treatment": "slow",
     "baseline": "fast",

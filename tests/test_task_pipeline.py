@@ -5,7 +5,10 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import pytest
 from conftest import run_snakemake
+
+pytestmark = pytest.mark.end_to_end
 
 RESULTS = Path("results") / "research_mode"
 STATES = (RESULTS / "states.parquet").as_posix()

@@ -23,6 +23,8 @@ from mjtrial.diff import diff_runs, failures, render
 from mjtrial.stages.rollout import read_state_values
 from mjtrial.task import load_task
 
+pytestmark = pytest.mark.end_to_end
+
 GANTRY_TASK = "tasks/gantry_lift/task.py"
 RESULTS = Path("results") / "research_mode"
 MODEL = Path("models") / "gantry_gripper" / "gantry_gripper.xml"

@@ -14,6 +14,8 @@ from conftest import REPO_ROOT, copy_workflow, run_snakemake
 from mjtrial.verify import Status, verify_results
 from mjtrial.verify.contracts import contract_change
 
+pytestmark = pytest.mark.end_to_end
+
 POLICY = "policies/cartpole_mlp/seed-1.onnx"  # read through the folder's policy.yaml
 RESULTS = Path("results") / "mlp_contract"
 

@@ -9,9 +9,12 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+import pytest
 
 from mjtrial.cli import main
 from mjtrial.files.layout import Layout
+
+pytestmark = pytest.mark.end_to_end
 
 LAYOUT = Layout.of("research_mode")
 

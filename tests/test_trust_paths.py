@@ -16,6 +16,8 @@ from conftest import REPO_ROOT, copy_workflow, error_lines, run_snakemake
 from mjtrial.benchmark.config import check_benchmark_config
 from mjtrial.config import ConfigError, check_config, read_config_file
 
+pytestmark = pytest.mark.end_to_end
+
 FOLDER = "policies/cartpole_mlp"
 
 

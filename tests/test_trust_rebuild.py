@@ -10,6 +10,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import pytest
 from conftest import SNAKEMAKE, edit_config, run_snakemake
 from test_nothing_lost import digest
 from test_trust import assert_same_data
@@ -17,6 +18,8 @@ from test_trust import assert_same_data
 from mjtrial.files.layout import Layout
 from mjtrial.task import task_files
 from mjtrial.verify import Status, verify_results
+
+pytestmark = pytest.mark.end_to_end
 
 LAYOUT = Layout.of("research_mode")
 PROFILE = Path(__file__).resolve().parents[1] / "profiles" / "default" / "config.yaml"

@@ -23,6 +23,8 @@ from mjtrial.files.layout import Layout
 from mjtrial.verify import Status, verify_results
 from mjtrial.verify.recompute import sample_ids
 
+pytestmark = pytest.mark.end_to_end
+
 LAYOUT = Layout.of("research_mode")
 N = 24  # more than verify's sample of 20 per shard: a sample can miss a row
 SHARD = LAYOUT.shard_table("fast", "00000")

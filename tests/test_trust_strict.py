@@ -4,12 +4,15 @@ in one line, and a platform difference whose re-simulations all agree is a note,
 
 from __future__ import annotations
 
+import pytest
 from test_verify import PREFIX, VERSIONS, chain, check
 
 from mjtrial import provenance
 from mjtrial.cli import main
 from mjtrial.files.layout import Layout
 from mjtrial.verify import verify_results
+
+pytestmark = pytest.mark.end_to_end
 
 LAYOUT = Layout.of("research_mode")
 

@@ -11,6 +11,8 @@ import pytest
 from conftest import edit_config, run_snakemake
 from test_nothing_lost import digest
 
+pytestmark = pytest.mark.end_to_end
+
 RESULTS = Path("results") / "research_mode"
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 import rerun as rr
 
 from mjtrial.cli import main
@@ -13,6 +14,8 @@ from mjtrial.diff.gate import render
 from mjtrial.diff.made import how_made
 from mjtrial.diff.source import Run
 from mjtrial.files.layout import Layout
+
+pytestmark = pytest.mark.end_to_end
 
 LAYOUT = Layout.of("research_mode")
 

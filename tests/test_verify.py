@@ -28,6 +28,8 @@ from mjtrial.verify import (
     verify_results,
 )
 
+pytestmark = pytest.mark.end_to_end
+
 RESULTS = "results/research_mode"
 SHARDS = ("00000", "00001", "00002")  # the built experiment's 12 states in shards of 5
 # Each shard's table and folder of recordings (one output), as rollout:<condition>#<shard> wrote

@@ -28,6 +28,8 @@ from mjtrial.verify.recompute import (
     table_difference,
 )
 
+pytestmark = pytest.mark.end_to_end
+
 RESULTS = Path("results") / "research_mode"
 REPORT = (RESULTS / "report.md").as_posix()
 SUMMARY = (RESULTS / "analysis" / "summary.json").as_posix()

@@ -22,6 +22,8 @@ from mjtrial.provenance import STAMP_VERSION
 from mjtrial.task import load_task
 from mjtrial.workflow_script import JobFailed, failure_reasons, job_log, run_in_process
 
+pytestmark = pytest.mark.end_to_end
+
 SCRIPT = """
 import logging
 import sys
