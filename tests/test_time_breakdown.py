@@ -20,3 +20,11 @@ def test_the_table_sums_each_category_and_each_file():
     # one file shown, the longer: b.py's 31.5 s against a.py's 17 s
     assert table[7].split() == ["32", "0", "0", "30", "1", "0", "tests/b.py"]
     assert len(table) == 8
+
+
+def test_a_snakemake_process_counts_as_a_snakemake_run():
+    from time_breakdown import _process_category
+
+    assert _process_category(["/venv/bin/snakemake", "-c2"]) == SNAKEMAKE
+    assert _process_category(["/venv/bin/python", "-m", "snakemake"]) == PROCESS
+    assert _process_category("git status", shell=True) == PROCESS

@@ -3,9 +3,9 @@
 `--durations` names the slowest tests; this says what they were doing: running Snakemake,
 verifying, running another process, copying a workflow, or working in the test's own process.
 Each call is counted once, under the outermost of these it happened in (a Snakemake run's
-jobs are inside its run). Each test's time includes the fixtures it set up first. Workers
-(pytest-xdist) each write one line per test to a folder that the main process reads at the
-end, so the table covers the whole run.
+jobs are inside its run; a run started as a process of its own is a Snakemake run too). Each
+test's time includes the fixtures it set up first. Workers (pytest-xdist) each write one line
+per test to a folder that the main process reads at the end, so the table covers the whole run.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import shutil
 import subprocess
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -40,7 +41,8 @@ class TimeBreakdown:
         self.calls: collections.Counter[str] = collections.Counter()
         self.depth = 0
 
-    def wrap(self, owner: object, name: str, category: str) -> None:
+    def wrap(self, owner: object, name: str, category: str | Callable[..., str]) -> None:
+        """`owner.name` timed under `category` (or the category it gives for the call)."""
         original = getattr(owner, name)
 
         @functools.wraps(original)
@@ -52,8 +54,9 @@ class TimeBreakdown:
             finally:
                 self.depth -= 1
                 if self.depth == 0:
-                    self.spent[category] += time.perf_counter() - start
-                    self.calls[category] += 1
+                    what = category(*args, **kwargs) if callable(category) else category
+                    self.spent[what] += time.perf_counter() - start
+                    self.calls[what] += 1
 
         setattr(owner, name, timed)
 
@@ -68,7 +71,7 @@ class TimeBreakdown:
         self.wrap(forked_snakemake, "run", SNAKEMAKE)
         self.wrap(verify, "verify_results", VERIFY)
         self.wrap(benchmark_verify, "verify_benchmark", VERIFY)
-        self.wrap(subprocess, "run", PROCESS)
+        self.wrap(subprocess, "run", _process_category)
         self.wrap(shutil, "copytree", COPY)
 
     @pytest.hookimpl(wrapper=True)
@@ -94,6 +97,12 @@ class TimeBreakdown:
         shutil.rmtree(folder, ignore_errors=True)
         for line in summary(lines):
             terminalreporter.write_line(line)
+
+
+def _process_category(args, *rest, **kwargs) -> str:
+    """A Snakemake run in a fresh process (another copy of the package) is a Snakemake run."""
+    command = [args] if isinstance(args, str | os.PathLike) else list(args)
+    return SNAKEMAKE if Path(command[0]).name == "snakemake" else PROCESS
 
 
 def summary(lines: list[dict], files: int = 15) -> list[str]:
