@@ -66,9 +66,8 @@ def pytest_configure(config: pytest.Config) -> None:
     if config.getoption("time_breakdown"):
         from time_breakdown import TimeBreakdown
 
-        plugin = TimeBreakdown()
-        config.pluginmanager.register(plugin, "time_breakdown")
-        plugin.pytest_configure(config)  # registered after configure began: called here
+        # pytest_configure is historic: pytest calls the plugin's on registration
+        config.pluginmanager.register(TimeBreakdown(), "time_breakdown")
 
 
 @pytest.fixture(scope="session")
